@@ -1,1 +1,15 @@
-"""probmap.cli."""
+"""probmap command line. Command modules register themselves in :func:`register`."""
+
+from __future__ import annotations
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    """Attach every command module's commands to ``app``.
+
+    Each module only defines thin typer functions whose bodies import the library lazily.
+    """
+    from probmap.cli import mapping
+
+    mapping.register(app)

@@ -1,0 +1,272 @@
+"""Numba kernels for ray traversal on grids (private).
+
+The kernels take plain contiguous arrays and scalars and trust their inputs: the public
+functions in :mod:`probmap.grid.occupancy` and :mod:`probmap.grid.raycast` validate once.
+
+Cell traversal is the exact grid walk of Amanatides and Woo (1987): starting in the cell of the
+segment's first point it steps to the neighbouring cell whose boundary the segment crosses first,
+so it visits exactly the cells the segment passes through (4-connected), and it ends in the cell
+of the last point after ``|dix| + |diy|`` steps whatever the rounding.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+_INF = np.inf
+
+
+@njit(cache=True, inline="always")
+def _walk_update(
+    lo, stamp, sid, gx0, gy0, gx1, gy1, include_last, delta, lmin, lmax
+):  # pragma: no cover - compiled
+    """Walk the cells from grid point (gx0, gy0) to (gx1, gy1) (in cell units) and add ``delta``
+    to each cell not yet stamped with ``sid``; the last cell only if ``include_last``.
+    Returns the number of cells updated."""
+    h, w = lo.shape
+    ix = int(math.floor(gx0))
+    iy = int(math.floor(gy0))
+    ex = int(math.floor(gx1))
+    ey = int(math.floor(gy1))
+    dx = gx1 - gx0
+    dy = gy1 - gy0
+    if dx > 0.0:
+        sx = 1
+        tdx = 1.0 / dx
+        tmx = (ix + 1.0 - gx0) * tdx
+    elif dx < 0.0:
+        sx = -1
+        tdx = -1.0 / dx
+        tmx = (gx0 - ix) * tdx
+    else:
+        sx = 0
+        tdx = _INF
+        tmx = _INF
+    if dy > 0.0:
+        sy = 1
+        tdy = 1.0 / dy
+        tmy = (iy + 1.0 - gy0) * tdy
+    elif dy < 0.0:
+        sy = -1
+        tdy = -1.0 / dy
+        tmy = (gy0 - iy) * tdy
+    else:
+        sy = 0
+        tdy = _INF
+        tmy = _INF
+    n = abs(ex - ix) + abs(ey - iy)
+    if include_last:
+        n += 1
+    count = 0
+    for _ in range(n):
+        if 0 <= ix < w and 0 <= iy < h:
+            if stamp[iy, ix] != sid:
+                stamp[iy, ix] = sid
+                v = lo[iy, ix] + delta
+                if v < lmin:
+                    v = lmin
+                elif v > lmax:
+                    v = lmax
+                lo[iy, ix] = v
+                count += 1
+        # step to the next cell; never past the last cell on either axis
+        if ix == ex:
+            iy += sy
+            tmy += tdy
+        elif iy == ey:
+            ix += sx
+            tmx += tdx
+        elif tmx < tmy:
+            ix += sx
+            tmx += tdx
+        else:
+            iy += sy
+            tmy += tdy
+    return count
+
+
+@njit(cache=True)
+def integrate_scans(
+    lo,
+    stamp,
+    sid0,
+    ox,
+    oy,
+    res,
+    poses,
+    ranges,
+    angles,
+    angles_shared,
+    max_range,
+    clear_range,
+    thickness,
+    d_hit,
+    d_free,
+    lmin,
+    lmax,
+    counts,
+):  # pragma: no cover - compiled
+    """Integrate scans ``s`` with stamps ``sid0 + s`` into log-odds ``lo`` (in place).
+
+    ``counts`` (int64[4]) accumulates: hits, max-range readings, dropped readings, cell updates.
+    Hits are applied first, then free space, so that within one scan a hit cell is never also
+    freed and every cell changes at most once (the stamp records the last scan that touched it).
+    """
+    n_scans, n_beams = ranges.shape
+    inv = 1.0 / res
+    end = np.empty((n_beams, 2))
+    kind = np.empty(n_beams, np.int8)  # 0 dropped, 1 hit, 2 max-range
+    for s in range(n_scans):
+        sid = sid0 + s
+        px = poses[s, 0]
+        py = poses[s, 1]
+        th = poses[s, 2]
+        gx0 = (px - ox) * inv
+        gy0 = (py - oy) * inv
+        arow = 0 if angles_shared else s
+        # pass 1: classify beams and apply hits (endpoint cell and obstacle thickness)
+        for b in range(n_beams):
+            r = ranges[s, b]
+            if not (r > 0.0) or not math.isfinite(r):
+                kind[b] = 0
+                counts[2] += 1
+                continue
+            a = th + angles[arow, b]
+            c = math.cos(a)
+            sn = math.sin(a)
+            if r >= max_range:
+                kind[b] = 2
+                counts[1] += 1
+                if clear_range > 0.0:
+                    end[b, 0] = (px + clear_range * c - ox) * inv
+                    end[b, 1] = (py + clear_range * sn - oy) * inv
+                else:
+                    kind[b] = 0
+                continue
+            kind[b] = 1
+            counts[0] += 1
+            ex = (px + r * c - ox) * inv
+            ey = (py + r * sn - oy) * inv
+            end[b, 0] = ex
+            end[b, 1] = ey
+            if thickness > 0.0:
+                tx = (px + (r + thickness) * c - ox) * inv
+                ty = (py + (r + thickness) * sn - oy) * inv
+                counts[3] += _walk_update(lo, stamp, sid, ex, ey, tx, ty, True, d_hit, lmin, lmax)
+            else:
+                counts[3] += _walk_update(lo, stamp, sid, ex, ey, ex, ey, True, d_hit, lmin, lmax)
+        # pass 2: free space along every beam up to (not including) its last cell
+        for b in range(n_beams):
+            if kind[b] == 0:
+                continue
+            counts[3] += _walk_update(
+                lo, stamp, sid, gx0, gy0, end[b, 0], end[b, 1], False, d_free, lmin, lmax
+            )
+
+
+@njit(cache=True)
+def scan_bounds(poses, ranges, angles, angles_shared, max_range, clear_range, thickness, out):
+    """World bounding box ``out = [xmin, xmax, ymin, ymax]`` of the poses and of every point a scan
+    can touch (hits plus thickness, and max-range readings cleared to ``clear_range``)."""  # noqa: D401
+    n_scans, n_beams = ranges.shape
+    xmin = _INF
+    ymin = _INF
+    xmax = -_INF
+    ymax = -_INF
+    for s in range(n_scans):
+        px = poses[s, 0]
+        py = poses[s, 1]
+        th = poses[s, 2]
+        xmin = min(xmin, px)
+        xmax = max(xmax, px)
+        ymin = min(ymin, py)
+        ymax = max(ymax, py)
+        arow = 0 if angles_shared else s
+        for b in range(n_beams):
+            r = ranges[s, b]
+            if not (r > 0.0) or not math.isfinite(r):
+                continue
+            if r >= max_range:
+                if clear_range <= 0.0:
+                    continue
+                d = clear_range
+            else:
+                d = r + thickness
+            a = th + angles[arow, b]
+            x = px + d * math.cos(a)
+            y = py + d * math.sin(a)
+            xmin = min(xmin, x)
+            xmax = max(xmax, x)
+            ymin = min(ymin, y)
+            ymax = max(ymax, y)
+    out[0] = xmin
+    out[1] = xmax
+    out[2] = ymin
+    out[3] = ymax
+
+
+@njit(cache=True)
+def cast_rays(occ, ox, oy, res, poses, angles, max_range, out):  # pragma: no cover - compiled
+    """Range along each beam to the first occupied cell of boolean grid ``occ`` (H, W).
+
+    ``out[p, b]`` is the distance in metres from the sensor at ``poses[p]`` to where beam ``b``
+    enters the first occupied cell, or ``max_range`` when none is met within ``max_range`` (or the
+    beam leaves the grid). A sensor inside an occupied cell reads 0.
+    """
+    h, w = occ.shape
+    n_poses = poses.shape[0]
+    n_beams = angles.shape[0]
+    for p in range(n_poses):
+        px = (poses[p, 0] - ox) / res
+        py = (poses[p, 1] - oy) / res
+        for b in range(n_beams):
+            a = poses[p, 2] + angles[b]
+            dx = math.cos(a)
+            dy = math.sin(a)
+            ix = int(math.floor(px))
+            iy = int(math.floor(py))
+            if dx > 0.0:
+                sx = 1
+                tdx = 1.0 / dx
+                tmx = (ix + 1.0 - px) * tdx
+            elif dx < 0.0:
+                sx = -1
+                tdx = -1.0 / dx
+                tmx = (px - ix) * tdx
+            else:
+                sx = 0
+                tdx = _INF
+                tmx = _INF
+            if dy > 0.0:
+                sy = 1
+                tdy = 1.0 / dy
+                tmy = (iy + 1.0 - py) * tdy
+            elif dy < 0.0:
+                sy = -1
+                tdy = -1.0 / dy
+                tmy = (py - iy) * tdy
+            else:
+                sy = 0
+                tdy = _INF
+                tmy = _INF
+            limit = max_range / res
+            t = 0.0
+            hit = max_range
+            while t <= limit:
+                if ix < 0 or ix >= w or iy < 0 or iy >= h:
+                    break
+                if occ[iy, ix]:
+                    hit = t * res
+                    break
+                if tmx < tmy:
+                    t = tmx
+                    ix += sx
+                    tmx += tdx
+                else:
+                    t = tmy
+                    iy += sy
+                    tmy += tdy
+            out[p, b] = min(hit, max_range)

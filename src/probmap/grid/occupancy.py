@@ -363,6 +363,9 @@ class OccupancyGrid:
         P = np.ascontiguousarray(poses, dtype=np.float64)
         if P.ndim != 2 or P.shape[1] != 3:
             raise ValueError(f"poses must have shape (S, 3), got {P.shape}")
+        if not np.isfinite(P).all():
+            bad = int(np.nonzero(~np.isfinite(P).all(axis=1))[0][0])
+            raise ValueError(f"poses must be finite numbers; pose {bad} is {P[bad].tolist()}")
         R = np.ascontiguousarray(ranges, dtype=np.float64)
         if R.ndim != 2 or R.shape[0] != P.shape[0]:
             raise ValueError(

@@ -1,0 +1,276 @@
+"""Tests of the log-odds occupancy grid against closed forms and a pure-Python reference."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from probmap.grid.logodds import logit, prob
+from probmap.grid.occupancy import GridBoundsError, InverseSensorModel, OccupancyGrid
+from probmap.grid.simworld import map_accuracy, simulate_laser_world
+from probmap.grid.spec import GridSpec
+
+# --------------------------------------------------------------------------- reference
+
+
+def segment_cells(gx0, gy0, gx1, gy1):
+    """Cells whose square meets the segment, ordered along it (independent of the kernel's walk).
+
+    Every cell in the bounding box is clipped against the segment (Liang-Barsky); the cells with a
+    non-empty intersection are sorted by the parameter at which the segment enters them.
+    """
+    cells = []
+    for ix in range(math.floor(min(gx0, gx1)), math.floor(max(gx0, gx1)) + 1):
+        for iy in range(math.floor(min(gy0, gy1)), math.floor(max(gy0, gy1)) + 1):
+            t0, t1 = 0.0, 1.0
+            ok = True
+            for p, q in (
+                (-(gx1 - gx0), gx0 - ix),
+                (gx1 - gx0, ix + 1 - gx0),
+                (-(gy1 - gy0), gy0 - iy),
+                (gy1 - gy0, iy + 1 - gy0),
+            ):
+                if p == 0:
+                    if q < 0:
+                        ok = False
+                        break
+                    continue
+                r = q / p
+                if p < 0:
+                    t0 = max(t0, r)
+                else:
+                    t1 = min(t1, r)
+            if ok and t0 <= t1:
+                cells.append((t0, ix, iy))
+    cells.sort()
+    return [(ix, iy) for _, ix, iy in cells]
+
+
+def reference_integrate(
+    lo, sid_stamp, spec, poses, ranges, angles, max_range, model, l0, lmin, lmax
+):
+    """Slow reference of the binary Bayes filter update with the once-per-scan rule."""
+    ox, oy = spec.origin
+    inv = 1.0 / spec.resolution
+    clear = max_range if model.max_clear_range is None else model.max_clear_range
+    d_hit = model.l_hit - l0
+    d_free = model.l_miss - l0
+    for s in range(len(poses)):
+        px, py, th = poses[s]
+        gx0, gy0 = (px - ox) * inv, (py - oy) * inv
+        hits, free = set(), set()
+        for r, a in zip(ranges[s], angles, strict=True):
+            if not (r > 0) or not math.isfinite(r):
+                continue
+            c, sn = math.cos(th + a), math.sin(th + a)
+            if r >= max_range:
+                if clear <= 0:
+                    continue
+                ex, ey = (px + clear * c - ox) * inv, (py + clear * sn - oy) * inv
+            else:
+                ex, ey = (px + r * c - ox) * inv, (py + r * sn - oy) * inv
+                tx = (px + (r + model.thickness) * c - ox) * inv
+                ty = (py + (r + model.thickness) * sn - oy) * inv
+                hits.update(segment_cells(ex, ey, tx, ty))
+            free.update(segment_cells(gx0, gy0, ex, ey)[:-1])
+        for cells, d in ((hits, d_hit), (free - hits, d_free)):
+            for ix, iy in cells:
+                v = float(lo[iy, ix]) + d
+                lo[iy, ix] = min(max(v, lmin), lmax)
+                sid_stamp[iy, ix] = True
+
+
+def random_scans(rng, n_scans, n_beams, spread=3.0):
+    poses = np.column_stack(
+        [
+            rng.uniform(-1, 1, n_scans),
+            rng.uniform(-1, 1, n_scans),
+            rng.uniform(-np.pi, np.pi, n_scans),
+        ]
+    )
+    ranges = rng.uniform(0.05, spread, (n_scans, n_beams))
+    ranges[rng.random(ranges.shape) < 0.05] = np.nan
+    ranges[rng.random(ranges.shape) < 0.05] = -1.0
+    ranges[rng.random(ranges.shape) < 0.1] = spread + 1.0  # max-range readings
+    angles = np.sort(rng.uniform(-np.pi, np.pi, n_beams))
+    return poses, ranges, angles
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("thickness,clear", [(0.0, None), (0.12, 1.5), (0.0, 0.0)])
+def test_kernel_matches_reference(seed, thickness, clear):
+    rng = np.random.default_rng(seed)
+    res = float(rng.choice([0.05, 0.1, 0.23]))
+    poses, ranges, angles = random_scans(rng, 5, 40)
+    max_range = 3.0 + 0.5
+    model = InverseSensorModel(p_hit=0.7, p_miss=0.4, thickness=thickness, max_clear_range=clear)
+    spec = GridSpec(res, (-6.0, -6.5), (int(13 / res), int(12 / res)))
+    grid = OccupancyGrid(res, p0=0.45, model=model, spec=spec, fixed=True)
+    grid.integrate_scans(poses, ranges, angles, max_range=max_range)
+
+    lo = np.full(spec.shape, grid.l0, dtype=np.float32)
+    seen = np.zeros(spec.shape, bool)
+    reference_integrate(
+        lo, seen, spec, poses, ranges, angles, max_range, model, grid.l0, grid.l_min, grid.l_max
+    )
+    np.testing.assert_array_equal(grid.observed, seen)
+    np.testing.assert_array_equal(grid.log_odds, lo)
+
+
+def test_walk_cells_are_exact_on_random_segments():
+    """The kernel's cells for one beam equal the cells whose squares the segment meets."""
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        res = 0.1
+        spec = GridSpec(res, (-5.0, -5.0), (100, 100))
+        grid = OccupancyGrid(res, spec=spec, fixed=True)
+        x, y, th = rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(-np.pi, np.pi)
+        r = rng.uniform(0.01, 2.5)
+        grid.integrate_scan([x, y, th], [r], [0.0], max_range=10.0)
+        got = set(zip(*np.nonzero(grid.observed)[::-1], strict=True))
+        want = segment_cells(
+            (x + 5) / res,
+            (y + 5) / res,
+            (x + r * math.cos(th) + 5) / res,
+            (y + r * math.sin(th) + 5) / res,
+        )
+        assert got == set(want)
+
+
+def test_update_is_the_log_odds_recursion():
+    """l_t = l_{t-1} + inverse_model - l0, with p = 1 - 1/(1+exp(l)) (Table 4.2)."""
+    model = InverseSensorModel(p_hit=0.8, p_miss=0.3)
+    grid = OccupancyGrid(0.1, p0=0.4, clamp=(0.001, 0.999), model=model)
+    for _ in range(3):
+        grid.integrate_scan([0.0, 0.0, 0.0], [1.0], [0.0], max_range=5.0)
+    l0 = logit(0.4)
+    end = grid.spec.world_to_cell([1.05, 0.0])
+    mid = grid.spec.world_to_cell([0.55, 0.0])
+    lo = grid.log_odds
+    assert lo[end[1], end[0]] == pytest.approx(l0 + 3 * (logit(0.8) - l0), abs=1e-6)
+    assert lo[mid[1], mid[0]] == pytest.approx(l0 + 3 * (logit(0.3) - l0), abs=1e-6)
+    p = grid.probability()[end[1], end[0]]
+    assert p == pytest.approx(1 - 1 / (1 + math.exp(l0 + 3 * (logit(0.8) - l0))), abs=1e-6)
+
+
+def test_once_per_scan_and_hit_wins():
+    grid = OccupancyGrid(0.1, spec=GridSpec(0.1, (-2.0, -2.0), (40, 40)), fixed=True)
+    # 50 beams through the same cells in one scan: each cell changes once
+    grid.integrate_scan([0.0, 0.0, 0.0], np.full(50, 1.0), np.zeros(50), max_range=5.0)
+    end = grid.spec.world_to_cell([1.05, 0.0])
+    mid = grid.spec.world_to_cell([0.55, 0.0])
+    assert grid.log_odds[end[1], end[0]] == pytest.approx(logit(0.7), abs=1e-6)
+    assert grid.log_odds[mid[1], mid[0]] == pytest.approx(logit(0.4), abs=1e-6)
+    # one beam ends at x=0.55, another crosses it on the way to x=1.5: the hit wins
+    g2 = OccupancyGrid(0.1, spec=GridSpec(0.1, (-2.0, -2.0), (40, 40)), fixed=True)
+    g2.integrate_scan([0.0, 0.0, 0.0], [1.5, 0.55], [0.0, 0.0], max_range=5.0)
+    assert g2.log_odds[mid[1], mid[0]] == pytest.approx(logit(0.7), abs=1e-6)
+    # ...whatever the beam order
+    g3 = OccupancyGrid(0.1, spec=GridSpec(0.1, (-2.0, -2.0), (40, 40)), fixed=True)
+    g3.integrate_scan([0.0, 0.0, 0.0], [0.55, 1.5], [0.0, 0.0], max_range=5.0)
+    np.testing.assert_array_equal(g2.log_odds, g3.log_odds)
+
+
+def test_clamping_bounds():
+    grid = OccupancyGrid(0.1)
+    for _ in range(40):
+        grid.integrate_scan([0.0, 0.0, 0.0], [1.0], [0.0], max_range=5.0)
+    end = grid.spec.world_to_cell([1.05, 0.0])
+    mid = grid.spec.world_to_cell([0.55, 0.0])
+    assert grid.probability()[end[1], end[0]] == pytest.approx(0.97, abs=1e-6)
+    assert grid.probability()[mid[1], mid[0]] == pytest.approx(0.12, abs=1e-6)
+
+
+def test_max_range_and_dropped_readings():
+    model = InverseSensorModel(max_clear_range=2.0)
+    grid = OccupancyGrid(0.1, model=model, spec=GridSpec(0.1, (-5.0, -5.0), (100, 100)), fixed=True)
+    stats = grid.integrate_scan(
+        [0.0, 0.0, 0.0], [5.0, 7.0, np.nan, np.inf, 0.0, -1.0, 1.0], np.zeros(7), max_range=5.0
+    )
+    assert (stats.hits, stats.max_range, stats.dropped) == (1, 2, 4)
+    beyond = grid.spec.world_to_cell([2.5, 0.0])
+    assert not grid.observed[beyond[1], beyond[0]]
+    assert grid.log_odds.max() == pytest.approx(logit(0.7), abs=1e-6)
+    # max-range readings alone never create an occupied cell and clear up to 2 m
+    g2 = OccupancyGrid(0.1, model=model)
+    g2.integrate_scan([0.0, 0.0, 0.0], [5.0], [0.0], max_range=5.0)
+    assert g2.log_odds.max() <= 0
+    assert g2.observed.sum() == 20
+
+
+def test_growth_keeps_world_positions_and_is_amortised():
+    grid = OccupancyGrid(0.1)
+    grid.integrate_scan([0.0, 0.0, 0.0], [1.03], [0.0], max_range=5.0)
+    shapes = {grid.spec.shape}
+    for k in range(1, 400):
+        grid.integrate_scan([0.5 * k, 0.3 * k + 0.013, 0.0], [1.03], [0.0], max_range=5.0)
+        shapes.add(grid.spec.shape)
+    assert len(shapes) < 20  # geometric growth, not per scan
+    # the very first hit is still where it was in the world
+    end = grid.spec.world_to_cell([1.03, 0.0])
+    assert grid.log_odds[end[1], end[0]] == pytest.approx(logit(0.7), abs=1e-6)
+    last = grid.spec.world_to_cell([0.5 * 399 + 1.03, 0.3 * 399 + 0.013])
+    assert grid.log_odds[last[1], last[0]] == pytest.approx(logit(0.7), abs=1e-6)
+
+
+def test_fixed_grid_raises():
+    grid = OccupancyGrid(0.1, spec=GridSpec(0.1, (0.0, 0.0), (10, 10)), fixed=True)
+    with pytest.raises(GridBoundsError, match="outside the fixed grid"):
+        grid.integrate_scan([0.5, 0.5, 0.0], [3.0], [0.0], max_range=5.0)
+    assert not grid.observed.any()
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        (dict(pose=[0, 0], ranges=[1.0], angles=[0.0]), "pose must have shape"),
+        (dict(pose=[0, 0, 0], ranges=[[1.0]], angles=[0.0]), "ranges must be 1-D"),
+        (dict(pose=[0, 0, 0], ranges=[1.0, 2.0], angles=[0.0]), "angles shape"),
+        (dict(pose=[0, 0, np.nan], ranges=[1.0], angles=[0.0]), "finite"),
+    ],
+)
+def test_bad_input(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        OccupancyGrid(0.1).integrate_scan(**kwargs, max_range=5.0)
+
+
+def test_bad_parameters():
+    with pytest.raises(ValueError, match="p_hit"):
+        InverseSensorModel(p_hit=1.2)
+    with pytest.raises(ValueError, match="clamp"):
+        OccupancyGrid(0.1, clamp=(0.6, 0.9))
+    with pytest.raises(ValueError, match="resolution"):
+        OccupancyGrid(-0.1)
+
+
+def test_logit_prob_closed_form():
+    p = np.linspace(0.01, 0.99, 99)
+    np.testing.assert_allclose(prob(logit(p)), p, rtol=1e-12)
+    l = np.linspace(-30, 30, 61)
+    np.testing.assert_allclose(prob(l), 1 - 1 / (1 + np.exp(l)), atol=1e-15)
+    with pytest.raises(ValueError):
+        logit(1.0)
+
+
+def test_classify_trinary():
+    grid = OccupancyGrid(0.1)
+    for _ in range(5):
+        grid.integrate_scan([0.0, 0.0, 0.0], [1.0], [0.0], max_range=5.0)
+    c = grid.classify()
+    end = grid.spec.world_to_cell([1.05, 0.0])
+    mid = grid.spec.world_to_cell([0.55, 0.0])
+    assert c[end[1], end[0]] == 1 and c[mid[1], mid[0]] == 0
+    assert (c[~grid.observed] == -1).all()
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_simulated_world_accuracy(seed):
+    world = simulate_laser_world(seed=seed, range_noise=0.02, dropout=0.01)
+    grid = OccupancyGrid(0.05)
+    grid.integrate_scans(world.poses, world.ranges, world.angles, max_range=world.max_range)
+    acc, n = map_accuracy(grid.classify(0.5, 0.5), grid.spec, world.truth, world.spec)
+    print(f"seed {seed}: {acc:.4f} of {n} observed cells classified correctly")
+    assert n > 50_000
+    assert acc >= 0.98

@@ -178,7 +178,7 @@ def simulate_laser_world(
         dth += rng.normal(0, pose_noise[1] * dist + 1e-12)
         c, s = np.cos(odo[k - 1, 2]), np.sin(odo[k - 1, 2])
         odo[k] = odo[k - 1] + np.array([c * fwd - s * lat, s * fwd + c * lat, dth])
-    times = np.arange(len(poses)) * 0.2
+    times = np.arange(len(poses), dtype=np.float64) * 0.2
     return SimulatedLaserWorld(truth, spec, poses, odo, ranges, angles, float(max_range), times)
 
 

@@ -1,0 +1,370 @@
+"""EKF SLAM with known (Table 10.1) and unknown (Table 10.2, section 10.3.3) correspondences.
+
+State ``mu = (x, y, theta, m_1x, m_1y, ..., m_nx, m_ny)`` and dense covariance ``P``
+(``3 + 2n`` square), world frame, metres and radians.
+
+Costs: the prediction touches only the robot rows and columns (``P_rr`` and ``P_rm``), O(n); the
+measurement update of a scan of ``k`` observations is one batched update with the sparse 2x5
+Jacobian blocks: ``P H^T`` is gathered from ``P[:, robot]`` and ``P[:, landmark]`` columns in
+O(n k), and the covariance is corrected by a single rank-4k product, O(n^2 k), written in place
+through BLAS. The full ``(3 + 2n)`` square Jacobians of the textbook presentation (``F_x``,
+``F_{x,j}``) are never built.
+
+The covariance correction is the Joseph form ``(I - K H) P (I - K H)^T + K R K^T``, expanded with
+``S = H P H^T + R`` into ``P - K (P H^T)^T - (P H^T) K^T + K S K^T``: it is symmetric by
+construction and stays positive semi-definite even when ``K`` is not exactly optimal (rounding).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import blas, cho_factor, cho_solve
+
+from probmap.geometry.se2 import wrap_angle
+from probmap.slam.association import NEW, associate_ml, chi2_gate, innovation
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+__all__ = ["EKFConfig", "EKFSLAM"]
+
+
+@dataclass(frozen=True)
+class EKFConfig:
+    """Settings of :class:`EKFSLAM`.
+
+    Parameters
+    ----------
+    gate_probability : float
+        Chi-square probability of the association gate (2 dof), unknown correspondences.
+    new_landmark_probability : float
+        An observation whose nearest landmark lies beyond this chi-square quantile starts a new
+        (provisional) landmark; between the two gates it is discarded as ambiguous.
+    accept_hits : int
+        Observations needed before a provisional landmark is reported (section 10.3.3).
+    max_misses : int
+        A provisional landmark predicted visible but not seen this many times is removed.
+    visibility_range : float
+        Range (m) within which a landmark is expected to be seen (for miss counting).
+    visibility_fov : float
+        Field of view (rad) centred on the sensor heading, for miss counting.
+    min_range : float
+        Observations closer than this (m) are ignored.
+    symmetrize_every : int
+        Re-symmetrize ``P`` after this many updates (guards against rounding drift).
+    """
+
+    gate_probability: float = 0.99
+    new_landmark_probability: float = 0.9999
+    accept_hits: int = 3
+    max_misses: int = 5
+    visibility_range: float = np.inf
+    visibility_fov: float = 2 * np.pi
+    min_range: float = 0.0
+    symmetrize_every: int = 50
+
+    def __post_init__(self) -> None:
+        if not 0 < self.gate_probability <= self.new_landmark_probability < 1:
+            raise ValueError("need 0 < gate_probability <= new_landmark_probability < 1")
+        if self.accept_hits < 1 or self.max_misses < 0 or self.symmetrize_every < 1:
+            raise ValueError("accept_hits >= 1, max_misses >= 0, symmetrize_every >= 1 required")
+
+
+class EKFSLAM:
+    """Extended Kalman filter SLAM (Probabilistic Robotics, chapter 10).
+
+    Parameters
+    ----------
+    motion_model
+        Object with ``predict(x, u, dt) -> (x', G, V)`` and ``control_covariance(u, dt)``.
+    measurement_model
+        :class:`~probmap.models.measurement.RangeBearingModel` (or compatible).
+    initial_pose : array_like, shape (3,)
+    initial_covariance : array_like, shape (3, 3)
+    config : EKFConfig, optional
+
+    Notes
+    -----
+    ``update(z, ids)`` uses the given ids (known correspondences, Table 10.1) for ``ids >= 0`` and
+    maximum-likelihood association (Table 10.2) for ``ids == -1``. New landmarks are initialised
+    from the inverse measurement model with their full cross-covariance (not with the book's
+    infinite prior), ``P_mm = J_x P_rr J_x^T + J_z R J_z^T`` and ``P_m* = J_x P_r*``.
+    """
+
+    def __init__(
+        self,
+        motion_model: object,
+        measurement_model: object,
+        initial_pose: ArrayLike,
+        initial_covariance: ArrayLike,
+        config: EKFConfig | None = None,
+    ) -> None:
+        mu = np.asarray(initial_pose, dtype=np.float64)
+        P0 = np.asarray(initial_covariance, dtype=np.float64)
+        if mu.shape != (3,) or P0.shape != (3, 3):
+            raise ValueError("initial_pose must be (3,) and initial_covariance (3, 3)")
+        if not (np.all(np.isfinite(mu)) and np.all(np.isfinite(P0))):
+            raise ValueError("initial pose and covariance must be finite")
+        self.motion_model = motion_model
+        self.measurement_model = measurement_model
+        self.config = config if config is not None else EKFConfig()
+        self._mu = mu.copy()
+        self._P = np.array(0.5 * (P0 + P0.T), order="C")
+        self._R = np.asarray(measurement_model.R, dtype=np.float64)  # type: ignore[attr-defined]
+        self._ids = np.zeros(0, dtype=np.int64)  # landmark id per slot
+        self._hits = np.zeros(0, dtype=np.int64)
+        self._misses = np.zeros(0, dtype=np.int64)
+        self._confirmed = np.zeros(0, dtype=bool)
+        self._slot: dict[int, int] = {}
+        self._next_id = 0
+        self._gate = chi2_gate(self.config.gate_probability)
+        self._new_gate = chi2_gate(self.config.new_landmark_probability)
+        self._n_updates = 0
+        self.last_nis: float = np.nan
+        """Normalised innovation squared of the last update (``nu^T S^-1 nu``)."""
+        self.last_nis_dof: int = 0
+        """Degrees of freedom of :attr:`last_nis` (2 per matched observation)."""
+
+    # ------------------------------------------------------------------ state access
+    @property
+    def n_landmarks(self) -> int:
+        """Number of landmarks in the state (provisional ones included)."""
+        return int(self._ids.size)
+
+    @property
+    def mean(self) -> FloatArray:
+        """Full state mean (3 + 2n,) (a copy)."""
+        return self._mu.copy()
+
+    @property
+    def covariance(self) -> FloatArray:
+        """Full covariance (3 + 2n, 3 + 2n) (a copy)."""
+        return self._P.copy()
+
+    @property
+    def pose(self) -> FloatArray:
+        """Pose estimate (3,)."""
+        return self._mu[:3].copy()
+
+    @property
+    def pose_covariance(self) -> FloatArray:
+        """Pose covariance (3, 3)."""
+        return self._P[:3, :3].copy()
+
+    def landmarks(self) -> tuple[IntArray, FloatArray, FloatArray]:
+        """Confirmed landmarks: ``ids (n,)``, ``xy (n, 2)``, ``cov (n, 2, 2)``."""
+        sel = np.flatnonzero(self._confirmed)
+        xy = self._mu[3:].reshape(-1, 2)[sel]
+        cov = self._landmark_blocks(sel)
+        return self._ids[sel].copy(), xy.copy(), cov
+
+    def _landmark_blocks(self, slots: IntArray) -> FloatArray:
+        r = 3 + 2 * np.asarray(slots, dtype=np.int64)
+        P = self._P
+        out = np.empty((r.size, 2, 2))
+        out[:, 0, 0] = P[r, r]
+        out[:, 0, 1] = P[r, r + 1]
+        out[:, 1, 0] = P[r + 1, r]
+        out[:, 1, 1] = P[r + 1, r + 1]
+        return out
+
+    # ------------------------------------------------------------------ prediction
+    def predict(self, u: ArrayLike, dt: float) -> None:
+        """EKF prediction (Table 10.1, lines 2-5): only ``P_rr`` and ``P_rm`` change, O(n)."""
+        if dt == 0.0:
+            return
+        u = np.asarray(u, dtype=np.float64)
+        x_new, G, V = self.motion_model.predict(self._mu[:3], u, dt)  # type: ignore[attr-defined]
+        M = self.motion_model.control_covariance(u, dt)  # type: ignore[attr-defined]
+        P = self._P
+        self._mu[:3] = x_new
+        P[:3, :3] = G @ P[:3, :3] @ G.T + V @ M @ V.T
+        if P.shape[0] > 3:
+            P_rm = G @ P[:3, 3:]
+            P[:3, 3:] = P_rm
+            P[3:, :3] = P_rm.T
+
+    # ------------------------------------------------------------------ measurement update
+    def update(self, z: ArrayLike, ids: ArrayLike) -> None:
+        """Measurement update with ``z`` (k, 2) range/bearing and ``ids`` (k,), -1 = unknown.
+
+        Observations with known ids are matched directly (Table 10.1); unknown ones by maximum
+        likelihood with gating (Table 10.2). New landmarks are added first, then all matched
+        observations are fused in one batched Joseph-form update.
+        """
+        z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        if ids.shape[0] != z.shape[0]:
+            raise ValueError(f"z has {z.shape[0]} rows but ids has {ids.shape[0]}")
+        if not np.all(np.isfinite(z)):
+            raise ValueError("measurements must be finite (NaN or inf found)")
+        keep = z[:, 0] > max(self.config.min_range, 1e-9)
+        z, ids = z[keep], ids[keep]
+        self.last_nis, self.last_nis_dof = np.nan, 0
+        n_before = self.n_landmarks
+        slots = np.full(z.shape[0], -1, dtype=np.int64)
+        new_rows: list[int] = []
+        new_ids: list[int] = []
+        known = ids >= 0
+        for i in np.flatnonzero(known):
+            s = self._slot.get(int(ids[i]))
+            if s is None:
+                if int(ids[i]) in new_ids:  # seen twice in one scan: fuse the second
+                    continue
+                new_rows.append(int(i))
+                new_ids.append(int(ids[i]))
+            else:
+                slots[i] = s
+        unknown = np.flatnonzero(~known)
+        if unknown.size:
+            match = self._associate(z[unknown])
+            for i, m in zip(unknown, match, strict=True):
+                if m >= 0:
+                    slots[i] = m
+                elif m == NEW:
+                    new_rows.append(int(i))
+                    new_ids.append(-1)
+        if unknown.size or n_before and not self._confirmed.all():
+            self._count_misses(slots, n_before)
+        matched = np.flatnonzero(slots >= 0)
+        if matched.size:
+            self._hits[slots[matched]] += 1
+            self._confirmed |= self._hits >= self.config.accept_hits
+            self._fuse(z[matched], slots[matched])
+        if new_rows:
+            self._add_landmarks(z[new_rows], new_ids)
+        self._remove_spurious()
+
+    def _predicted_observations(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """``z_hat (n, 2)``, ``H_x (n, 2, 3)``, ``H_m (n, 2, 2)`` and ``S (n, 2, 2)``, O(n)."""
+        n = self.n_landmarks
+        lm = self._mu[3:].reshape(n, 2)
+        z_hat, H_x, H_m = self.measurement_model.predict_many(self._mu[:3], lm)  # type: ignore[attr-defined]
+        P = self._P
+        P_rm = P[:3, 3:].reshape(3, n, 2).transpose(1, 0, 2)  # (n, 3, 2)
+        P_mm = self._landmark_blocks(np.arange(n))
+        HxPrm = H_x @ P_rm  # (n, 2, 2)
+        S = (
+            H_x @ P[:3, :3] @ H_x.transpose(0, 2, 1)
+            + HxPrm @ H_m.transpose(0, 2, 1)
+            + H_m @ HxPrm.transpose(0, 2, 1)
+            + H_m @ P_mm @ H_m.transpose(0, 2, 1)
+            + self._R
+        )
+        return z_hat, H_x, H_m, S
+
+    def _associate(self, z: FloatArray) -> IntArray:
+        """Maximum-likelihood data association (Table 10.2, lines 16-18)."""
+        if self.n_landmarks == 0:
+            return np.full(z.shape[0], NEW, dtype=np.int64)
+        z_hat, _, _, S = self._predicted_observations()
+        return associate_ml(z, z_hat, S, gate=self._gate, new_gate=self._new_gate).match
+
+    def _count_misses(self, slots: IntArray, n_before: int) -> None:
+        """Count landmarks predicted visible but not observed (section 10.3.3)."""
+        if n_before == 0:
+            return
+        lm = self._mu[3 : 3 + 2 * n_before].reshape(-1, 2)
+        z_hat, _, _ = self.measurement_model.predict_many(self._mu[:3], lm)  # type: ignore[attr-defined]
+        visible = (z_hat[:, 0] <= self.config.visibility_range) & (
+            np.abs(z_hat[:, 1]) <= self.config.visibility_fov / 2
+        )
+        seen = np.zeros(n_before, dtype=bool)
+        seen[slots[slots >= 0]] = True
+        self._misses[:n_before] += visible & ~seen
+
+    def _remove_spurious(self) -> None:
+        bad = (~self._confirmed) & (self._misses > self.config.max_misses)
+        if not bad.any():
+            return
+        keep_slots = np.flatnonzero(~bad)
+        rows = np.concatenate([np.arange(3), (3 + 2 * keep_slots[:, None] + np.arange(2)).ravel()])
+        self._mu = self._mu[rows]
+        self._P = np.ascontiguousarray(self._P[np.ix_(rows, rows)])
+        self._ids = self._ids[keep_slots]
+        self._hits = self._hits[keep_slots]
+        self._misses = self._misses[keep_slots]
+        self._confirmed = self._confirmed[keep_slots]
+        self._slot = {int(i): s for s, i in enumerate(self._ids)}
+
+    def _add_landmarks(self, z: FloatArray, ids: list[int]) -> None:
+        """Augment the state with new landmarks from the inverse measurement model."""
+        k = z.shape[0]
+        N = self._P.shape[0]
+        sensor = self.measurement_model
+        xy = np.empty((k, 2))
+        Jx = np.empty((k, 2, 3))
+        Jz = np.empty((k, 2, 2))
+        for i in range(k):
+            xy[i], Jx[i], Jz[i] = sensor.inverse(self._mu[:3], z[i])  # type: ignore[attr-defined]
+        Jx_all = Jx.reshape(2 * k, 3)
+        P = self._P
+        cross = Jx_all @ P[:3, :]  # (2k, N): new landmarks vs old state
+        new_block = Jx_all @ P[:3, :3] @ Jx_all.T  # correlated through the pose
+        for i in range(k):
+            new_block[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] += Jz[i] @ self._R @ Jz[i].T
+        P_new = np.empty((N + 2 * k, N + 2 * k))
+        P_new[:N, :N] = P
+        P_new[N:, :N] = cross
+        P_new[:N, N:] = cross.T
+        P_new[N:, N:] = 0.5 * (new_block + new_block.T)
+        self._P = P_new
+        self._mu = np.concatenate([self._mu, xy.ravel()])
+        assigned = []
+        for i in ids:
+            if i < 0:
+                while self._next_id in self._slot:
+                    self._next_id += 1
+                i = self._next_id
+                self._next_id += 1
+            self._slot[i] = self._ids.size + len(assigned)
+            assigned.append(i)
+        known = np.array([i >= 0 for i in ids])
+        self._ids = np.concatenate([self._ids, np.asarray(assigned, dtype=np.int64)])
+        self._hits = np.concatenate([self._hits, np.ones(k, dtype=np.int64)])
+        self._misses = np.concatenate([self._misses, np.zeros(k, dtype=np.int64)])
+        confirmed = known | (1 >= self.config.accept_hits)
+        self._confirmed = np.concatenate([self._confirmed, confirmed])
+
+    def _fuse(self, z: FloatArray, slots: IntArray) -> None:
+        """Batched EKF correction (Table 10.1, lines 12-18) for ``k`` matched observations."""
+        k = z.shape[0]
+        P = self._P
+        N = P.shape[0]
+        lm = self._mu[3:].reshape(-1, 2)[slots]
+        z_hat, H_x, H_m = self.measurement_model.predict_many(self._mu[:3], lm)  # type: ignore[attr-defined]
+        cols = (3 + 2 * slots[:, None] + np.arange(2)).ravel()  # (2k,) landmark columns
+        # P H^T from the robot columns and each observation's landmark columns: (N, 2k)
+        PHt = P[:, :3] @ H_x.reshape(2 * k, 3).T
+        P_lm = P[:, cols].reshape(N, k, 2)
+        PHt += np.einsum("nkj,kij->nki", P_lm, H_m).reshape(N, 2 * k)
+        # S = H P H^T + R, gathered from the rows of P H^T that H touches: (2k, 2k)
+        S = H_x.reshape(2 * k, 3) @ PHt[:3]
+        S += np.einsum("kij,kjm->kim", H_m, PHt[cols].reshape(k, 2, 2 * k)).reshape(2 * k, 2 * k)
+        for i in range(k):
+            S[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] += self._R
+        S = 0.5 * (S + S.T)
+        nu = innovation(z, z_hat).ravel()
+        try:
+            cS = cho_factor(S)
+        except np.linalg.LinAlgError as exc:
+            raise ValueError("innovation covariance is not positive definite") from exc
+        K = cho_solve(cS, PHt.T).T  # (N, 2k) = P H^T S^-1
+        self.last_nis = float(nu @ cho_solve(cS, nu))
+        self.last_nis_dof = 2 * k
+        self._mu += K @ nu
+        self._mu[2] = wrap_angle(self._mu[2])
+        # Joseph form expanded: P -= K C^T + C K^T with C = P H^T - K S / 2
+        C = PHt - 0.5 * (K @ S)
+        U = np.hstack([K, C])
+        W = np.hstack([C, K])
+        Pt = P.T  # Fortran-ordered view of the C-ordered P: BLAS writes in place
+        out = blas.dgemm(alpha=-1.0, a=W, b=U, trans_b=True, beta=1.0, c=Pt, overwrite_c=True)
+        if not np.shares_memory(out, P):
+            self._P = np.ascontiguousarray(out.T)
+        self._n_updates += 1
+        if self._n_updates % self.config.symmetrize_every == 0:
+            self._P = np.ascontiguousarray(0.5 * (self._P + self._P.T))

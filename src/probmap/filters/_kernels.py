@@ -1,0 +1,76 @@
+"""Numba kernels for Monte Carlo localization (private; see :mod:`probmap.filters.mcl`).
+
+Kernels take contiguous arrays and scalars; the public classes validate inputs once.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+
+@njit(cache=True)
+def odometry_predict_and_weight(
+    particles, noise, rot1, trans, rot2, sd1, sdt, sd2, lx, ly, table, x0, y0, inv_res, outside, lw
+):
+    """One fused pass per particle: odometry sample (Table 5.6), then likelihood field weight.
+
+    ``particles`` (N, 3) is moved in place; ``noise`` (N, 3) holds standard normals;
+    ``sd1, sdt, sd2`` are the standard deviations of rot1, trans and rot2; ``lx, ly`` (B,)
+    the valid beam endpoints in the robot frame; ``lw`` (N,) receives the scan
+    log-likelihood added to the previous log weight.
+    """
+    h, w = table.shape
+    two_pi = 2.0 * math.pi
+    for n in range(particles.shape[0]):
+        h1 = rot1 - sd1 * noise[n, 0]
+        ht = trans - sdt * noise[n, 1]
+        h2 = rot2 - sd2 * noise[n, 2]
+        th = particles[n, 2] + h1
+        x = particles[n, 0] + ht * math.cos(th)
+        y = particles[n, 1] + ht * math.sin(th)
+        th = th + h2
+        th = (th + math.pi) % two_pi - math.pi
+        particles[n, 0] = x
+        particles[n, 1] = y
+        particles[n, 2] = th
+        c = math.cos(th)
+        s = math.sin(th)
+        acc = 0.0
+        for b in range(lx.shape[0]):
+            fx = (x + c * lx[b] - s * ly[b] - x0) * inv_res
+            fy = (y + s * lx[b] + c * ly[b] - y0) * inv_res
+            if fx >= 0.0 and fy >= 0.0 and fx < w and fy < h:
+                acc += table[int(fy), int(fx)]
+            else:
+                acc += outside
+        lw[n] += acc
+
+
+@njit(cache=True)
+def low_variance_indexes(weights, u, out):
+    """Low-variance sampler (Table 4.4) on normalised ``weights`` with offset ``u`` in [0, 1).
+
+    Writes ``len(out)`` indexes into ``out``.
+    """
+    m = out.shape[0]
+    n = weights.shape[0]
+    c = weights[0]
+    i = 0
+    for k in range(m):
+        target = (u + k) / m
+        while target >= c and i < n - 1:
+            i += 1
+            c += weights[i]
+        out[k] = i
+
+
+@njit(cache=True)
+def gather_rows(src, idx, dst):
+    """``dst[k] = src[idx[k]]`` for (N, 3) pose arrays."""
+    for k in range(idx.shape[0]):
+        j = idx[k]
+        dst[k, 0] = src[j, 0]
+        dst[k, 1] = src[j, 1]
+        dst[k, 2] = src[j, 2]

@@ -1,0 +1,896 @@
+"""Sparse extended information filter (SEIF) SLAM, Probabilistic Robotics chapter 12.
+
+The posterior over the robot pose and the landmarks is kept in information form, ``Omega`` and
+``xi``, stored block-sparse (:mod:`probmap.slam._seif_store`). Each step touches only the robot
+and a bounded set of *active* landmarks, so its cost does not grow with the map:
+
+1. :meth:`SEIFSlam.motion_update` (Table 12.2): the Psi / lambda / Phi / kappa update, written for
+   any motion model with ``G = d g / d x`` and ``Q = V M V^T``;
+2. :meth:`SEIFSlam.measurement_update` (Table 12.3): add ``H^T R^-1 H`` and
+   ``H^T R^-1 (z - z_hat + H mu)``;
+3. :meth:`SEIFSlam.update_mean` (Table 12.5): amortised mean recovery over the robot and the
+   active landmarks, plus a few coordinate-descent steps on passive landmarks per update; an
+   exact sparse solve on demand (:meth:`SEIFSlam.recover_mean_exact`);
+4. :meth:`SEIFSlam.sparsify` (Table 12.4): deactivate landmarks beyond ``max_active`` by
+   conditioning on the passive landmarks at zero, marginalising, and the three-matrix form
+   ``Omega~ = Omega1 - Omega2 + Omega3``, with ``xi~ = xi + (Omega~ - Omega) mu``.
+
+Step order: the mean is updated after the measurement update and *before* sparsifying, because
+sparsification keeps the mean fixed only at the mean it is given (notes/seif.md, "stale mean").
+
+Two tiers, as in filterpy: pure functions on dense arrays (``*_information``) that state each
+table's equations, and the stateful :class:`SEIFSlam` that applies them to small dense systems
+gathered from the sparse store over the robot and the active landmarks.
+
+Deactivation policy (``max_active``): after each measurement update every observed landmark is
+active; when more than ``max_active`` are, the ones observed least recently are deactivated (ties:
+the one observed earliest in the batch goes first). ``max_active=None`` never sparsifies; then,
+with exact mean recovery, the SEIF equals the EKF with batch measurement updates.
+
+References: S. Thrun, Y. Liu, D. Koller, A. Ng, Z. Ghahramani, H. Durrant-Whyte, "Simultaneous
+localization and mapping with sparse extended information filters", IJRR 23(7-8), 2004;
+R. Eustice, M. Walter, J. Leonard, "Sparse extended information filters: insights into
+sparsification", IROS 2005 (why sparsification is overconfident).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import linalg as sla
+
+from probmap.geometry.se2 import wrap_angle
+from probmap.slam._seif_store import InformationStore
+from probmap.slam.association import NEW, associate_ml, chi2_gate
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+__all__ = [
+    "SEIFSlam",
+    "SeifConfig",
+    "SingularInformationError",
+    "build_seif",
+    "measurement_update_information",
+    "motion_update_information",
+    "sparsify_information",
+    "update_mean_information",
+]
+
+
+class SingularInformationError(ValueError):
+    """An information block is singular or indefinite; the update was rejected, state unchanged."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Function tier: each table's equations on dense arrays (robot = rows 0..2)
+# ---------------------------------------------------------------------------------------------
+def motion_update_information(
+    Omega: FloatArray,
+    xi: FloatArray,
+    mu: FloatArray,
+    delta: FloatArray,
+    G: FloatArray,
+    Q: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """SEIF motion update (Table 12.2) on a dense information system.
+
+    The book writes ``G_t = I + F_x^T Delta F_x`` for its velocity model; here ``G`` is any
+    model's pose Jacobian, so ``Psi = F_x^T (G^-1 - I) F_x`` and
+
+    - ``Phi = (I + Psi)^T Omega (I + Psi) = Omega + lambda`` (lines 5-8): only the robot rows and
+      columns change;
+    - ``kappa = Phi F_x^T (Q^-1 + F_x Phi F_x^T)^-1 F_x Phi`` (line 9), with
+      ``(Q^-1 + A)^-1 = (I + Q A)^-1 Q`` so that a rank-deficient ``Q = V M V^T`` is allowed;
+    - ``Omega_bar = Phi - kappa`` (line 10);
+    - ``xi_bar = xi + (lambda - kappa) mu + Omega_bar F_x^T delta`` (line 11).
+
+    Parameters
+    ----------
+    Omega : ndarray, shape (d, d)
+        Information matrix; rows 0..2 are the robot pose ``(x, y, theta)``.
+    xi, mu : ndarray, shape (d,)
+        Information vector and the mean estimate at which to linearise.
+    delta : ndarray, shape (3,)
+        Pose change ``g(u, mu_x) - mu_x`` (angle difference wrapped), world frame.
+    G : ndarray, shape (3, 3)
+        ``d g / d x`` at ``mu_x``.
+    Q : ndarray, shape (3, 3)
+        Motion noise ``V M V^T`` (may be singular).
+
+    Returns
+    -------
+    Omega_bar : ndarray, shape (d, d)
+    xi_bar : ndarray, shape (d,)
+    """
+    Ginv = np.linalg.inv(G)
+    Phi = Omega.copy()
+    Phi[:3, :] = Ginv.T @ Omega[:3, :]
+    Phi[:, :3] = Phi[:, :3] @ Ginv
+    A = Phi[:3, :3]
+    K = np.linalg.solve(np.eye(3) + Q @ A, Q)
+    K = 0.5 * (K + K.T)
+    col = Phi[:, :3]
+    Omega_bar = Phi - col @ K @ col.T
+    Omega_bar = 0.5 * (Omega_bar + Omega_bar.T)
+    xi_bar = xi + (Omega_bar - Omega) @ mu + Omega_bar[:, :3] @ delta
+    return Omega_bar, xi_bar
+
+
+def measurement_update_information(
+    Omega: FloatArray,
+    xi: FloatArray,
+    mu: FloatArray,
+    rows: Sequence[int],
+    H_x: FloatArray,
+    H_m: FloatArray,
+    nu: FloatArray,
+    R: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """SEIF measurement update (Table 12.3) for ``k`` range-bearing observations.
+
+    For each observation ``i`` of the landmark at rows ``rows[i], rows[i] + 1``, with
+    ``H_i = [H_x  0  H_m  0]``: ``Omega += H_i^T R^-1 H_i`` and
+    ``xi += H_i^T R^-1 (z_i - z_hat_i + H_i mu)`` (lines 9-10). All observations are linearised at
+    the same ``mu`` (a batch update).
+
+    Parameters
+    ----------
+    Omega, xi, mu : ndarray, shapes (d, d), (d,), (d,)
+    rows : sequence of int, length k
+        First row of each observed landmark (>= 3).
+    H_x : ndarray, shape (k, 2, 3)
+    H_m : ndarray, shape (k, 2, 2)
+    nu : ndarray, shape (k, 2)
+        Innovations ``z - z_hat``, bearing wrapped.
+    R : ndarray, shape (2, 2)
+
+    Returns
+    -------
+    Omega_new : ndarray, shape (d, d)
+    xi_new : ndarray, shape (d,)
+    """
+    k = len(rows)
+    d = Omega.shape[0]
+    if k == 0:
+        return Omega.copy(), xi.copy()
+    H = np.zeros((k, 2, d))
+    H[:, :, :3] = H_x
+    for i, r in enumerate(rows):
+        H[i, :, r : r + 2] = H_m[i]
+    Rinv = np.linalg.inv(R)
+    RH = np.einsum("ab,kbd->kad", Rinv, H)  # (k, 2, d)
+    Omega_new = Omega + np.einsum("kad,kae->de", H, RH)
+    y = nu + np.einsum("kad,d->ka", H, mu)
+    xi_new = xi + np.einsum("kad,ka->d", RH, y)
+    return 0.5 * (Omega_new + Omega_new.T), xi_new
+
+
+def sparsify_information(
+    Omega: FloatArray,
+    xi: FloatArray,
+    mu: FloatArray,
+    m0_rows: Sequence[int],
+) -> tuple[FloatArray, FloatArray]:
+    """SEIF sparsification (Table 12.4): cut the robot's links to the landmarks ``m0``.
+
+    With ``Omega`` over the robot, the landmarks that stay active (``m+``) and those that become
+    passive (``m0``), all other landmarks (``m-``) conditioned on zero (so ``Omega0`` is this
+    submatrix)::
+
+        Omega1 = Omega0 - Omega0 F_m0 (F_m0^T Omega0 F_m0)^-1 F_m0^T Omega0       (marginalise m0)
+        Omega2 = Omega0 - Omega0 F_x,m0 (F_x,m0^T Omega0 F_x,m0)^-1 F_x,m0^T Omega0  (and x)
+        Omega3 = Omega - Omega F_x (F_x^T Omega F_x)^-1 F_x^T Omega               (marginalise x)
+        Omega~ = Omega1 - Omega2 + Omega3,     xi~ = xi + (Omega~ - Omega) mu
+
+    ``Omega3`` uses the full matrix, but its correction lives on the robot's Markov blanket
+    (``x``, ``m+``, ``m0``), so a caller may pass just that block plus the landmarks' other links
+    unchanged. The robot-``m0`` blocks of the result are exactly zero.
+
+    Parameters
+    ----------
+    Omega, xi, mu : ndarray, shapes (d, d), (d,), (d,)
+        Robot first; must contain every landmark linked to the robot.
+    m0_rows : sequence of int
+        First rows of the landmarks to deactivate.
+
+    Returns
+    -------
+    Omega_tilde : ndarray, shape (d, d)
+    xi_tilde : ndarray, shape (d,)
+    """
+    if len(m0_rows) == 0:
+        return Omega.copy(), xi.copy()
+    m0 = np.concatenate([[r, r + 1] for r in m0_rows]).astype(np.intp)
+    x = np.arange(3)
+    xm0 = np.concatenate([x, m0])
+
+    def marginal_correction(idx: NDArray[np.intp]) -> FloatArray:
+        cols = Omega[:, idx]
+        block = Omega[np.ix_(idx, idx)]
+        try:
+            c, low = sla.cho_factor(block)
+        except np.linalg.LinAlgError as exc:
+            raise SingularInformationError(
+                "sparsification: information block to marginalise is not positive definite"
+            ) from exc
+        return cols @ sla.cho_solve((c, low), cols.T)
+
+    Omega_t = Omega + marginal_correction(xm0) - marginal_correction(m0)
+    Omega_t -= marginal_correction(x)
+    Omega_t = 0.5 * (Omega_t + Omega_t.T)
+    Omega_t[np.ix_(x, m0)] = 0.0
+    Omega_t[np.ix_(m0, x)] = 0.0
+    xi_t = xi + (Omega_t - Omega) @ mu
+    return Omega_t, xi_t
+
+
+def update_mean_information(
+    Omega: FloatArray,
+    xi: FloatArray,
+    mu: FloatArray,
+    blocks: Sequence[int],
+    sweeps: int = 1,
+) -> FloatArray:
+    """Amortised mean recovery (Table 12.5): block coordinate descent on ``Omega mu = xi``.
+
+    For each block ``i`` (robot: 3 rows at 0; a landmark: 2 rows at its first row)::
+
+        mu_i <- Omega_ii^-1 (xi_i - sum_{j != i} Omega_ij mu_j)
+
+    i.e. one Gauss-Seidel step; it maximises ``exp(-mu^T Omega mu / 2 + xi^T mu)`` over ``mu_i``
+    with the rest fixed, so repeated sweeps converge to ``Omega^-1 xi``.
+
+    Parameters
+    ----------
+    Omega, xi, mu : ndarray, shapes (d, d), (d,), (d,)
+    blocks : sequence of int
+        First rows of the blocks to update, in order (0 means the robot).
+    sweeps : int
+        Number of passes over ``blocks``.
+
+    Returns
+    -------
+    mu_new : ndarray, shape (d,)
+    """
+    mu = mu.copy()
+    for _ in range(sweeps):
+        for r in blocks:
+            w = 3 if r == 0 else 2
+            sl = slice(r, r + w)
+            rhs = xi[sl] - Omega[sl, :] @ mu + Omega[sl, sl] @ mu[sl]
+            mu[sl] = np.linalg.solve(Omega[sl, sl], rhs)
+    return mu
+
+
+# ---------------------------------------------------------------------------------------------
+# Stateful tier
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SeifConfig:
+    """Parameters of :class:`SEIFSlam` (see its docstring); loadable from a YAML mapping.
+
+    Attributes
+    ----------
+    max_active : int or None
+        Bound on the active set (None: unbounded, no sparsification).
+    passive_sweeps : int
+        Passive landmarks refreshed per update by one coordinate-descent step (round robin).
+    exact_mean : bool
+        Solve ``Omega mu = xi`` exactly (sparse LU) after every update: O(n), for tests.
+    gate_probability : float
+        Chi-square probability (2 dof) of the association gate.
+    new_landmark_probability : float
+        An unmatched observation whose every Mahalanobis distance exceeds this chi-square
+        quantile starts a new landmark; between the two quantiles it is discarded.
+    cell_size : float
+        Cell of the spatial hash used to find association candidates (m).
+    exact_covariance_max : int
+        Up to this many landmarks, covariances are exact marginals (sparse LU); beyond it, the
+        pose covariance is the Markov-blanket conditional one (overconfident, see docs).
+    """
+
+    max_active: int | None = 10
+    passive_sweeps: int = 4
+    exact_mean: bool = False
+    gate_probability: float = 0.99
+    new_landmark_probability: float = 0.9999
+    cell_size: float = 20.0
+    exact_covariance_max: int = 2000
+
+    def __post_init__(self) -> None:
+        if self.max_active is not None and self.max_active < 1:
+            raise ValueError(f"max_active must be >= 1 or None, got {self.max_active}")
+        if self.passive_sweeps < 0:
+            raise ValueError(f"passive_sweeps must be >= 0, got {self.passive_sweeps}")
+        if not 0 < self.gate_probability <= self.new_landmark_probability < 1:
+            raise ValueError(
+                "need 0 < gate_probability <= new_landmark_probability < 1, got "
+                f"{self.gate_probability}, {self.new_landmark_probability}"
+            )
+        if not self.cell_size > 0:
+            raise ValueError(f"cell_size must be > 0, got {self.cell_size}")
+
+
+class SEIFSlam:
+    """SEIF SLAM over a robot pose and 2-D point landmarks (Table 12.1).
+
+    Parameters
+    ----------
+    motion_model
+        Has ``predict(x, u, dt) -> (x_new, G, V)`` and ``control_covariance(u, dt) -> M``.
+    measurement_model
+        A :class:`~probmap.models.measurement.RangeBearingModel` (``predict_many``, ``inverse``,
+        ``R``).
+    initial_pose : array_like, shape (3,)
+    initial_covariance : array_like, shape (3, 3)
+        Symmetric positive definite.
+    max_active, passive_sweeps, exact_mean, gate_probability, new_landmark_probability,
+    cell_size, exact_covariance_max
+        See :class:`SeifConfig`.
+    """
+
+    def __init__(
+        self,
+        motion_model: Any,
+        measurement_model: Any,
+        initial_pose: ArrayLike,
+        initial_covariance: ArrayLike,
+        *,
+        max_active: int | None = 10,
+        passive_sweeps: int = 4,
+        exact_mean: bool = False,
+        gate_probability: float = 0.99,
+        new_landmark_probability: float = 0.9999,
+        cell_size: float = 20.0,
+        exact_covariance_max: int = 2000,
+    ) -> None:
+        self.config = SeifConfig(
+            max_active,
+            passive_sweeps,
+            exact_mean,
+            gate_probability,
+            new_landmark_probability,
+            cell_size,
+            exact_covariance_max,
+        )
+        mu0 = np.asarray(initial_pose, dtype=np.float64)
+        P0 = np.asarray(initial_covariance, dtype=np.float64)
+        if mu0.shape != (3,) or not np.all(np.isfinite(mu0)):
+            raise ValueError(f"initial_pose must be 3 finite numbers, got shape {mu0.shape}")
+        if P0.shape != (3, 3) or not np.all(np.isfinite(P0)) or not np.allclose(P0, P0.T):
+            raise ValueError("initial_covariance must be a finite symmetric 3x3 matrix")
+        try:
+            c = sla.cho_factor(P0)
+        except np.linalg.LinAlgError as exc:
+            raise ValueError("initial_covariance must be positive definite") from exc
+        Omega0 = sla.cho_solve(c, np.eye(3))
+        Omega0 = 0.5 * (Omega0 + Omega0.T)
+        self.motion_model = motion_model
+        self.measurement_model = measurement_model
+        self._R = np.asarray(measurement_model.R, dtype=np.float64)
+        self._store = InformationStore(Omega0, Omega0 @ mu0, mu0)
+        self._slot_of: dict[int, int] = {}
+        self._id_of: list[int] = []
+        self._active: dict[int, int] = {}  # slot -> step it was last observed (insertion-ordered)
+        self._step = 0
+        self._next_id = 0
+        self._sweep_at = 0
+        self._cells: dict[tuple[int, int], set[int]] = {}
+        self._cell_of: list[tuple[int, int]] = []
+        self._version = 0
+        self._cov_cache: tuple[int, FloatArray] | None = None
+        self._gate = chi2_gate(gate_probability)
+        self._new_gate = chi2_gate(new_landmark_probability)
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def store(self) -> InformationStore:
+        """The block-sparse information store (read it; do not modify it)."""
+        return self._store
+
+    @property
+    def n_landmarks(self) -> int:
+        """Number of landmarks in the state."""
+        return self._store.n
+
+    @property
+    def active_ids(self) -> IntArray:
+        """External ids of the active landmarks, shape (a,)."""
+        return np.array([self._id_of[s] for s in self._active], dtype=np.int64)
+
+    @property
+    def pose(self) -> FloatArray:
+        """Current pose estimate ``(x, y, theta)`` (3,), theta wrapped."""
+        p = self._store.robot_mu.copy()
+        p[2] = float(wrap_angle(p[2]))
+        return p
+
+    @property
+    def pose_covariance(self) -> FloatArray:
+        """Covariance (3x3) of the pose: the marginal of ``Omega^-1``.
+
+        Exact (sparse LU) up to ``exact_covariance_max`` landmarks; beyond it, the inverse of the
+        information over the robot, the active landmarks and their neighbours, which conditions
+        on the rest and so is smaller than the true marginal.
+        """
+        if self._cov_cache is not None and self._cov_cache[0] == self._version:
+            return self._cov_cache[1].copy()
+        st = self._store
+        if st.n <= self.config.exact_covariance_max:
+            from scipy.sparse.linalg import splu
+
+            E = np.zeros((3 + 2 * st.n, 3))
+            E[:3, :3] = np.eye(3)
+            P = splu(st.to_sparse()).solve(E)[:3, :3]
+        else:
+            local = list(self._active)
+            seen = set(local)
+            for s in list(local):
+                for t in st.adjacency[s]:
+                    if t not in seen:
+                        seen.add(t)
+                        local.append(t)
+            Omega, _, _ = st.gather(local)
+            P = np.linalg.inv(Omega)[:3, :3]
+        P = 0.5 * (P + P.T)
+        self._cov_cache = (self._version, P)
+        return P.copy()
+
+    def information_matrix(self) -> FloatArray:
+        """Dense ``Omega`` (3 + 2n, 3 + 2n), landmarks in slot order (small problems only)."""
+        return np.asarray(self._store.to_sparse().toarray())
+
+    def information_vector(self) -> FloatArray:
+        """``xi`` (3 + 2n,), landmarks in slot order."""
+        return self._store.xi_vector()
+
+    def mean_vector(self) -> FloatArray:
+        """The running mean estimate (3 + 2n,), robot theta unwrapped, landmarks in slot order."""
+        return self._store.mu_vector()
+
+    def slot_ids(self) -> IntArray:
+        """External id of each landmark slot, shape (n,)."""
+        return np.array(self._id_of, dtype=np.int64)
+
+    def state_nbytes(self) -> int:
+        """Bytes of numbers stored for the state (see ``InformationStore.state_nbytes``)."""
+        return self._store.state_nbytes()
+
+    # ------------------------------------------------------------------ Table 12.2
+    def predict(self, u: ArrayLike, dt: float) -> None:
+        """Motion update with control ``u`` (2,) over ``dt`` seconds (Table 12.2)."""
+        u = np.asarray(u, dtype=np.float64)
+        if u.shape != (2,) or not np.all(np.isfinite(u)):
+            raise ValueError(f"control u must be 2 finite numbers, got {u!r}")
+        dt = float(dt)
+        if not (math.isfinite(dt) and dt >= 0.0):
+            raise ValueError(f"dt must be finite and >= 0, got {dt}")
+        self.motion_update(u, dt)
+
+    def motion_update(self, u: FloatArray, dt: float) -> None:
+        """Table 12.2 on the robot and the active landmarks (the only ones linked to it)."""
+        st = self._store
+        mu_x = st.robot_mu
+        x_new, G, V = self.motion_model.predict(mu_x, u, dt)
+        M = self.motion_model.control_covariance(u, dt)
+        Q = V @ M @ V.T
+        delta = np.asarray(x_new, dtype=np.float64) - mu_x
+        delta[2] = float(wrap_angle(delta[2]))
+        slots = list(self._active)
+        Omega, xi, mu = st.gather(slots)
+        Omega_bar, xi_bar = motion_update_information(Omega, xi, mu, delta, G, Q)
+        mu[:3] = mu_x + delta
+        st.scatter(slots, Omega_bar, xi_bar, mu)
+        self._version += 1
+
+    # ------------------------------------------------------------------ Table 12.3 / 12.4 / 12.5
+    def update(self, z: ArrayLike, ids: ArrayLike) -> None:
+        """Measurement update, mean update and sparsification (Table 12.1, lines 3-5).
+
+        Parameters
+        ----------
+        z : array_like, shape (k, 2)
+            ``(range m, bearing rad)`` in the sensor frame.
+        ids : array_like, shape (k,)
+            Landmark ids; ``-1`` = unknown, associated by maximum likelihood with Mahalanobis
+            gating on the locally recovered mean and covariance.
+
+        Raises
+        ------
+        SingularInformationError
+            When an information block is singular or indefinite; the state is left unchanged.
+        """
+        z = np.asarray(z, dtype=np.float64).reshape(-1, 2) if np.size(z) else np.zeros((0, 2))
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        if ids.shape[0] != z.shape[0]:
+            raise ValueError(f"z has {z.shape[0]} rows but ids has {ids.shape[0]}")
+        if not np.all(np.isfinite(z)):
+            raise ValueError("measurements z must be finite")
+        if np.any(z[:, 0] <= 0):
+            raise ValueError("measured ranges must be > 0")
+        if np.any(ids < -1):
+            raise ValueError("landmark ids must be >= 0, or -1 for unknown")
+        self._step += 1
+        if z.shape[0] and np.any(ids == -1):
+            z, ids = self.associate(z, ids)
+        n_before = self._store.n
+        try:
+            self._update_known(z, ids)
+        except (np.linalg.LinAlgError, SingularInformationError) as exc:
+            self._rollback(n_before)
+            raise SingularInformationError(
+                f"SEIF update at step {self._step} rejected: {exc}"
+            ) from None
+        self._version += 1
+        if self.config.exact_mean:
+            self.recover_mean_exact()
+        else:
+            self._sweep_passive(self.config.passive_sweeps)
+
+    def _rollback(self, n_before: int) -> None:
+        st = self._store
+        for s in range(n_before, st.n):
+            self._slot_of.pop(self._id_of[s], None)
+            self._active.pop(s, None)
+            cell = self._cell_of[s]
+            self._cells.get(cell, set()).discard(s)
+        del self._id_of[n_before:]
+        del self._cell_of[n_before:]
+        st.n = n_before
+        del st.adjacency[n_before:]
+
+    def _new_landmark(self, lid: int, xy: FloatArray) -> int:
+        s = self._store.add_landmark(xy)
+        self._slot_of[lid] = s
+        self._id_of.append(lid)
+        cell = self._cell(xy)
+        self._cell_of.append(cell)
+        self._cells.setdefault(cell, set()).add(s)
+        self._next_id = max(self._next_id, lid + 1)
+        return s
+
+    def _cell(self, xy: FloatArray) -> tuple[int, int]:
+        c = self.config.cell_size
+        return (int(math.floor(xy[0] / c)), int(math.floor(xy[1] / c)))
+
+    def _update_known(self, z: FloatArray, ids: IntArray) -> None:
+        st = self._store
+        old_obs: list[int] = []
+        old_z: list[int] = []
+        new_z: list[int] = []
+        new_ids: list[int] = []
+        for i in range(z.shape[0]):
+            lid = int(ids[i])
+            s = self._slot_of.get(lid)
+            if s is not None:
+                old_obs.append(s)
+                old_z.append(i)
+            elif lid not in new_ids:  # a new landmark seen twice in one batch: keep the first
+                new_z.append(i)
+                new_ids.append(lid)
+        # the active set grows by the observed landmarks, most recently observed last
+        for s in old_obs:
+            self._active.pop(s, None)
+            self._active[s] = self._step
+        local = list(self._active)
+        Omega, xi, mu = st.gather(local)
+        pos = st.local_index(local)
+        if old_obs:
+            Omega, xi = self.measurement_update(
+                Omega, xi, mu, z[old_z], [pos[s] for s in old_obs]
+            )
+        mu = self.update_mean(local, Omega, xi, mu)
+        if new_z:
+            Omega, xi, mu = self._initialize_landmarks(local, Omega, xi, mu, z[new_z], new_ids)
+            pos = st.local_index(local)
+        m0 = self._deactivation(local)
+        if m0:
+            Omega, xi = self.sparsify_local(Omega, xi, mu, [pos[s] for s in m0])
+            for s in m0:
+                del self._active[s]
+        st.scatter(local, Omega, xi, mu)
+        self._rebin(local)
+
+    def _initialize_landmarks(
+        self,
+        local: list[int],
+        Omega: FloatArray,
+        xi: FloatArray,
+        mu: FloatArray,
+        z: FloatArray,
+        new_ids: list[int],
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Add landmarks first seen now, from the inverse measurement model at the updated pose.
+
+        Each starts with zero information, then receives its observation's Table 12.3 update
+        (zero innovation at the initial point): the result equals the EKF's augmentation with
+        ``P_mm = J_x P_xx J_x^T + J_z R J_z^T`` and ``P_m* = J_x P_x*``.
+        """
+        st = self._store
+        k = len(new_ids)
+        xy = np.stack([self.measurement_model.inverse(mu[:3], z[i])[0] for i in range(k)])
+        d = Omega.shape[0]
+        Omega = np.pad(Omega, ((0, 2 * k), (0, 2 * k)))
+        xi = np.concatenate([xi, np.zeros(2 * k)])
+        mu = np.concatenate([mu, xy.reshape(-1)])
+        rows = [d + 2 * i for i in range(k)]
+        for i, lid in enumerate(new_ids):
+            s = self._new_landmark(lid, xy[i])
+            local.append(s)
+            self._active[s] = self._step
+        Omega, xi = self.measurement_update(Omega, xi, mu, z, rows)
+        del st  # slots were appended to the store by _new_landmark
+        return Omega, xi, mu
+
+    def sparsify_local(
+        self, Omega: FloatArray, xi: FloatArray, mu: FloatArray, m0_rows: Sequence[int]
+    ) -> tuple[FloatArray, FloatArray]:
+        """Table 12.4 on a local dense system; see :func:`sparsify_information`."""
+        return sparsify_information(Omega, xi, mu, m0_rows)
+
+    def measurement_update(
+        self,
+        Omega: FloatArray,
+        xi: FloatArray,
+        mu: FloatArray,
+        z: FloatArray,
+        rows: Sequence[int],
+    ) -> tuple[FloatArray, FloatArray]:
+        """Table 12.3 on a local dense system (robot first, landmarks at ``rows``)."""
+        lm = np.stack([mu[r : r + 2] for r in rows])
+        z_hat, H_x, H_m = self.measurement_model.predict_many(mu[:3], lm)
+        nu = z - z_hat
+        nu[:, 1] = wrap_angle(nu[:, 1])
+        return measurement_update_information(Omega, xi, mu, rows, H_x, H_m, nu, self._R)
+
+    def update_mean(
+        self, local: Sequence[int], Omega: FloatArray, xi: FloatArray, mu: FloatArray
+    ) -> FloatArray:
+        """Table 12.5 over the robot and the active landmarks, solved as one block.
+
+        Block coordinate descent with the robot and ``local`` as a single block: the passive
+        landmarks outside it enter at their current means,
+        ``Omega_LL mu_L = xi_L - Omega_{L,rest} mu_rest``, solved by Cholesky (the fixed point of
+        Table 12.5's sweeps over those variables). A failed Cholesky means the local information
+        block is singular or indefinite.
+        """
+        b = xi.copy()
+        if local:
+            b[3:] -= self._store.boundary(local)
+        try:
+            c = sla.cho_factor(Omega)
+        except np.linalg.LinAlgError as exc:
+            raise SingularInformationError(
+                "information block over the robot and active landmarks is not positive definite"
+            ) from exc
+        return np.asarray(sla.cho_solve(c, b))
+
+    def _deactivation(self, local: Sequence[int]) -> list[int]:
+        limit = self.config.max_active
+        if limit is None or len(self._active) <= limit:
+            return []
+        # dict order: least recently observed first (observed slots are re-inserted at the end)
+        return list(self._active)[: len(self._active) - limit]
+
+    def sparsify(self) -> None:
+        """Table 12.4 on the current state: deactivate beyond ``max_active`` (normally run by
+        :meth:`update`)."""
+        st = self._store
+        local = list(self._active)
+        m0 = self._deactivation(local)
+        if not m0:
+            return
+        Omega, xi, mu = st.gather(local)
+        pos = st.local_index(local)
+        Omega, xi = sparsify_information(Omega, xi, mu, [pos[s] for s in m0])
+        for s in m0:
+            del self._active[s]
+        st.scatter(local, Omega, xi)
+        self._version += 1
+
+    def _rebin(self, slots: Sequence[int]) -> None:
+        mus = self._store.mu_landmarks
+        for s in slots:
+            cell = self._cell(mus[s])
+            old = self._cell_of[s]
+            if cell != old:
+                self._cells[old].discard(s)
+                self._cells.setdefault(cell, set()).add(s)
+                self._cell_of[s] = cell
+
+    def _sweep_passive(self, count: int) -> None:
+        """Table 12.5 on a few passive landmarks per update (round robin)."""
+        st = self._store
+        n = st.n
+        if n == 0 or count == 0:
+            return
+        mu = st._mu
+        done = 0
+        tries = 0
+        swept: list[int] = []
+        while done < count and tries < n:
+            s = self._sweep_at % n
+            self._sweep_at += 1
+            tries += 1
+            if s in self._active:
+                continue
+            rhs = st._xi[s].copy()
+            for t, block in st.adjacency[s].items():
+                rhs -= (block if s < t else block.T) @ mu[t]
+            mu[s] = np.linalg.solve(st._omega[s], rhs)
+            swept.append(s)
+            done += 1
+        self._rebin(swept)
+
+    def recover_mean_exact(self) -> FloatArray:
+        """Solve ``Omega mu = xi`` exactly (sparse LU), store and return ``mu`` (3 + 2n,)."""
+        from scipy.sparse.linalg import splu
+
+        st = self._store
+        mu = splu(st.to_sparse()).solve(st.xi_vector())
+        st.set_mu_vector(mu)
+        self._rebin(range(st.n))
+        return np.asarray(mu)
+
+    # ------------------------------------------------------------------ data association
+    def associate(self, z: FloatArray, ids: IntArray) -> tuple[FloatArray, IntArray]:
+        """Maximum-likelihood association of the observations with ``ids == -1``.
+
+        Candidates are the landmarks whose mean lies within the farthest observed range (plus
+        one cell) of the robot (spatial hash, O(1) in the map size). Their joint covariance with
+        the robot is recovered locally: the inverse of the information over the robot, the active
+        landmarks, the candidates and the candidates' neighbours. Each observation goes to the
+        candidate of smallest Mahalanobis distance inside the ``gate_probability`` gate (each
+        candidate at most once per batch, greedy by distance); one beyond the
+        ``new_landmark_probability`` gate of every candidate starts a new landmark; the rest are
+        dropped.
+
+        Returns
+        -------
+        z, ids : the kept observations and their ids (new ids for new landmarks).
+        """
+        st = self._store
+        unknown = np.flatnonzero(ids == -1)
+        out_ids = ids.copy()
+        keep = np.ones(len(ids), dtype=bool)
+        mu_x = st.robot_mu
+        reach = float(np.max(z[unknown, 0])) + self.config.cell_size
+        cand = self._candidates(mu_x[:2], reach)
+        if cand:
+            local = list(self._active)
+            seen = set(local)
+            for s in cand:
+                if s not in seen:
+                    seen.add(s)
+                    local.append(s)
+            for s in cand:
+                for t in st.adjacency[s]:
+                    if t not in seen:
+                        seen.add(t)
+                        local.append(t)
+            Omega, _, _ = st.gather(local)
+            try:
+                Sigma = sla.cho_solve(sla.cho_factor(Omega), np.eye(Omega.shape[0]))
+            except np.linalg.LinAlgError as exc:
+                raise SingularInformationError(
+                    "data association: local information block is not positive definite"
+                ) from exc
+            pos = st.local_index(local)
+            rows = np.array([pos[s] for s in cand])
+            lm = st.mu_landmarks[cand]
+            z_hat, H_x, H_m = self.measurement_model.predict_many(mu_x, lm)
+            c = len(cand)
+            idx = np.concatenate(
+                [np.broadcast_to(np.arange(3), (c, 3)), rows[:, None] + np.arange(2)], axis=1
+            )
+            S_blocks = Sigma[idx[:, :, None], idx[:, None, :]]  # (c, 5, 5)
+            H = np.concatenate([H_x, H_m], axis=2)  # (c, 2, 5)
+            S = H @ S_blocks @ H.transpose(0, 2, 1) + self._R
+            S = 0.5 * (S + S.transpose(0, 2, 1))
+            match = associate_ml(
+                z[unknown], z_hat, S, gate=self._gate, new_gate=self._new_gate
+            ).match
+        else:
+            match = np.full(len(unknown), NEW, dtype=np.int64)
+        taken = {int(i) for i in ids[ids >= 0]}
+        for o, i in enumerate(unknown):
+            m = int(match[o])
+            if m >= 0 and self._id_of[cand[m]] not in taken:
+                out_ids[i] = self._id_of[cand[m]]
+                taken.add(int(out_ids[i]))
+            elif m == NEW:
+                out_ids[i] = self._next_id
+                self._next_id += 1
+            else:
+                keep[i] = False
+        return z[keep], out_ids[keep]
+
+    def _candidates(self, xy: FloatArray, reach: float) -> list[int]:
+        c = self.config.cell_size
+        i0, j0 = self._cell(xy)
+        r = int(math.ceil(reach / c))
+        mus = self._store.mu_landmarks
+        out: list[int] = []
+        for i in range(i0 - r, i0 + r + 1):
+            for j in range(j0 - r, j0 + r + 1):
+                cell = self._cells.get((i, j))
+                if cell:
+                    out.extend(cell)
+        if not out:
+            return out
+        arr = np.array(sorted(out))
+        d = mus[arr] - xy
+        near = np.einsum("ij,ij->i", d, d) <= reach * reach
+        return [int(s) for s in arr[near]]
+
+    # ------------------------------------------------------------------ outputs
+    def landmarks(self) -> tuple[IntArray, FloatArray, FloatArray]:
+        """Mapped landmarks after an exact mean recovery.
+
+        Returns
+        -------
+        ids : ndarray, shape (n,), int64
+        xy : ndarray, shape (n, 2)
+            Means (world frame, m).
+        cov : ndarray, shape (n, 2, 2)
+            Marginal covariances: exact (sparse LU) up to ``exact_covariance_max`` landmarks,
+            otherwise the conditional ``Omega_jj^-1`` (smaller than the marginal), with a
+            ``RuntimeWarning``.
+        """
+        st = self._store
+        n = st.n
+        mu = self.recover_mean_exact()
+        ids = np.array(self._id_of, dtype=np.int64)
+        xy = mu[3:].reshape(n, 2).copy()
+        if n == 0:
+            return ids, xy, np.zeros((0, 2, 2))
+        if n <= self.config.exact_covariance_max:
+            from scipy.sparse.linalg import splu
+
+            lu = splu(st.to_sparse())
+            cov: FloatArray = np.empty((n, 2, 2))
+            chunk = 256
+            for a in range(0, n, chunk):
+                b = min(n, a + chunk)
+                E = np.zeros((3 + 2 * n, 2 * (b - a)))
+                E[3 + 2 * a + np.arange(2 * (b - a)), np.arange(2 * (b - a))] = 1.0
+                X = lu.solve(E)
+                for j in range(a, b):
+                    r = 3 + 2 * j
+                    cj = 2 * (j - a)
+                    cov[j] = X[r : r + 2, cj : cj + 2]
+        else:
+            warnings.warn(
+                f"{n} landmarks > exact_covariance_max={self.config.exact_covariance_max}: "
+                "landmark covariances are conditional (Omega_jj^-1), smaller than the marginals",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+            cov = np.linalg.inv(st.omega_diag)
+        cov = np.asarray(0.5 * (cov + cov.transpose(0, 2, 1)), dtype=np.float64)
+        return ids, xy, cov
+
+
+def build_seif(dataset: Any, config: SeifConfig | None = None) -> SEIFSlam:
+    """Construct a :class:`SEIFSlam` for a landmark dataset (its models and initial pose)."""
+    cfg = config if config is not None else SeifConfig()
+    return SEIFSlam(
+        dataset.motion_model,
+        dataset.measurement_model,
+        dataset.initial_pose,
+        dataset.initial_covariance,
+        max_active=cfg.max_active,
+        passive_sweeps=cfg.passive_sweeps,
+        exact_mean=cfg.exact_mean,
+        gate_probability=cfg.gate_probability,
+        new_landmark_probability=cfg.new_landmark_probability,
+        cell_size=cfg.cell_size,
+        exact_covariance_max=cfg.exact_covariance_max,
+    )

@@ -313,7 +313,7 @@ class EKFSLAM:
         P_new[N:, N:] = 0.5 * (new_block + new_block.T)
         self._P = P_new
         self._mu = np.concatenate([self._mu, xy.ravel()])
-        assigned = []
+        assigned: list[int] = []
         for i in ids:
             if i < 0:
                 while self._next_id in self._slot:

@@ -184,6 +184,7 @@ class LikelihoodField:
             raise ValueError(f"z_hit, z_rand must be non-negative, not both 0: {z_hit}, {z_rand}")
         if not max_distance > 0:
             raise ValueError(f"max_distance must be positive, got {max_distance}")
+        self.spec = spec
         self.frame = frame
         self.occupied = occupied
         self.max_range = float(max_range)
@@ -332,6 +333,7 @@ class BeamModel:
         ):
             if not (val > 0 and math.isfinite(val)):
                 raise ValueError(f"{name} must be positive, got {val}")
+        self.spec = spec
         self.frame = frame
         self.occupied = occupied
         self.max_range = float(max_range)

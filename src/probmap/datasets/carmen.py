@@ -1,0 +1,606 @@
+"""Reader for CARMEN laser logs (``.clf``/``.log``; plain, gzip or bzip2).
+
+A CARMEN log holds one message per line, fields separated by whitespace::
+
+    ODOM x y theta tv rv accel  ipc_timestamp ipc_hostname logger_timestamp
+    FLASER n r_1 ... r_n  x y theta  odom_x odom_y odom_theta  ipc_timestamp ipc_hostname logger_timestamp
+    RLASER (as FLASER, for the rear laser)
+    ROBOTLASER1 laser_type start_angle fov angular_res max_range accuracy remission_mode n r_1 ... r_n
+                n_remissions [remissions]  laser_x laser_y laser_theta  robot_x robot_y robot_theta
+                tv rv forward_safety_dist side_safety_dist turn_axis  ipc_timestamp ipc_hostname logger_timestamp
+    PARAM name value [ipc_hostname timestamp]
+    # comment
+
+``NEFF``, ``SYNC``, ``TRUEPOS`` and any other message type are recognised and skipped. In
+``FLASER``/``RLASER`` the ``x y theta`` fields are the **laser** pose and ``odom_*`` the **robot**
+pose, both in the log's world frame (raw odometry in a raw log, SLAM estimates in a corrected log).
+
+The reader streams: the file is decompressed and parsed line by line, so memory stays at the size
+of the records kept by the caller. Compression is detected from the file's magic bytes, not its
+name.
+"""
+
+from __future__ import annotations
+
+import bz2
+import gzip
+import io
+import math
+import os
+import warnings
+import zlib
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+from numpy.typing import NDArray
+
+from probmap.datasets.protocol import DatasetError
+from probmap.datasets.records import LaserScan, Odometry, ScanBatch
+
+__all__ = [
+    "DEFAULT_MAX_RANGE",
+    "BadLinesWarning",
+    "CarmenLog",
+    "default_angle_step",
+    "detect_compression",
+    "load_scans",
+    "open_log",
+]
+
+#: Readings at or beyond this many metres are "no return" when the log states no maximum range
+#: (the SICK LMS logs report 81.83-81.91 m for no return; real returns stay below 80 m).
+DEFAULT_MAX_RANGE = 80.0
+
+LASER_TYPES = ("FLASER", "RLASER", "ROBOTLASER1")
+_POSE_FIELDS = ("x", "y", "theta", "odom_x", "odom_y", "odom_theta")
+_ODOM_FIELDS = ("x", "y", "theta", "tv", "rv")
+_RL1_POSE_FIELDS = ("laser_x", "laser_y", "laser_theta", "robot_x", "robot_y", "robot_theta")
+# PARAM values the reader itself uses: checked as numbers when the PARAM line is read.
+_NUMERIC_PARAMS = (
+    "laser_front_laser_max",
+    "robot_front_laser_max",
+    "laser_rear_laser_max",
+    "robot_rear_laser_max",
+    "robot_frontlaser_offset",
+    "robot_rearlaser_offset",
+)
+
+
+class BadLinesWarning(UserWarning):
+    """Malformed lines were skipped (``skip_bad_lines=True``)."""
+
+
+class _LineError(Exception):
+    """A malformed line; turned into a :class:`DatasetError` with the file and line number."""
+
+    def __init__(self, message: str, field: str | None = None) -> None:
+        super().__init__(message)
+        self.field = field
+
+
+# ---------------------------------------------------------------------------- files
+
+
+def detect_compression(path: str | os.PathLike[str]) -> str:
+    """``"gzip"``, ``"bz2"`` or ``"plain"``, from the file's first bytes (not its name).
+
+    Raises
+    ------
+    FileNotFoundError
+        If the file does not exist (the message names it).
+    """
+    p = Path(path)
+    try:
+        with open(p, "rb") as f:
+            head = f.read(3)
+    except FileNotFoundError:
+        raise FileNotFoundError(2, f"{p}: no such file", str(p)) from None
+    if head[:2] == b"\x1f\x8b":
+        return "gzip"
+    if head == b"BZh":
+        return "bz2"
+    return "plain"
+
+
+def open_log(path: str | os.PathLike[str]) -> IO[str]:
+    """Open a (possibly compressed) text log for reading, decoding bytes as Latin-1.
+
+    Latin-1 maps every byte to a character, so a stray byte never raises a decoding error; it
+    fails as a malformed field instead, with its line number.
+    """
+    p = Path(path)
+    kind = detect_compression(p)
+    raw: io.BufferedIOBase
+    if kind == "gzip":
+        raw = gzip.open(p, "rb")
+    elif kind == "bz2":
+        raw = bz2.open(p, "rb")
+    else:
+        raw = open(p, "rb")
+    return io.TextIOWrapper(raw, encoding="latin-1", newline=None)
+
+
+def _numbered_lines(path: Path) -> Iterator[tuple[int, str]]:
+    """``(line_number, text)`` of every line, with decompression errors named by file."""
+    kind = detect_compression(path)
+    with open_log(path) as f:
+        lineno = 0
+        try:
+            for lineno, line in enumerate(f, start=1):  # noqa: B007 - lineno used after the loop
+                yield lineno, line
+        except (EOFError, OSError, zlib.error) as exc:
+            what = "truncated or corrupt" if kind != "plain" else "unreadable"
+            raise DatasetError(
+                f"{what} {kind} data after line {lineno} ({exc})", path=path
+            ) from None
+
+
+# ---------------------------------------------------------------------------- fields
+
+
+def default_angle_step(n: int) -> float:
+    """Beam spacing in radians of an ``n``-beam laser whose angles the message does not state.
+
+    The CARMEN convention is a 180 degree field of view starting at -90 degrees:
+
+    - an even count (180, 360) covers ``[-90, +90)`` degrees: step ``pi / n`` (1 and 0.5 degrees);
+    - an odd count (181, 361) includes both ends ``[-90, +90]``: step ``pi / (n - 1)``.
+
+    >>> round(math.degrees(default_angle_step(180)), 6), round(math.degrees(default_angle_step(361)), 6)
+    (1.0, 0.5)
+    """
+    if n <= 1:
+        return math.pi
+    return math.pi / (n - 1) if n % 2 else math.pi / n
+
+
+def _int_field(fields: Sequence[str], i: int, name: str) -> int:
+    if i >= len(fields):
+        raise _LineError(f"line ends before the {name} field", name)
+    try:
+        v = int(fields[i])
+    except ValueError:
+        raise _LineError(f"expected an integer, got {fields[i]!r}", name) from None
+    if v < 0:
+        raise _LineError(f"must not be negative, got {v}", name)
+    return v
+
+
+def _float_field(fields: Sequence[str], i: int, name: str) -> float:
+    try:
+        return float(fields[i])
+    except ValueError:
+        raise _LineError(f"expected a number, got {fields[i]!r}", name) from None
+
+
+def _float_fields(
+    fields: Sequence[str], start: int, stop: int, name_of: Callable[[int], str]
+) -> NDArray[np.float64]:
+    """Fields ``start:stop`` as float64 (parsed by numpy in C); on failure, name the bad field.
+
+    ``name_of(k)`` names field ``start + k``.
+    """
+    try:
+        return np.array(fields[start:stop], dtype=np.float64)
+    except ValueError:
+        for k in range(start, stop):
+            _float_field(fields, k, name_of(k - start))
+        raise  # pragma: no cover - float() and numpy accept the same numbers
+
+
+def _check_finite(
+    values: list[float], fields: Sequence[str], start: int, names: Sequence[str]
+) -> None:
+    """Raise naming the first non-finite value (poses must be finite; ranges may be NaN)."""
+    for k, v in enumerate(values):
+        if not math.isfinite(v):
+            raise _LineError(f"must be finite, got {fields[start + k]!r}", names[k])
+
+
+def _names(n: int, tail: Sequence[str]) -> Callable[[int], str]:
+    """Names of ``n`` range fields followed by ``tail``."""
+    return lambda k: f"range[{k}]" if k < n else tail[k - n]
+
+
+def _check_count(fields: Sequence[str], expected: int, what: str) -> None:
+    if len(fields) != expected:
+        raise _LineError(f"{what}: expected {expected} fields, found {len(fields)}")
+
+
+# ---------------------------------------------------------------------------- reader
+
+
+@dataclass
+class _PassState:
+    params: dict[str, str]
+    skipped: int = 0
+    first_error: str = ""
+    scans: int = 0
+    odometry: int = 0
+    messages: int = 0
+
+
+class CarmenLog:
+    """A CARMEN laser log as a :class:`~probmap.datasets.protocol.Dataset` of laser scans.
+
+    Parameters
+    ----------
+    path : path-like
+        The log: plain text, gzip or bzip2 (detected from the magic bytes).
+    start_angle : float
+        Bearing in radians (laser frame) of the first beam of ``FLASER``/``RLASER`` messages,
+        which do not state it. Default ``-pi/2`` (the robot's right). ``ROBOTLASER1`` messages
+        state their own angles, which are always used.
+    angle_step : float or None
+        Beam spacing in radians for ``FLASER``/``RLASER``; None applies
+        :func:`default_angle_step` (``pi/n`` for 180 and 360 beams, ``pi/(n-1)`` for 181 and 361).
+    max_range : float or None
+        Maximum range in metres: readings at or beyond it are "no return". None takes, per scan,
+        the ``ROBOTLASER1`` message's own value, else the PARAM ``laser_front_laser_max`` or
+        ``robot_front_laser_max`` (``..._rear_...`` for ``RLASER``) read so far, else
+        :data:`DEFAULT_MAX_RANGE` (80 m).
+    skip_bad_lines : bool
+        Skip malformed lines, count them in :attr:`skipped_lines` and warn once per pass
+        (:class:`BadLinesWarning`), instead of raising :class:`DatasetError`.
+
+    Notes
+    -----
+    Iterating yields :class:`~probmap.datasets.records.LaserScan` records in file order;
+    :meth:`odometry` yields ``ODOM`` records and :meth:`records` both, interleaved as logged.
+    PARAM lines apply to the scans after them (CARMEN writes them at the top of a log).
+
+    Raises
+    ------
+    FileNotFoundError
+        When the file does not exist.
+    DatasetError
+        (While reading) a malformed line, naming the file, line and field; an empty log; a
+        truncated or corrupt compressed file; a log without laser scans.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        start_angle: float = -math.pi / 2,
+        angle_step: float | None = None,
+        max_range: float | None = None,
+        skip_bad_lines: bool = False,
+    ) -> None:
+        self.path = Path(path)
+        if not self.path.is_file():
+            if self.path.exists():
+                raise IsADirectoryError(21, f"{self.path}: not a file", str(self.path))
+            raise FileNotFoundError(2, f"{self.path}: no such file", str(self.path))
+        if not math.isfinite(start_angle):
+            raise ValueError(f"start_angle must be finite, got {start_angle}")
+        if angle_step is not None and not (math.isfinite(angle_step) and angle_step != 0.0):
+            raise ValueError(f"angle_step must be a finite non-zero number, got {angle_step}")
+        if max_range is not None and not (math.isfinite(max_range) and max_range > 0.0):
+            raise ValueError(f"max_range must be a positive number of metres, got {max_range}")
+        self.start_angle = float(start_angle)
+        self.angle_step = None if angle_step is None else float(angle_step)
+        self.max_range = None if max_range is None else float(max_range)
+        self.skip_bad_lines = bool(skip_bad_lines)
+        self.name = _dataset_name(self.path)
+        self._angles: dict[tuple[int, float, float], NDArray[np.float64]] = {}
+        self._done: _PassState | None = None
+
+    # ------------------------------------------------------------------ protocol
+    def __len__(self) -> int:
+        """Number of laser scans (one counting pass over the file, then cached)."""
+        if self._done is None:
+            for _ in self._read(scans=True, odometry=False):
+                pass
+        assert self._done is not None
+        return self._done.scans
+
+    def __iter__(self) -> Iterator[LaserScan]:
+        for rec in self._read(scans=True, odometry=False):
+            assert isinstance(rec, LaserScan)
+            yield rec
+
+    def __repr__(self) -> str:
+        return f"CarmenLog({str(self.path)!r})"
+
+    def odometry(self) -> Iterator[Odometry]:
+        """``ODOM`` messages in file order."""
+        for rec in self._read(scans=False, odometry=True):
+            assert isinstance(rec, Odometry)
+            yield rec
+
+    def records(self) -> Iterator[LaserScan | Odometry]:
+        """Laser scans and odometry interleaved in file order."""
+        return self._read(scans=True, odometry=True)
+
+    @property
+    def params(self) -> dict[str, str]:
+        """``PARAM name value`` pairs of the whole log (values as logged, strings)."""
+        if self._done is None:
+            for _ in self._read(scans=False, odometry=False):
+                pass
+        assert self._done is not None
+        return dict(self._done.params)
+
+    @property
+    def skipped_lines(self) -> int:
+        """Malformed lines skipped during the last complete pass (0 before any pass)."""
+        return 0 if self._done is None else self._done.skipped
+
+    # ------------------------------------------------------------------ parsing
+    def _read(self, *, scans: bool, odometry: bool) -> Iterator[LaserScan | Odometry]:
+        state = _PassState(params={})
+        for lineno, line in _numbered_lines(self.path):
+            fields = line.split()
+            if not fields:
+                continue
+            state.messages += 1
+            kind = fields[0]
+            if kind[0] == "#":
+                continue
+            rec: LaserScan | Odometry | None = None
+            try:
+                if kind == "FLASER" or kind == "RLASER":
+                    rec = self._parse_flaser(fields, lineno, state.params)
+                elif kind == "ROBOTLASER1":
+                    rec = self._parse_robotlaser(fields, lineno)
+                elif kind == "ODOM":
+                    rec = self._parse_odom(fields, lineno)
+                elif kind == "PARAM":
+                    self._parse_param(fields, state.params)
+            except _LineError as exc:
+                if not self.skip_bad_lines:
+                    raise DatasetError(
+                        f"malformed {kind} line: {exc}",
+                        path=self.path,
+                        line=lineno,
+                        field=exc.field,
+                    ) from None
+                state.skipped += 1
+                if not state.first_error:
+                    state.first_error = f"line {lineno}: malformed {kind} line: {exc}"
+                continue
+            if isinstance(rec, LaserScan):
+                state.scans += 1
+                if scans:
+                    yield rec
+            elif isinstance(rec, Odometry):
+                state.odometry += 1
+                if odometry:
+                    yield rec
+        if state.messages == 0:
+            raise DatasetError("empty log (no messages)", path=self.path)
+        if state.skipped:
+            warnings.warn(
+                f"{self.path}: skipped {state.skipped} malformed line(s); first at "
+                f"{state.first_error}",
+                BadLinesWarning,
+                stacklevel=3,
+            )
+        self._done = state
+        if scans and state.scans == 0:
+            raise DatasetError(
+                "no laser scans (FLASER, RLASER or ROBOTLASER1 lines) in the log", path=self.path
+            )
+
+    def _beam_angles(self, n: int, start: float, step: float) -> NDArray[np.float64]:
+        key = (n, start, step)
+        a = self._angles.get(key)
+        if a is None:
+            a = start + step * np.arange(n, dtype=np.float64)
+            a.flags.writeable = False
+            self._angles[key] = a
+        return a
+
+    def _resolve_max_range(self, kind: str, params: dict[str, str]) -> float:
+        if self.max_range is not None:
+            return self.max_range
+        side = "rear" if kind == "RLASER" else "front"
+        for name in (f"laser_{side}_laser_max", f"robot_{side}_laser_max"):
+            v = params.get(name)
+            if v is not None:
+                return float(v)
+        return DEFAULT_MAX_RANGE
+
+    def _parse_flaser(self, f: list[str], lineno: int, params: dict[str, str]) -> LaserScan:
+        n = _int_field(f, 1, "num_readings")
+        _check_count(f, n + 11, f"{f[0]} with {n} readings")
+        values = _float_fields(f, 2, n + 8, _names(n, _POSE_FIELDS))
+        ranges = values[:n]
+        poses = values[n:]
+        _check_finite(poses.tolist(), f, n + 2, _POSE_FIELDS)
+        ipc = _float_field(f, n + 8, "ipc_timestamp")
+        logger = _float_field(f, n + 10, "logger_timestamp")
+        step = self.angle_step if self.angle_step is not None else default_angle_step(n)
+        return LaserScan(
+            time=ipc,
+            ranges=ranges,
+            angles=self._beam_angles(n, self.start_angle, step),
+            laser_pose=poses[:3],
+            robot_pose=poses[3:],
+            max_range=self._resolve_max_range(f[0], params),
+            logger_time=logger,
+            source=f[0],
+            line=lineno,
+        )
+
+    def _parse_robotlaser(self, f: list[str], lineno: int) -> LaserScan:
+        n = _int_field(f, 8, "num_readings")
+        n_rem = _int_field(f, 9 + n, "num_remissions")
+        _check_count(f, n + n_rem + 24, f"ROBOTLASER1 with {n} readings and {n_rem} remissions")
+        start = _float_field(f, 2, "start_angle")
+        res = _float_field(f, 4, "angular_resolution")
+        if not (math.isfinite(start) and math.isfinite(res)):
+            raise _LineError("start_angle and angular_resolution must be finite", "start_angle")
+        msg_max = _float_field(f, 5, "maximum_range")
+        ranges = _float_fields(f, 9, 9 + n, _names(n, ()))
+        k = 10 + n + n_rem
+        poses = _float_fields(f, k, k + 6, _names(0, _RL1_POSE_FIELDS))
+        _check_finite(poses.tolist(), f, k, _RL1_POSE_FIELDS)
+        ipc = _float_field(f, k + 11, "ipc_timestamp")
+        logger = _float_field(f, k + 13, "logger_timestamp")
+        if self.max_range is not None:
+            max_range = self.max_range
+        elif math.isfinite(msg_max) and msg_max > 0.0:
+            max_range = msg_max
+        else:
+            max_range = DEFAULT_MAX_RANGE
+        return LaserScan(
+            time=ipc,
+            ranges=ranges,
+            angles=self._beam_angles(n, start, res),
+            laser_pose=poses[:3],
+            robot_pose=poses[3:],
+            max_range=max_range,
+            logger_time=logger,
+            source="ROBOTLASER1",
+            line=lineno,
+        )
+
+    @staticmethod
+    def _parse_odom(f: list[str], lineno: int) -> Odometry:
+        _check_count(f, 10, "ODOM")
+        try:
+            x, y, th, tv, rv = (float(v) for v in f[1:6])
+        except ValueError:
+            for k, name in enumerate(_ODOM_FIELDS):
+                _float_field(f, k + 1, name)
+            raise  # pragma: no cover
+        _check_finite([x, y, th], f, 1, _ODOM_FIELDS)
+        _float_field(f, 6, "accel")
+        ipc = _float_field(f, 7, "ipc_timestamp")
+        logger = _float_field(f, 9, "logger_timestamp")
+        return Odometry(ipc, np.array((x, y, th)), tv, rv, logger, lineno)
+
+    @staticmethod
+    def _parse_param(f: list[str], params: dict[str, str]) -> None:
+        if len(f) < 3:
+            raise _LineError("expected PARAM name value", "value")
+        name = f[1]
+        if name in _NUMERIC_PARAMS:
+            x = _float_field(f, 2, name)
+            if not math.isfinite(x) or (name.endswith("_max") and x <= 0.0):
+                raise _LineError(f"expected a positive finite number, got {f[2]!r}", name)
+        params[name] = f[2]
+
+
+def _dataset_name(path: Path) -> str:
+    name = path.name
+    for suffix in (".gz", ".bz2", ".clf", ".log", ".carmen"):
+        if name.lower().endswith(suffix) and len(name) > len(suffix):
+            name = name[: -len(suffix)]
+    return name
+
+
+# ---------------------------------------------------------------------------- batch
+
+
+def load_scans(
+    path: str | os.PathLike[str],
+    *,
+    poses: str = "corrected",
+    start_angle: float = -math.pi / 2,
+    angle_step: float | None = None,
+    max_range: float | None = None,
+    skip_bad_lines: bool = False,
+    sources: Sequence[str] = ("FLASER", "ROBOTLASER1"),
+    dtype: type[np.floating] = np.float64,
+) -> ScanBatch:
+    """Read every front-laser scan of a CARMEN log into stacked arrays (for batch mapping).
+
+    Parameters
+    ----------
+    path : path-like
+        The log (plain, gzip or bzip2).
+    poses : {"corrected", "odometry"}
+        ``"corrected"``: each scan's own laser-pose fields (``x y theta``; GMapping's estimate in
+        a corrected log). ``"odometry"``: the robot pose fields (``odom_*``) composed with the
+        laser mounting offset, ``laser = robot (+) (d, 0, 0)`` where ``d`` is PARAM
+        ``robot_frontlaser_offset`` in metres along the robot's x axis (0 when absent).
+    start_angle, angle_step, max_range, skip_bad_lines
+        As for :class:`CarmenLog`.
+    sources : sequence of str
+        Message types to keep. Default: the front laser (``FLASER``, ``ROBOTLASER1``).
+    dtype : numpy floating type
+        dtype of ``ranges`` (float64 by default; float32 halves the memory).
+
+    Returns
+    -------
+    ScanBatch
+        ``ranges`` (S, B); ``angles`` (B,) when all scans share one beam geometry, else (S, B).
+        ``max_range`` is the smallest of the scans' maximum ranges.
+
+    Raises
+    ------
+    DatasetError
+        As :class:`CarmenLog`, and when the log holds no scan of the chosen ``sources``.
+    """
+    if poses not in ("corrected", "odometry"):
+        raise ValueError(f"poses must be 'corrected' or 'odometry', got {poses!r}")
+    unknown = set(sources) - set(LASER_TYPES)
+    if unknown or not sources:
+        raise ValueError(f"sources must be among {LASER_TYPES}, got {tuple(sources)!r}")
+    log = CarmenLog(
+        path,
+        start_angle=start_angle,
+        angle_step=angle_step,
+        max_range=max_range,
+        skip_bad_lines=skip_bad_lines,
+    )
+    keep = frozenset(sources)
+    times: list[float] = []
+    rows: list[NDArray[np.float64]] = []
+    angle_rows: list[NDArray[np.float64]] = []
+    laser: list[NDArray[np.float64]] = []
+    robot: list[NDArray[np.float64]] = []
+    max_ranges: list[float] = []
+    for scan in log:
+        if scan.source not in keep:
+            continue
+        times.append(scan.time)
+        rows.append(scan.ranges)
+        angle_rows.append(scan.angles)
+        laser.append(scan.laser_pose)
+        robot.append(scan.robot_pose)
+        max_ranges.append(scan.max_range)
+    if not rows:
+        raise DatasetError(f"no {'/'.join(sources)} scans in the log", path=log.path)
+    beams = np.array([r.shape[0] for r in rows], dtype=np.int64)
+    b = int(beams.max())
+    if (beams == b).all():
+        ranges = np.array(rows, dtype=dtype)
+    else:
+        ranges = np.full((len(rows), b), np.nan, dtype=dtype)
+        for i, r in enumerate(rows):
+            ranges[i, : r.shape[0]] = r
+    first = angle_rows[0]
+    if all(a is first for a in angle_rows) or (
+        (beams == b).all() and all(np.array_equal(a, first) for a in angle_rows)
+    ):
+        angles = np.array(first, dtype=np.float64)
+    else:
+        angles = np.zeros((len(rows), b), dtype=np.float64)
+        for i, a in enumerate(angle_rows):
+            angles[i, : a.shape[0]] = a
+    robot_poses = np.array(robot, dtype=np.float64).reshape(-1, 3)
+    if poses == "corrected":
+        laser_poses = np.array(laser, dtype=np.float64).reshape(-1, 3)
+    else:
+        d = float(log.params.get("robot_frontlaser_offset", 0.0))
+        th = robot_poses[:, 2]
+        laser_poses = np.column_stack(
+            (robot_poses[:, 0] + d * np.cos(th), robot_poses[:, 1] + d * np.sin(th), th)
+        )
+    return ScanBatch(
+        times=np.array(times, dtype=np.float64),
+        ranges=ranges,
+        angles=angles,
+        laser_poses=laser_poses,
+        robot_poses=robot_poses,
+        max_range=float(min(max_ranges)),
+        beams=beams,
+        skipped_lines=log.skipped_lines,
+    )

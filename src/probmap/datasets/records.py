@@ -1,0 +1,137 @@
+"""Frozen records produced by the laser-log readers (CARMEN and others).
+
+Frames and units, for every record here: poses are ``(x, y, theta)`` in metres and radians in the
+log's world frame (the odometry frame of a raw log, the SLAM map frame of a corrected log); beam
+angles are in the laser frame, counter-clockwise from the laser's forward axis; ranges are metres
+along each beam; times are seconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+__all__ = ["LaserScan", "Odometry", "ScanBatch"]
+
+
+@dataclass(frozen=True, eq=False)
+class LaserScan:
+    """One planar laser scan (one measurement ``z_t``).
+
+    Attributes
+    ----------
+    time : float
+        Timestamp in seconds (the CARMEN ``ipc_timestamp``, an absolute wall clock).
+    ranges : ndarray, shape (B,), float64
+        Range of each beam in metres, as logged. Readings ``>= max_range`` mean "no return".
+    angles : ndarray, shape (B,), float64
+        Bearing of each beam in radians in the laser frame (0 = the laser's forward axis,
+        counter-clockwise positive). Shared between scans of one geometry: read-only.
+    laser_pose : ndarray, shape (3,), float64
+        ``(x, y, theta)`` of the sensor in the world frame (m, m, rad).
+    robot_pose : ndarray, shape (3,), float64
+        ``(x, y, theta)`` of the robot base in the same frame.
+    max_range : float
+        The sensor's maximum range in metres: a reading at or beyond it has no endpoint.
+    logger_time : float
+        The CARMEN ``logger_timestamp`` (seconds since the logger started).
+    source : str
+        Message type: ``"FLASER"``, ``"RLASER"`` or ``"ROBOTLASER1"``.
+    line : int
+        1-based line number in the (decompressed) log.
+    """
+
+    time: float
+    ranges: FloatArray
+    angles: FloatArray
+    laser_pose: FloatArray
+    robot_pose: FloatArray
+    max_range: float
+    logger_time: float
+    source: str
+    line: int
+
+    @property
+    def beams(self) -> int:
+        """Number of beams ``B``."""
+        return int(self.ranges.shape[0])
+
+    def endpoints(self) -> FloatArray:
+        """World ``(x, y)`` of the beams that returned (``0 < r < max_range``), shape (K, 2)."""
+        r = self.ranges
+        ok = np.isfinite(r) & (r > 0.0) & (r < self.max_range)
+        x, y, th = self.laser_pose
+        a = self.angles[ok] + th
+        return np.column_stack((x + r[ok] * np.cos(a), y + r[ok] * np.sin(a)))
+
+
+@dataclass(frozen=True, eq=False)
+class Odometry:
+    """One odometry message (CARMEN ``ODOM``).
+
+    Attributes
+    ----------
+    time : float
+        ``ipc_timestamp`` in seconds.
+    pose : ndarray, shape (3,), float64
+        Robot ``(x, y, theta)`` in the odometry frame (m, m, rad).
+    tv : float
+        Translational velocity in m/s.
+    rv : float
+        Rotational velocity in rad/s.
+    logger_time : float
+        ``logger_timestamp`` in seconds.
+    line : int
+        1-based line number in the (decompressed) log.
+    """
+
+    time: float
+    pose: FloatArray
+    tv: float
+    rv: float
+    logger_time: float
+    line: int
+
+
+@dataclass(frozen=True, eq=False)
+class ScanBatch:
+    """Many scans stacked into arrays, for fast batch mapping.
+
+    Attributes
+    ----------
+    times : ndarray, shape (S,), float64
+        Scan timestamps in seconds.
+    ranges : ndarray, shape (S, B), float64 or float32
+        Ranges in metres. When beam counts differ, rows are padded with NaN on the right
+        (NaN beams are dropped by the mapper) and ``beams`` holds each scan's true count.
+    angles : ndarray, shape (B,) or (S, B), float64
+        Beam angles in the laser frame: (B,) when every scan shares one geometry, otherwise
+        one row per scan (padding angles are 0).
+    laser_poses : ndarray, shape (S, 3), float64
+        Sensor poses ``(x, y, theta)`` in the world frame used for mapping.
+    robot_poses : ndarray, shape (S, 3), float64
+        Robot base poses ``(x, y, theta)`` as logged.
+    max_range : float
+        One threshold for the whole batch (the smallest per-scan maximum range): readings at or
+        beyond it are "no return".
+    beams : ndarray, shape (S,), int64
+        Number of real beams in each row of ``ranges``.
+    skipped_lines : int
+        Malformed lines skipped while reading (with ``skip_bad_lines=True``).
+    """
+
+    times: FloatArray
+    ranges: NDArray[np.floating]
+    angles: FloatArray
+    laser_poses: FloatArray
+    robot_poses: FloatArray
+    max_range: float
+    beams: NDArray[np.int64]
+    skipped_lines: int = 0
+
+    def __len__(self) -> int:
+        return int(self.times.shape[0])

@@ -1,6 +1,8 @@
 """Numba kernels for the forward sensor models (private; see :mod:`probmap.grid.forward`).
 
 Every kernel takes contiguous arrays and scalars only; the public wrappers validate inputs.
+The likelihood-field lookups use ``fastmath`` (they only add table entries and test bounds on
+finite coordinates; no NaN or infinity reaches them), which lets LLVM reorder the sums.
 Grid convention: arrays indexed ``[iy, ix]``, row 0 at the smallest y, ``(x0, y0)`` the
 lower-left corner of cell ``[0, 0]``.
 """
@@ -34,7 +36,7 @@ def endpoints_in_robot_frame(ranges, angles, offset, max_range, lx, ly, valid):
         ly[b] = offset[1] + s * px + c * py
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def likelihood_field_per_beam(poses, lx, ly, valid, table, x0, y0, inv_res, outside, out):
     """Per-beam log-likelihoods ``out[n, b]`` by lookup in a log-likelihood table ``(H, W)``."""
     h, w = table.shape
@@ -57,7 +59,7 @@ def likelihood_field_per_beam(poses, lx, ly, valid, table, x0, y0, inv_res, outs
                 out[n, b] = outside
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def likelihood_field_sum(poses, lx, ly, valid, table, x0, y0, inv_res, outside, out):
     """Sum over beams of the per-beam log-likelihoods: ``out[n]`` (one particle per row)."""
     h, w = table.shape
@@ -89,54 +91,79 @@ def likelihood_field_sum(poses, lx, ly, valid, table, x0, y0, inv_res, outside, 
         out[n] = acc
 
 
-@njit(cache=True)
-def cast_ray(dist, occupied, x0, y0, res, sx, sy, dx, dy, max_range):
-    """Range (m) from ``(sx, sy)`` along unit direction ``(dx, dy)`` to the first occupied cell.
+@njit(cache=True, fastmath=True)
+def cast_fan(dist, x0, y0, res, sx, sy, dirx, diry, max_range, t, live, out):
+    """Cast a fan of rays from ``(sx, sy)`` along unit directions ``(dirx, diry)``.
 
-    Sphere tracing on the Euclidean distance transform: ``dist[iy, ix]`` is the distance (m)
-    from the centre of cell ``[iy, ix]`` to the nearest occupied cell centre, so no occupied
-    cell boundary lies closer than ``dist - sqrt(2) * res`` to any point of the cell. The ray
-    advances by that clearance, and by half a cell where the clearance is smaller, until the
-    point lands in an occupied cell (range = distance travelled), leaves the map or passes
-    ``max_range`` (range = ``max_range``).
+    ``out[b]`` receives the range (m) to the first occupied cell along ray ``b``. Method:
+    sphere tracing on the Euclidean distance transform. ``dist[iy, ix]`` is the distance (m)
+    from the centre of cell ``[iy, ix]`` to the nearest occupied cell centre (0 exactly in
+    occupied cells), so no occupied cell boundary lies closer than ``dist - sqrt(2) * res`` to
+    any point of the cell. A ray advances by that clearance, and by half a cell where the
+    clearance is smaller, until its point lands in an occupied cell (range = distance
+    travelled), leaves the map or reaches ``max_range`` (range = ``max_range``).
+
+    All unfinished rays advance one step at a time: their dependency chains (position ->
+    table lookup -> next position) are independent, so the processor overlaps their memory
+    latencies (2x faster than tracing one ray after the other). ``t`` (float) and ``live``
+    (int) are scratch arrays of the fan's length.
     """
     h, w = dist.shape
     inv = 1.0 / res
     margin = math.sqrt(2.0) * res
     half = 0.5 * res
-    t = 0.0
-    while t < max_range:
-        fx = (sx + t * dx - x0) * inv
-        fy = (sy + t * dy - y0) * inv
-        if fx < 0.0 or fy < 0.0 or fx >= w or fy >= h:
-            return max_range
-        ix = int(fx)
-        iy = int(fy)
-        if occupied[iy, ix]:
-            return t
-        step = dist[iy, ix] - margin
-        if step < half:
-            step = half
-        t += step
-    return max_range
+    m = dirx.shape[0]
+    for b in range(m):
+        t[b] = 0.0
+        live[b] = b
+    while m > 0:
+        k = 0
+        for j in range(m):
+            b = live[j]
+            tb = t[b]
+            fx = (sx + tb * dirx[b] - x0) * inv
+            fy = (sy + tb * diry[b] - y0) * inv
+            if tb >= max_range or fx < 0.0 or fy < 0.0 or fx >= w or fy >= h:
+                out[b] = max_range
+                continue
+            d = dist[int(fy), int(fx)]
+            if d <= 0.0:
+                out[b] = tb
+                continue
+            step = d - margin
+            if step < half:
+                step = half
+            t[b] = tb + step
+            live[k] = b
+            k += 1
+        m = k
 
 
 @njit(cache=True)
-def cast_rays(poses, angles, offset, dist, occupied, x0, y0, res, max_range, out):
-    """Expected ranges ``out[n, b]`` for every pose and beam (sensor offset applied)."""
-    co = math.cos(offset[2])
-    so = math.sin(offset[2])
+def cast_rays(poses, angles, offset, dist, x0, y0, res, max_range, out):
+    """Expected ranges ``out[n, b]`` for every pose and beam (sensor offset applied).
+
+    Beam directions are rotated from per-beam cosines and sines computed once.
+    """
+    nb = angles.shape[0]
+    cb = np.empty(nb)
+    sb = np.empty(nb)
+    for b in range(nb):
+        cb[b] = math.cos(angles[b] + offset[2])
+        sb[b] = math.sin(angles[b] + offset[2])
+    dirx = np.empty(nb)
+    diry = np.empty(nb)
+    t = np.empty(nb)
+    live = np.empty(nb, dtype=np.int64)
     for n in range(poses.shape[0]):
         c = math.cos(poses[n, 2])
         s = math.sin(poses[n, 2])
         sx = poses[n, 0] + c * offset[0] - s * offset[1]
         sy = poses[n, 1] + s * offset[0] + c * offset[1]
-        th = math.atan2(s * co + c * so, c * co - s * so)
-        for b in range(angles.shape[0]):
-            a = th + angles[b]
-            out[n, b] = cast_ray(
-                dist, occupied, x0, y0, res, sx, sy, math.cos(a), math.sin(a), max_range
-            )
+        for b in range(nb):
+            dirx[b] = c * cb[b] - s * sb[b]
+            diry[b] = s * cb[b] + c * sb[b]
+        cast_fan(dist, x0, y0, res, sx, sy, dirx, diry, max_range, t, live, out[n])
 
 
 @njit(cache=True)
@@ -147,11 +174,13 @@ def beam_log_likelihood(z, zs, max_range, z_hit, z_short, z_max, z_rand, sigma, 
         p += z_max
     else:
         if z >= 0.0:
-            # Gaussian truncated to [0, max_range], normalised (equation 6.4).
-            norm = 0.5 * (
-                math.erf((max_range - zs) / (sigma * math.sqrt(2.0)))
-                - math.erf((0.0 - zs) / (sigma * math.sqrt(2.0)))
-            )
+            # Gaussian truncated to [0, max_range], normalised (equation 6.4); eta differs
+            # from 1 by under 1e-15 when zs is more than 8 sigma inside both ends.
+            k = sigma * math.sqrt(2.0)
+            if zs > 8.0 * sigma and max_range - zs > 8.0 * sigma:
+                norm = 1.0
+            else:
+                norm = 0.5 * (math.erf((max_range - zs) / k) + math.erf(zs / k))
             if norm > 1e-300:
                 d = z - zs
                 p += (
@@ -168,12 +197,8 @@ def beam_log_likelihood(z, zs, max_range, z_hit, z_short, z_max, z_rand, sigma, 
 
 
 @njit(cache=True)
-def beam_model_per_beam(
-    poses, ranges, angles, offset, dist, occupied, x0, y0, res, max_range, params, out
-):
-    """Per-beam log-likelihoods of the beam model with ray casting."""
-    co = math.cos(offset[2])
-    so = math.sin(offset[2])
+def beam_model_per_beam(poses, ranges, angles, offset, dist, x0, y0, res, max_range, params, out):
+    """Per-beam log-likelihoods of the beam model with ray casting (non-finite readings: 0)."""
     z_hit, z_short, z_max, z_rand, sigma, lam = (
         params[0],
         params[1],
@@ -182,19 +207,40 @@ def beam_model_per_beam(
         params[4],
         params[5],
     )
+    nb = angles.shape[0]
+    cb = np.empty(nb)
+    sb = np.empty(nb)
+    ok = np.empty(nb, dtype=np.bool_)
+    for b in range(nb):
+        cb[b] = math.cos(angles[b] + offset[2])
+        sb[b] = math.sin(angles[b] + offset[2])
+        ok[b] = math.isfinite(ranges[b])
+    dirx = np.empty(nb)
+    diry = np.empty(nb)
+    t = np.empty(nb)
+    live = np.empty(nb, dtype=np.int64)
+    zs = np.empty(nb)
     for n in range(poses.shape[0]):
         c = math.cos(poses[n, 2])
         s = math.sin(poses[n, 2])
         sx = poses[n, 0] + c * offset[0] - s * offset[1]
         sy = poses[n, 1] + s * offset[0] + c * offset[1]
-        th = math.atan2(s * co + c * so, c * co - s * so)
-        for b in range(angles.shape[0]):
-            z = ranges[b]
-            if not math.isfinite(z):
+        for b in range(nb):
+            dirx[b] = c * cb[b] - s * sb[b]
+            diry[b] = s * cb[b] + c * sb[b]
+        cast_fan(dist, x0, y0, res, sx, sy, dirx, diry, max_range, t, live, zs)
+        for b in range(nb):
+            if not ok[b]:
                 out[n, b] = 0.0
                 continue
-            a = th + angles[b]
-            zs = cast_ray(dist, occupied, x0, y0, res, sx, sy, math.cos(a), math.sin(a), max_range)
             out[n, b] = beam_log_likelihood(
-                min(z, max_range), zs, max_range, z_hit, z_short, z_max, z_rand, sigma, lam
+                min(ranges[b], max_range),
+                zs[b],
+                max_range,
+                z_hit,
+                z_short,
+                z_max,
+                z_rand,
+                sigma,
+                lam,
             )

@@ -351,9 +351,7 @@ class BeamModel:
         _, a, o = _scan_arrays(np.zeros_like(a), a, sensor_offset)
         out = np.empty((p.shape[0], a.shape[0]))
         f = self.frame
-        _k.cast_rays(
-            p, a, o, self.distance, self.occupied, f.x0, f.y0, f.resolution, self.max_range, out
-        )
+        _k.cast_rays(p, a, o, self.distance, f.x0, f.y0, f.resolution, self.max_range, out)
         return out
 
     def log_likelihood(
@@ -377,7 +375,6 @@ class BeamModel:
             a,
             o,
             self.distance,
-            self.occupied,
             f.x0,
             f.y0,
             f.resolution,

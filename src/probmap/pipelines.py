@@ -31,6 +31,8 @@ class MappingConfig:
         ``"odometry"``: the robot's odometry composed with the laser offset.
     p_hit, p_miss, thickness, max_clear_range
         The inverse sensor model (see :class:`~probmap.grid.occupancy.InverseSensorModel`).
+        A max-range reading means "no return" (CARMEN logs store 81.9 m), not "free for 80 m":
+        by default it clears 10 m; ``None`` clears up to the maximum range.
     p0 : float
         Prior occupancy.
     clamp : tuple of float
@@ -47,7 +49,7 @@ class MappingConfig:
     p_hit: float = 0.7
     p_miss: float = 0.4
     thickness: float = 0.0
-    max_clear_range: float | None = None
+    max_clear_range: float | None = 10.0
     p0: float = 0.5
     clamp: tuple[float, float] = (0.12, 0.97)
     skip_bad_lines: bool = False
@@ -139,6 +141,7 @@ def map_log(
         )
         if progress is not None:
             progress(stop, n)
+    grid = grid.cropped()
     t2 = time.perf_counter()
     return MappingResult(
         grid=grid,

@@ -66,10 +66,10 @@ def map_command(
         "--poses",
         help="corrected: the scans' laser poses; odometry: robot odometry + laser offset.",
     ),
-    max_clear: float | None = typer.Option(
-        None,
+    max_clear: float = typer.Option(
+        10.0,
         "--max-clear",
-        help="Free space cleared by max-range readings, metres (default: max range).",
+        help="Free space cleared by a max-range (no-return) reading, metres.",
     ),
     p_hit: float = typer.Option(
         0.7, "--p-hit", help="Inverse model: p(occupied) at a beam's endpoint."

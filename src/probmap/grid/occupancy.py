@@ -251,6 +251,33 @@ class OccupancyGrid:
         grid._scans = 1 if seen.any() else 0
         return grid
 
+    def cropped(self, margin: int = 2) -> OccupancyGrid:
+        """A copy trimmed to the observed cells plus ``margin`` cells, on the same cell lattice.
+
+        Growth leaves unobserved borders; trimming them before writing keeps map files small.
+        World positions of cells are unchanged. A grid with no observed cell is returned as a copy.
+        """
+        seen = self.observed
+        rows = np.nonzero(seen.any(axis=1))[0]
+        cols = np.nonzero(seen.any(axis=0))[0]
+        if len(rows) == 0:
+            y0, y1, x0, x1 = 0, self._spec.height, 0, self._spec.width
+        else:
+            y0 = max(int(rows[0]) - margin, 0)
+            y1 = min(int(rows[-1]) + 1 + margin, self._spec.height)
+            x0 = max(int(cols[0]) - margin, 0)
+            x1 = min(int(cols[-1]) + 1 + margin, self._spec.width)
+        r = self._spec.resolution
+        ox, oy = self._spec.origin
+        spec = GridSpec(r, (ox + x0 * r, oy + y0 * r), (y1 - y0, x1 - x0))
+        out = OccupancyGrid(
+            r, p0=self.p0, clamp=self.clamp, model=self.model, spec=spec, fixed=self.fixed
+        )
+        out._lo = self._lo[y0:y1, x0:x1].copy()
+        out._stamp = self._stamp[y0:y1, x0:x1].copy()
+        out._scans = self._scans
+        return out
+
     # ------------------------------------------------------------------ growth
     def _ensure_bounds(self, box: NDArray[np.float64]) -> None:
         xmin, xmax, ymin, ymax = (float(v) for v in box)

@@ -103,16 +103,21 @@ def child(name: str, n_scans: int) -> None:
 
 
 def intel(path: Path) -> None:
-    from probmap.pipelines import MappingConfig, map_log
+    import tempfile
+
+    from probmap.pipelines import MappingConfig, map_log, write_map
 
     cfg = MappingConfig(resolution=0.05, poses="odometry")
     map_log(path, cfg)  # warm-up: compiles (or loads cached) kernels
-    runs = [map_log(path, cfg) for _ in range(3)]
-    best = min(runs, key=lambda r: r.parse_seconds + r.map_seconds)
+    with tempfile.TemporaryDirectory() as tmp:
+        runs = [write_map(Path(tmp) / "intel", map_log(path, cfg)) for _ in range(3)]
+    best = min(runs, key=lambda r: r.parse_seconds + r.map_seconds + r.write_seconds)
+    total = best.parse_seconds + best.map_seconds + best.write_seconds
     print(
-        f"\nFull raw Intel log ({best.stats.scans:,} scans, {best.stats.cell_updates:,} cell updates, "
-        f"0.05 m): parse {best.parse_seconds:.2f} s + map {best.map_seconds:.2f} s = "
-        f"{best.parse_seconds + best.map_seconds:.2f} s (best of 3 after warm-up)"
+        f"\nFull raw Intel log to map files ({best.stats.scans:,} scans, "
+        f"{best.stats.cell_updates:,} cell updates, 0.05 m): parse {best.parse_seconds:.2f} s + "
+        f"map {best.map_seconds:.2f} s + write {best.write_seconds:.2f} s = {total:.2f} s "
+        "(best of 3 after warm-up; the bz2 decompression alone takes about 0.4 s)"
     )
 
 

@@ -274,3 +274,16 @@ def test_simulated_world_accuracy(seed):
     print(f"seed {seed}: {acc:.4f} of {n} observed cells classified correctly")
     assert n > 50_000
     assert acc >= 0.98
+
+
+def test_cropped_keeps_world_positions():
+    grid = OccupancyGrid(0.1)
+    grid.integrate_scan([3.0, 2.0, 0.3], [1.03, 2.07], [0.0, 0.5], max_range=5.0)
+    grid._ensure_bounds(np.array([-40.0, 40.0, -40.0, 40.0]))  # unobserved border
+    small = grid.cropped(margin=1)
+    assert small.spec.width < grid.spec.width and small.spec.height < grid.spec.height
+    assert small.observed.sum() == grid.observed.sum()
+    iy, ix = np.nonzero(grid.observed)
+    world = grid.spec.cell_to_world(np.column_stack([ix, iy]))
+    c = small.spec.world_to_cell(world)
+    np.testing.assert_array_equal(small.log_odds[c[:, 1], c[:, 0]], grid.log_odds[iy, ix])

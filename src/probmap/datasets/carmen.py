@@ -296,6 +296,10 @@ class CarmenLog:
             for _ in self._read(scans=True, odometry=False):
                 pass
         assert self._done is not None
+        if self._done.scans == 0:
+            raise DatasetError(
+                "no laser scans (FLASER, RLASER or ROBOTLASER1 lines) in the log", path=self.path
+            )
         return self._done.scans
 
     def __iter__(self) -> Iterator[LaserScan]:

@@ -1,0 +1,126 @@
+"""Atomic writes: all or nothing, the old file intact until the rename, errors naming the path."""
+
+from __future__ import annotations
+
+import os
+import stat
+
+import pytest
+
+from probmap._atomic import atomic_files, atomic_save, atomic_write
+
+
+def test_write_creates_file_and_leaves_no_temporary(tmp_path):
+    target = tmp_path / "out.bin"
+    with atomic_write(target) as f:
+        f.write(b"abc")
+        f.write(b"def")
+        assert not target.exists()  # nothing visible before the rename
+    assert target.read_bytes() == b"abcdef"
+    assert os.listdir(tmp_path) == ["out.bin"]
+
+
+def test_old_content_survives_until_commit_and_on_failure(tmp_path):
+    target = tmp_path / "map.yaml"
+    target.write_text("old\n")
+    with pytest.raises(RuntimeError, match="midway"):
+        with atomic_write(target, "w") as f:
+            f.write("new, half written")
+            assert target.read_text() == "old\n"
+            raise RuntimeError("writer failed midway")
+    assert target.read_text() == "old\n"
+    assert os.listdir(tmp_path) == ["map.yaml"]
+    with atomic_write(target, "w") as f:
+        f.write("new\n")
+        assert target.read_text() == "old\n"
+    assert target.read_text() == "new\n"
+
+
+def test_failed_first_write_leaves_no_file(tmp_path):
+    target = tmp_path / "never.npz"
+
+    def writer(f):
+        f.write(b"x" * 1000)
+        raise KeyboardInterrupt  # even an interrupt must not leave a truncated file
+
+    with pytest.raises(KeyboardInterrupt):
+        atomic_save(target, writer)
+    assert os.listdir(tmp_path) == []
+
+
+def test_text_mode_and_encoding(tmp_path):
+    target = tmp_path / "t.txt"
+    with atomic_write(target, "w", encoding="latin-1") as f:
+        f.write("d\u00e9j\u00e0 vu\n")
+    assert target.read_bytes() == "d\u00e9j\u00e0 vu\n".encode("latin-1")
+    assert atomic_save(tmp_path / "u.txt", lambda f: f.write("\u00e9"), mode="w").read_bytes() == (
+        "\u00e9".encode()
+    )
+
+
+def test_permissions_follow_the_umask_like_open(tmp_path):
+    plain = tmp_path / "plain"
+    plain.write_bytes(b"")
+    target = atomic_save(tmp_path / "atomic", lambda f: f.write(b""))
+    assert stat.S_IMODE(target.stat().st_mode) == stat.S_IMODE(plain.stat().st_mode)
+
+
+def test_bad_arguments(tmp_path):
+    with pytest.raises(ValueError, match="mode"):
+        with atomic_write(tmp_path / "a", "a"):
+            pass
+    with pytest.raises(ValueError, match="encoding"):
+        with atomic_write(tmp_path / "a", "wb", encoding="utf-8"):
+            pass
+    with pytest.raises(ValueError, match="duplicate"):
+        with atomic_files([tmp_path / "a", tmp_path / "a"]):
+            pass
+    assert os.listdir(tmp_path) == []
+
+
+def test_missing_or_unusable_folder_names_the_path(tmp_path):
+    target = tmp_path / "no" / "such" / "folder" / "m.pgm"
+    with pytest.raises(FileNotFoundError) as info:
+        atomic_save(target, lambda f: f.write(b"x"))
+    assert str(target) in str(info.value)
+    afile = tmp_path / "afile"
+    afile.write_bytes(b"")
+    with pytest.raises(NotADirectoryError, match="afile"):
+        atomic_save(afile / "m.pgm", lambda f: f.write(b"x"))
+
+
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0, reason="root ignores permissions")
+def test_unwritable_folder_names_the_path(tmp_path):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        with pytest.raises(PermissionError, match="ro/m.pgm"):
+            atomic_save(ro / "m.pgm", lambda f: f.write(b"x"))
+    finally:
+        ro.chmod(0o700)
+
+
+def test_group_is_all_or_nothing(tmp_path):
+    a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    b.write_bytes(b"old b")
+    with pytest.raises(OSError, match="second writer"):
+        with atomic_files([a, b, c]) as (fa, fb, fc):
+            fa.write(b"new a")
+            fb.write(b"new b")
+            raise OSError("second writer failed")
+    assert sorted(os.listdir(tmp_path)) == ["b"] and b.read_bytes() == b"old b"
+    with atomic_files([a, b, c]) as (fa, fb, fc):
+        fa.write(b"1")
+        fb.write(b"2")
+        fc.write(b"3")
+    assert [p.read_bytes() for p in (a, b, c)] == [b"1", b"2", b"3"]
+    assert sorted(os.listdir(tmp_path)) == ["a", "b", "c"]
+
+
+def test_group_into_a_missing_folder_creates_nothing(tmp_path):
+    good = tmp_path / "good"
+    with pytest.raises(FileNotFoundError, match="missing"):
+        with atomic_files([good, tmp_path / "missing" / "x"]):
+            pass
+    assert os.listdir(tmp_path) == []

@@ -13,3 +13,6 @@ def register(app: typer.Typer) -> None:
     from probmap.cli import mapping
 
     mapping.register(app)
+    from probmap.cli import evaluate
+
+    evaluate.register(app)

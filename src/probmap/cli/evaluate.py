@@ -1,0 +1,71 @@
+"""``probmap evaluate relations``: the relation-based SLAM metric of Kuemmerle et al. (2009)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from probmap.cli.common import cli_errors
+
+evaluate_app = typer.Typer(
+    help="Score trajectories and maps against references.", no_args_is_help=True
+)
+
+
+@evaluate_app.command("relations")
+def relations_command(
+    trajectory: Path = typer.Argument(..., help="Trajectory CSV (time,x,y,theta) or a CARMEN log."),
+    relations: Path = typer.Argument(
+        ..., help="Relations file (t1 t2 dx dy dz droll dpitch dyaw)."
+    ),
+    tolerance: float = typer.Option(
+        1e-3, "--tolerance", help="Timestamp matching tolerance, seconds."
+    ),
+    poses: str = typer.Option(
+        "robot", "--poses", help="For a CARMEN log: robot (odom fields) or laser poses."
+    ),
+    output: Path | None = typer.Option(
+        None, "-o", "--output", help="Also write the figures as JSON."
+    ),
+) -> None:
+    """Relation error of a trajectory: mean and std of translational and rotational errors."""
+    with cli_errors():
+        import json
+
+        from rich.console import Console
+        from rich.table import Table
+
+        from probmap._atomic import atomic_write
+        from probmap.metrics.relations import read_relations, read_trajectory, relation_errors
+
+        times, xy = read_trajectory(trajectory, poses=poses)
+        rel = read_relations(relations)
+        s = relation_errors(times, xy, rel, tolerance=tolerance).summary()
+        table = Table(title=f"relation error of {trajectory.name} on {relations.name}")
+        table.add_column("error")
+        table.add_column("absolute: mean ± std", justify="right")
+        table.add_column("squared: mean ± std", justify="right")
+        table.add_row(
+            "translation",
+            f"{s['trans_abs_mean_m']:.3f} ± {s['trans_abs_std_m']:.3f} m",
+            f"{s['trans_sq_mean_m2']:.3f} ± {s['trans_sq_std_m2']:.3f} m²",
+        )
+        table.add_row(
+            "rotation",
+            f"{s['rot_abs_mean_deg']:.2f} ± {s['rot_abs_std_deg']:.2f} deg",
+            f"{s['rot_sq_mean_deg2']:.1f} ± {s['rot_sq_std_deg2']:.1f} deg²",
+        )
+        console = Console()
+        console.print(table)
+        console.print(
+            f"{int(s['relations'])} relations evaluated, {int(s['missing'])} without poses"
+        )
+        if output is not None:
+            with atomic_write(output, "w") as f:
+                json.dump(s, f, indent=2)
+
+
+def register(app: typer.Typer) -> None:
+    """Attach ``probmap evaluate``."""
+    app.add_typer(evaluate_app, name="evaluate")

@@ -144,17 +144,17 @@ class InformationStore:
             nbrs = adjacency[s]
             if len(nbrs) < k:
                 for t, block in nbrs.items():
-                    c = pos.get(t)
-                    if c is not None and s < t:
-                        omega[r : r + 2, c : c + 2] = block
-                        omega[c : c + 2, r : r + 2] = block.T
+                    ct = pos.get(t)
+                    if ct is not None and s < t:
+                        omega[r : r + 2, ct : ct + 2] = block
+                        omega[ct : ct + 2, r : r + 2] = block.T
             else:
                 for t, c in pos.items():
                     if s < t:
-                        block = nbrs.get(t)
-                        if block is not None:
-                            omega[r : r + 2, c : c + 2] = block
-                            omega[c : c + 2, r : r + 2] = block.T
+                        found = nbrs.get(t)
+                        if found is not None:
+                            omega[r : r + 2, c : c + 2] = found
+                            omega[c : c + 2, r : r + 2] = found.T
         return omega, xi, mu
 
     def boundary(self, slots: Sequence[int]) -> FloatArray:

@@ -190,13 +190,14 @@ def sparsify_information(
         Omega~ = Omega1 - Omega2 + Omega3,     xi~ = xi + (Omega~ - Omega) mu
 
     ``Omega3`` uses the full matrix, but its correction lives on the robot's Markov blanket
-    (``x``, ``m+``, ``m0``), so a caller may pass just that block plus the landmarks' other links
-    unchanged. The robot-``m0`` blocks of the result are exactly zero.
+    (``x``, ``m+``, ``m0``), so every change is confined to that block: pass exactly that block
+    (the submatrix, which is ``Omega0``); all links to ``m-`` stay as they are. The robot-``m0``
+    blocks of the result are exactly zero.
 
     Parameters
     ----------
     Omega, xi, mu : ndarray, shapes (d, d), (d,), (d,)
-        Robot first; must contain every landmark linked to the robot.
+        Over the robot (first) and the active landmarks ``m+`` and ``m0`` only.
     m0_rows : sequence of int
         First rows of the landmarks to deactivate.
 
@@ -500,7 +501,8 @@ class SEIFSlam:
             ``(range m, bearing rad)`` in the sensor frame.
         ids : array_like, shape (k,)
             Landmark ids; ``-1`` = unknown, associated by maximum likelihood with Mahalanobis
-            gating on the locally recovered mean and covariance.
+            gating on the locally recovered mean and covariance. Observations with a range
+            <= 0 are ignored (as in the EKF).
 
         Raises
         ------
@@ -513,10 +515,11 @@ class SEIFSlam:
             raise ValueError(f"z has {z.shape[0]} rows but ids has {ids.shape[0]}")
         if not np.all(np.isfinite(z)):
             raise ValueError("measurements z must be finite")
-        if np.any(z[:, 0] <= 0):
-            raise ValueError("measured ranges must be > 0")
         if np.any(ids < -1):
             raise ValueError("landmark ids must be >= 0, or -1 for unknown")
+        positive = z[:, 0] > 1e-9  # a range <= 0 (noise near the sensor) has no bearing: drop it
+        if not positive.all():
+            z, ids = z[positive], ids[positive]
         self._step += 1
         if z.shape[0] and np.any(ids == -1):
             z, ids = self.associate(z, ids)
@@ -583,9 +586,7 @@ class SEIFSlam:
         Omega, xi, mu = st.gather(local)
         pos = st.local_index(local)
         if old_obs:
-            Omega, xi = self.measurement_update(
-                Omega, xi, mu, z[old_z], [pos[s] for s in old_obs]
-            )
+            Omega, xi = self.measurement_update(Omega, xi, mu, z[old_z], [pos[s] for s in old_obs])
         mu = self.update_mean(local, Omega, xi, mu)
         if new_z:
             Omega, xi, mu = self._initialize_landmarks(local, Omega, xi, mu, z[new_z], new_ids)
@@ -873,7 +874,7 @@ class SEIFSlam:
                 RuntimeWarning,
                 stacklevel=2,
             )
-            cov = np.linalg.inv(st.omega_diag)
+            cov = np.asarray(np.linalg.inv(st.omega_diag), dtype=np.float64)
         cov = np.asarray(0.5 * (cov + cov.transpose(0, 2, 1)), dtype=np.float64)
         return ids, xy, cov
 

@@ -158,12 +158,12 @@ def test_spurious_provisional_landmarks_removed():
     assert ekf.n_landmarks == 1 and len(ekf.landmarks()[0]) == 0
     for _ in range(3):
         ekf.predict([0.0, 0.0], 0.1)
-        ekf.update(np.zeros((0, 2)), np.zeros(0, dtype=np.int64))
-    assert ekf.n_landmarks == 0
-    # a real one seen repeatedly is confirmed
+        ekf.update(np.zeros((0, 2)), np.zeros(0, dtype=np.int64))  # no scan: no miss
+    assert ekf.n_landmarks == 1
     for _ in range(3):
-        ekf.update([[5.0, -0.3]], [-1])
-    assert ekf.n_landmarks == 1 and len(ekf.landmarks()[0]) == 1
+        ekf.update([[5.0, -0.3]], [-1])  # scans that see another landmark only
+    assert ekf.n_landmarks == 1 and ekf.landmarks()[1][0][1] < 0
+    assert len(ekf.landmarks()[0]) == 1  # the real one, seen repeatedly, is confirmed
 
 
 def test_bad_measurements_raise_cleanly():

@@ -11,17 +11,27 @@ previous record, ``control`` the latest control received before this record's ti
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
+from probmap.datasets.protocol import DatasetError
+
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-__all__ = ["LandmarkDataset", "LandmarkSequence", "LandmarkStep"]
+__all__ = [
+    "LandmarkDataset",
+    "LandmarkSequence",
+    "LandmarkStep",
+    "merge_events",
+    "read_numeric_table",
+]
 
 
 def _frozen(a: Any, dtype: Any, shape_tail: tuple[int, ...], name: str) -> NDArray[Any]:
@@ -135,3 +145,135 @@ class LandmarkSequence:
 
     def __getitem__(self, i: int) -> LandmarkStep:
         return self.steps[i]
+
+
+def read_numeric_table(
+    path: str | os.PathLike[str],
+    columns: Sequence[str],
+    *,
+    min_columns: int | None = None,
+    time_column: int | None = 0,
+    allow_equal_times: bool = True,
+) -> tuple[FloatArray, int]:
+    """Read a whitespace-separated numeric text table with clear errors.
+
+    Lines that are empty or start with ``#`` are ignored. Every other line must hold at least
+    ``min_columns`` (default ``len(columns)``) numbers; extra fields are ignored.
+
+    Parameters
+    ----------
+    path : path-like
+    columns : sequence of str
+        Column names, used in error messages.
+    min_columns : int, optional
+    time_column : int or None
+        Index of a time column that must not go backwards (``None`` to skip the check).
+    allow_equal_times : bool
+        Whether consecutive rows may share a time stamp.
+
+    Returns
+    -------
+    table : ndarray, shape (rows, len(columns))
+        Rows with a NaN or infinite value are dropped (see ``skipped``).
+    skipped : int
+        Number of rows dropped because of NaN/inf values; the caller warns about them.
+
+    Raises
+    ------
+    DatasetError
+        Missing columns, non-numeric fields, or times that go backwards; names the file, line and
+        field.
+    """
+    ncol = len(columns)
+    need = ncol if min_columns is None else min_columns
+    rows: list[list[float]] = []
+    skipped = 0
+    last_t = -np.inf
+    path = Path(path)
+    with open(path) as f:
+        for lineno, line in enumerate(f, start=1):
+            s = line.strip()
+            if not s or s.startswith("#"):
+                continue
+            parts = s.split()
+            if len(parts) < need:
+                raise DatasetError(
+                    f"expected {need} columns ({', '.join(columns[:need])}), found {len(parts)}",
+                    path=path,
+                    line=lineno,
+                )
+            vals = []
+            for j in range(min(ncol, len(parts))):
+                try:
+                    vals.append(float(parts[j]))
+                except ValueError:
+                    raise DatasetError(
+                        f"not a number: {parts[j]!r}", path=path, line=lineno, field=columns[j]
+                    ) from None
+            vals.extend([np.nan] * (ncol - len(vals)))
+            if not all(np.isfinite(vals[:need])):
+                skipped += 1
+                continue
+            if time_column is not None:
+                t = vals[time_column]
+                if t < last_t or (t == last_t and not allow_equal_times):
+                    raise DatasetError(
+                        f"time {t} goes backwards (previous {last_t})",
+                        path=path,
+                        line=lineno,
+                        field=columns[time_column],
+                    )
+                last_t = t
+            rows.append(vals)
+    table = np.array(rows, dtype=np.float64).reshape(-1, ncol)
+    return table, skipped
+
+
+def merge_events(
+    control_times: FloatArray,
+    controls: FloatArray,
+    obs_times: FloatArray,
+    obs: FloatArray,
+    obs_ids: IntArray,
+    *,
+    start: float | None = None,
+) -> tuple[FloatArray, FloatArray, FloatArray, IntArray, IntArray]:
+    """Event-driven stepping with a zero-order hold of the control.
+
+    Events are the control times and the distinct observation times (sorted; an observation at
+    the same time as a control shares its event). The step ending at event ``e`` lasts from the
+    previous event and uses the control received last *before* that interval began (zero before
+    the first control). Observations are attached to the event at their time.
+
+    Parameters
+    ----------
+    control_times : (C,)  controls : (C, 2)
+    obs_times : (K,)  obs : (K, 2)  obs_ids : (K,)
+    start : float, optional
+        Events before ``start`` are dropped (their controls still count for the hold).
+
+    Returns
+    -------
+    times : (E,)
+        Event times.
+    dts : (E,)
+    step_controls : (E, 2)
+    obs_start : (E + 1,) int64
+        Observations of event ``e`` are ``obs[order][obs_start[e]:obs_start[e + 1]]``.
+    order : (K',) int64
+        Indices into ``obs`` of the kept observations, sorted by time (stable).
+    """
+    times = np.union1d(control_times, obs_times)
+    if start is not None:
+        times = times[times >= start]
+    # control active over (t_prev, t]: the last control at or before t_prev
+    prev = np.concatenate([times[:1], times[:-1]])
+    idx = np.searchsorted(control_times, prev, side="right") - 1
+    step_controls = np.where(idx[:, None] >= 0, controls[np.maximum(idx, 0)], 0.0)
+    dts = np.diff(times, prepend=times[:1])
+    order = np.argsort(obs_times, kind="stable")
+    if start is not None:
+        order = order[obs_times[order] >= start]
+    ev = np.searchsorted(times, obs_times[order])
+    obs_start = np.searchsorted(ev, np.arange(times.size + 1))
+    return times, dts, step_controls, obs_start.astype(np.int64), order.astype(np.int64)

@@ -53,6 +53,10 @@ class EKFConfig:
         Field of view (rad) centred on the sensor heading, for miss counting.
     min_range : float
         Observations closer than this (m) are ignored.
+    outlier_probability : float or None
+        With known correspondences, observations whose Mahalanobis distance exceeds this
+        chi-square quantile are rejected as outliers (counted in ``rejected_outliers``);
+        None fuses everything.
     symmetrize_every : int
         Re-symmetrize ``P`` after this many updates (guards against rounding drift).
     """
@@ -64,6 +68,7 @@ class EKFConfig:
     visibility_range: float = np.inf
     visibility_fov: float = 2 * np.pi
     min_range: float = 0.0
+    outlier_probability: float | None = None
     symmetrize_every: int = 50
 
     def __post_init__(self) -> None:
@@ -122,6 +127,13 @@ class EKFSLAM:
         self._next_id = 0
         self._gate = chi2_gate(self.config.gate_probability)
         self._new_gate = chi2_gate(self.config.new_landmark_probability)
+        self._outlier_gate = (
+            None
+            if self.config.outlier_probability is None
+            else chi2_gate(self.config.outlier_probability)
+        )
+        self.rejected_outliers = 0
+        """Known-id observations rejected by the outlier gate so far."""
         self._n_updates = 0
         self.last_nis: float = np.nan
         """Normalised innovation squared of the last update (``nu^T S^-1 nu``)."""
@@ -212,12 +224,14 @@ class EKFSLAM:
         for i in np.flatnonzero(known):
             s = self._slot.get(int(ids[i]))
             if s is None:
-                if int(ids[i]) in new_ids:  # seen twice in one scan: fuse the second
+                if int(ids[i]) in new_ids:  # seen twice in one scan: drop the second
                     continue
                 new_rows.append(int(i))
                 new_ids.append(int(ids[i]))
             else:
                 slots[i] = s
+        if self._outlier_gate is not None and np.any(slots >= 0):
+            self._reject_outliers(z, slots)
         unknown = np.flatnonzero(~known)
         if unknown.size:
             match = self._associate(z[unknown])
@@ -227,7 +241,8 @@ class EKFSLAM:
                 elif m == NEW:
                     new_rows.append(int(i))
                     new_ids.append(-1)
-        if unknown.size or n_before and not self._confirmed.all():
+        if z.shape[0] and n_before and not self._confirmed.all():
+            # a step without observations is "no scan", not evidence against landmarks
             self._count_misses(slots, n_before)
         matched = np.flatnonzero(slots >= 0)
         if matched.size:
@@ -238,14 +253,27 @@ class EKFSLAM:
             self._add_landmarks(z[new_rows], new_ids)
         self._remove_spurious()
 
-    def _predicted_observations(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """``z_hat (n, 2)``, ``H_x (n, 2, 3)``, ``H_m (n, 2, 2)`` and ``S (n, 2, 2)``, O(n)."""
-        n = self.n_landmarks
-        lm = self._mu[3:].reshape(n, 2)
+    def _reject_outliers(self, z: FloatArray, slots: IntArray) -> None:
+        """Drop known-id observations outside the outlier gate (marks them unmatched)."""
+        sel = np.flatnonzero(slots >= 0)
+        z_hat, _, _, S = self._predicted_observations(slots[sel])
+        nu = innovation(z[sel], z_hat)
+        d2 = np.einsum("ki,ki->k", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+        bad = sel[d2 > self._outlier_gate]
+        slots[bad] = -2
+        self.rejected_outliers += int(bad.size)
+
+    def _predicted_observations(
+        self, slots: IntArray | None = None
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """``z_hat``, ``H_x (n, 2, 3)``, ``H_m (n, 2, 2)``, ``S (n, 2, 2)`` of ``slots`` (all)."""
+        sl = np.arange(self.n_landmarks) if slots is None else np.asarray(slots, dtype=np.int64)
+        lm = self._mu[3:].reshape(-1, 2)[sl]
         z_hat, H_x, H_m = self.measurement_model.predict_many(self._mu[:3], lm)  # type: ignore[attr-defined]
         P = self._P
-        P_rm = P[:3, 3:].reshape(3, n, 2).transpose(1, 0, 2)  # (n, 3, 2)
-        P_mm = self._landmark_blocks(np.arange(n))
+        cols = (3 + 2 * sl[:, None] + np.arange(2)).ravel()
+        P_rm = P[:3, cols].reshape(3, sl.size, 2).transpose(1, 0, 2)  # (n, 3, 2)
+        P_mm = self._landmark_blocks(sl)
         HxPrm = H_x @ P_rm  # (n, 2, 2)
         S = (
             H_x @ P[:3, :3] @ H_x.transpose(0, 2, 1)

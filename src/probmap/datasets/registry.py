@@ -1,0 +1,233 @@
+"""The dataset registry: known datasets by name, format guessing, and loading.
+
+``load("victoria-park")`` looks the name up in :data:`DATASETS` and opens it under the data
+directory (the ``data_dir`` argument, else the ``PROBMAP_DATA`` environment variable);
+``load("/some/folder/MRCLAM_Dataset3", robot=2)`` guesses the format from the path instead
+(:func:`guess_format`). Readers are imported only when used.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from probmap.datasets.protocol import DatasetError
+
+__all__ = ["DATASETS", "FORMATS", "DatasetInfo", "data_dir", "guess_format", "load", "resolve"]
+
+DATA_ENV = "PROBMAP_DATA"
+
+
+def _victoria_park(path: Path, **kw: Any) -> Any:
+    from probmap.datasets.victoria_park import VictoriaPark
+
+    return VictoriaPark(path, **kw)
+
+
+def _mrclam(path: Path, **kw: Any) -> Any:
+    from probmap.datasets.utias import MRCLAM
+
+    return MRCLAM(path, **kw)
+
+
+def _g2o(path: Path, **kw: Any) -> Any:
+    from probmap.datasets.g2o import read_g2o
+
+    return read_g2o(path, **kw)
+
+
+def _carmen(path: Path, **kw: Any) -> Any:
+    from probmap.datasets.carmen import CarmenLog
+
+    return CarmenLog(path, **kw)
+
+
+def _simulation(path: Path | None, **kw: Any) -> Any:
+    from probmap.datasets.simulation import simulate_landmarks
+
+    kw.setdefault("n_landmarks", 200)
+    kw.setdefault("n_steps", 2000)
+    kw.setdefault("seed", 0)
+    return simulate_landmarks(**kw)
+
+
+FORMATS: dict[str, Callable[..., Any]] = {
+    "victoria-park": _victoria_park,
+    "mrclam": _mrclam,
+    "g2o": _g2o,
+    "carmen": _carmen,
+    "simulation": _simulation,
+}
+"""Format name -> loader ``(path, **options) -> dataset``."""
+
+
+@dataclass(frozen=True)
+class DatasetInfo:
+    """A registered dataset.
+
+    Attributes
+    ----------
+    name : str
+    format : str
+        Key of :data:`FORMATS`.
+    relpath : str or None
+        Location under the data directory (None for generated data).
+    kind : str
+        ``landmarks``, ``laser`` or ``graph``: what the dataset yields.
+    description : str
+    options : dict
+        Default loader options.
+    """
+
+    name: str
+    format: str
+    relpath: str | None
+    kind: str
+    description: str
+    options: dict[str, Any] = field(default_factory=dict)
+
+
+DATASETS: dict[str, DatasetInfo] = {
+    d.name: d
+    for d in (
+        DatasetInfo(
+            "victoria-park",
+            "victoria-park",
+            "victoria-park",
+            "landmarks",
+            "Victoria Park, Sydney: car with encoder/steering, tree detections, GPS (unknown ids)",
+        ),
+        DatasetInfo(
+            "mrclam7",
+            "mrclam",
+            "utias-mrclam/MRCLAM_Dataset7",
+            "landmarks",
+            "UTIAS MRCLAM Dataset 7: 5 robots, 15 barcoded landmarks, Vicon truth (--robot N)",
+        ),
+        DatasetInfo(
+            "victoria-park-g2o",
+            "g2o",
+            "victoria-park/victoriaPark-full.g2o",
+            "graph",
+            "Victoria Park as a g2o pose-landmark graph (6,969 poses, 151 landmarks)",
+        ),
+        DatasetInfo(
+            "intel",
+            "carmen",
+            "intel-research-lab/intel.clf.bz2",
+            "laser",
+            "Intel Research Lab, Seattle: raw CARMEN laser log",
+        ),
+        DatasetInfo(
+            "intel-corrected",
+            "carmen",
+            "intel-research-lab/intel-corrected.log.gz",
+            "laser",
+            "Intel Research Lab, GMapping-corrected poses (910 scans)",
+        ),
+        DatasetInfo(
+            "freiburg-campus-corrected",
+            "carmen",
+            "freiburg-campus/freiburg-campus-corrected.log.gz",
+            "laser",
+            "Freiburg campus, GMapping-corrected poses",
+        ),
+        DatasetInfo(
+            "simulation",
+            "simulation",
+            None,
+            "landmarks",
+            "Seeded simulated landmark world (n_landmarks, n_steps, seed options)",
+        ),
+    )
+}
+
+
+def data_dir(explicit: str | os.PathLike[str] | None = None) -> Path | None:
+    """The data directory: ``explicit``, else ``$PROBMAP_DATA``, else None."""
+    if explicit is not None:
+        return Path(explicit)
+    env = os.environ.get(DATA_ENV)
+    return Path(env) if env else None
+
+
+def guess_format(path: str | os.PathLike[str]) -> str:
+    """Guess a dataset's format from its path (folder contents or file suffix).
+
+    Raises
+    ------
+    DatasetError
+        When the path does not exist or matches no known format.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise DatasetError("no such file or directory", path=p)
+    if p.is_dir():
+        if (p / "Barcodes.dat").exists():
+            return "mrclam"
+        if (p / "measurements.dat").exists() and (
+            (p / "inputs.dat").exists() or (p / "aa3_dr.mat").exists()
+        ):
+            return "victoria-park"
+        raise DatasetError(
+            "cannot guess the dataset format of this folder (expected MRCLAM files with "
+            "Barcodes.dat, or Victoria Park measurements.dat + inputs.dat)",
+            path=p,
+        )
+    name = p.name.lower()
+    for comp in (".gz", ".bz2"):
+        if name.endswith(comp):
+            name = name[: -len(comp)]
+    if name.endswith(".g2o"):
+        return "g2o"
+    if name.endswith((".clf", ".log", ".carmen")):
+        return "carmen"
+    raise DatasetError("cannot guess the dataset format from the file name", path=p)
+
+
+def resolve(name_or_path: str, data_directory: str | os.PathLike[str] | None = None) -> Path:
+    """Path of a registered dataset (under the data directory) or the given path itself."""
+    info = DATASETS.get(name_or_path)
+    if info is None:
+        return Path(name_or_path)
+    if info.relpath is None:
+        raise ValueError(f"dataset {info.name!r} is generated and has no path")
+    root = data_dir(data_directory)
+    if root is None:
+        raise DatasetError(
+            f"dataset {info.name!r} needs a data directory: pass --data-dir or set {DATA_ENV}"
+        )
+    path = root / info.relpath
+    if not path.exists():
+        raise DatasetError(f"dataset {info.name!r} not found under the data directory", path=path)
+    return path
+
+
+def load(
+    name_or_path: str,
+    *,
+    data_directory: str | os.PathLike[str] | None = None,
+    **options: Any,
+) -> Any:
+    """Open a dataset by registered name or by path (format guessed).
+
+    Parameters
+    ----------
+    name_or_path : str
+        A key of :data:`DATASETS` or a file/folder path.
+    data_directory : path-like, optional
+        Root of the data (default ``$PROBMAP_DATA``).
+    **options
+        Passed to the reader (e.g. ``robot=2`` for MRCLAM, ``end_time=300`` for a prefix).
+    """
+    info = DATASETS.get(name_or_path)
+    if info is not None:
+        opts = {**info.options, **options}
+        if info.relpath is None:
+            return FORMATS[info.format](None, **opts)
+        return FORMATS[info.format](resolve(name_or_path, data_directory), **opts)
+    path = Path(name_or_path)
+    return FORMATS[guess_format(path)](path, **options)

@@ -345,14 +345,23 @@ class CarmenLog:
             kind = fields[0]
             if kind[0] == "#":
                 continue
-            rec: LaserScan | Odometry | None = None
             try:
                 if kind == "FLASER" or kind == "RLASER":
-                    rec = self._parse_flaser(fields, lineno, state.params)
-                elif kind == "ROBOTLASER1":
-                    rec = self._parse_robotlaser(fields, lineno)
+                    scan = self._parse_flaser(fields, lineno, state.params)
+                    state.scans += 1
+                    if scans:
+                        yield scan
                 elif kind == "ODOM":
-                    rec = self._parse_odom(fields, lineno)
+                    # validated in every pass, built only when asked for
+                    odo = self._parse_odom(fields, lineno, odometry)
+                    state.odometry += 1
+                    if odo is not None:
+                        yield odo
+                elif kind == "ROBOTLASER1":
+                    scan = self._parse_robotlaser(fields, lineno)
+                    state.scans += 1
+                    if scans:
+                        yield scan
                 elif kind == "PARAM":
                     self._parse_param(fields, state.params)
             except _LineError as exc:
@@ -366,15 +375,6 @@ class CarmenLog:
                 state.skipped += 1
                 if not state.first_error:
                     state.first_error = f"line {lineno}: malformed {kind} line: {exc}"
-                continue
-            if isinstance(rec, LaserScan):
-                state.scans += 1
-                if scans:
-                    yield rec
-            elif isinstance(rec, Odometry):
-                state.odometry += 1
-                if odometry:
-                    yield rec
         if state.messages == 0:
             raise DatasetError("empty log (no messages)", path=self.path)
         if state.skipped:
@@ -394,6 +394,8 @@ class CarmenLog:
         key = (n, start, step)
         a = self._angles.get(key)
         if a is None:
+            if len(self._angles) >= 64:  # a log whose every message has its own geometry
+                self._angles.clear()
             a = start + step * np.arange(n, dtype=np.float64)
             a.flags.writeable = False
             self._angles[key] = a
@@ -465,18 +467,23 @@ class CarmenLog:
         )
 
     @staticmethod
-    def _parse_odom(f: list[str], lineno: int) -> Odometry:
-        _check_count(f, 10, "ODOM")
+    def _parse_odom(f: list[str], lineno: int, build: bool) -> Odometry | None:
+        if len(f) != 10:
+            _check_count(f, 10, "ODOM")
         try:
-            x, y, th, tv, rv = (float(v) for v in f[1:6])
+            x, y, th = float(f[1]), float(f[2]), float(f[3])
+            tv, rv, _ = float(f[4]), float(f[5]), float(f[6])
+            ipc, logger = float(f[7]), float(f[9])
         except ValueError:
-            for k, name in enumerate(_ODOM_FIELDS):
+            names = (*_ODOM_FIELDS, "accel", "ipc_timestamp")
+            for k, name in enumerate(names):
                 _float_field(f, k + 1, name)
+            _float_field(f, 9, "logger_timestamp")
             raise  # pragma: no cover
-        _check_finite([x, y, th], f, 1, _ODOM_FIELDS)
-        _float_field(f, 6, "accel")
-        ipc = _float_field(f, 7, "ipc_timestamp")
-        logger = _float_field(f, 9, "logger_timestamp")
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(th)):
+            _check_finite([x, y, th], f, 1, _ODOM_FIELDS)
+        if not build:
+            return None
         return Odometry(ipc, np.array((x, y, th)), tv, rv, logger, lineno)
 
     @staticmethod

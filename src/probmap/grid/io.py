@@ -191,11 +191,23 @@ def encode_map_server(
     alpha : ndarray, shape (H, W), uint8, or None
         Only in ``scale`` mode: 0 on never-observed cells, 255 elsewhere (used for PNG images).
     """
+    p = np.asarray(grid.probability(), dtype=np.float64)
+    seen = np.asarray(grid.observed, dtype=bool)
+    return _encode_pixels(p, seen, float(grid.p0), occupied_thresh, free_thresh, negate, mode)
+
+
+def _encode_pixels(
+    p: NDArray[np.float64],
+    seen: NDArray[np.bool_],
+    p0: float,
+    occupied_thresh: float,
+    free_thresh: float,
+    negate: bool,
+    mode: str,
+) -> tuple[NDArray[np.uint8], NDArray[np.uint8] | None]:
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     _check_thresholds(occupied_thresh, free_thresh)
-    p = np.asarray(grid.probability(), dtype=np.float64)
-    seen = np.asarray(grid.observed, dtype=bool)
     alpha: NDArray[np.uint8] | None = None
     if mode == "trinary":
         v = np.full(p.shape, _unknown_value(occupied_thresh, free_thresh), dtype=np.uint8)
@@ -203,7 +215,7 @@ def encode_map_server(
         v[seen & (p > occupied_thresh)] = OCCUPIED_BLACK
     elif mode == "scale":
         v = np.rint(255.0 * (1.0 - p)).astype(np.uint8)
-        v[~seen] = round(255.0 * (1.0 - float(grid.p0)))
+        v[~seen] = round(255.0 * (1.0 - p0))
         alpha = np.where(seen, 255, 0).astype(np.uint8)
     else:  # raw: the value is the occupancy in percent, 255 (-1 as int8) unknown
         v = np.rint(100.0 * p).astype(np.uint8)
@@ -248,7 +260,7 @@ def png_bytes(grey: NDArray[np.uint8], alpha: NDArray[np.uint8] | None = None) -
     g = np.ascontiguousarray(grey, dtype=np.uint8)
     img = Image.fromarray(g) if alpha is None else Image.fromarray(np.dstack((g, alpha)), "LA")
     buf = io.BytesIO()
-    img.save(buf, format="PNG")
+    img.save(buf, format="PNG", compress_level=3)  # 6 (the default) is 2x slower, 10% smaller
     return buf.getvalue()
 
 
@@ -530,7 +542,12 @@ def _npz_arrays(grid: GridLike) -> dict[str, NDArray[Any]]:
 
 
 def _write_npz(f: IO[bytes], grid: GridLike) -> None:
-    np.savez_compressed(f, **_npz_arrays(grid))  # type: ignore[arg-type]
+    """The ``.npz`` layout of ``np.savez_compressed`` (one ``NAME.npy`` per array in a zip), at
+    deflate level 3: twice as fast as numpy's default level on large grids, files ~30% larger."""
+    with zipfile.ZipFile(f, "w", zipfile.ZIP_DEFLATED, compresslevel=3) as zf:
+        for name, arr in _npz_arrays(grid).items():
+            with zf.open(f"{name}.npy", "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, arr, allow_pickle=False)
 
 
 def save_npz(path: str | os.PathLike[str], grid: GridLike) -> Path:
@@ -541,9 +558,10 @@ def save_npz(path: str | os.PathLike[str], grid: GridLike) -> Path:
     ``clamp`` (2,). Load it with :func:`load_npz`.
     """
     p = Path(path)
-    arrays = _npz_arrays(grid)
+    buf = io.BytesIO()
+    _write_npz(buf, grid)
     with atomic_files([p]) as (f,):
-        np.savez_compressed(f, **arrays)  # type: ignore[arg-type]
+        f.write(buf.getvalue())
     return p
 
 
@@ -629,10 +647,15 @@ def load_npz(path: str | os.PathLike[str]) -> OccupancyGrid:
 
 def preview_image(grid: GridLike, scale: int = 1) -> NDArray[np.uint8]:
     """Grey preview, row 0 = top: ``255 (1 - p)`` on observed cells, 205 on unknown ones."""
+    p = np.asarray(grid.probability(), dtype=np.float64)
+    return _preview_pixels(p, np.asarray(grid.observed, dtype=bool), scale)
+
+
+def _preview_pixels(
+    p: NDArray[np.float64], seen: NDArray[np.bool_], scale: int
+) -> NDArray[np.uint8]:
     if isinstance(scale, bool) or not isinstance(scale, (int, np.integer)) or scale < 1:
         raise ValueError(f"scale must be a positive integer, got {scale!r}")
-    p = np.asarray(grid.probability(), dtype=np.float64)
-    seen = np.asarray(grid.observed, dtype=bool)
     v = np.where(seen, np.rint(255.0 * (1.0 - p)), UNKNOWN_GREY).astype(np.uint8)[::-1]
     if scale > 1:
         v = np.repeat(np.repeat(v, scale, axis=0), scale, axis=1)
@@ -678,13 +701,14 @@ def save_map(
     if base.name in ("", ".", ".."):
         raise ValueError(f"output prefix {os.fspath(prefix)!r} needs a file name part")
     paths = [base.parent / f"{base.name}.{ext}" for ext in ("yaml", "pgm", "npz", "png")]
-    grey, _ = encode_map_server(
-        grid, occupied_thresh=occupied_thresh, free_thresh=free_thresh, mode=mode
-    )
+    # the probabilities once for both images
+    p = np.asarray(grid.probability(), dtype=np.float64)
+    seen = np.asarray(grid.observed, dtype=bool)
+    grey, _ = _encode_pixels(p, seen, float(grid.p0), occupied_thresh, free_thresh, False, mode)
+    png = png_bytes(_preview_pixels(p, seen, png_scale))
     yaml_text = _yaml_text(paths[1].name, grid.spec, occupied_thresh, free_thresh, False, mode)
     npz = io.BytesIO()
     _write_npz(npz, grid)
-    png = png_bytes(preview_image(grid, png_scale))
     with atomic_files(paths) as (fy, fp, fn, fi):
         fy.write(yaml_text.encode("utf-8"))
         fp.write(pgm_bytes(grey))

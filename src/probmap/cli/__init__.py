@@ -16,3 +16,6 @@ def register(app: typer.Typer) -> None:
     from probmap.cli import evaluate
 
     evaluate.register(app)
+    from probmap.cli import slam
+
+    slam.register(app)

@@ -1,0 +1,212 @@
+"""``probmap slam ...`` (landmark SLAM) and ``probmap datasets list``.
+
+The SEIF commands are added to :data:`slam_app` by :mod:`probmap.cli.seif`; the helpers
+:func:`open_landmark_dataset`, :func:`limit_threads` and :func:`run_and_report` are shared with it.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from probmap.cli.common import CliError, cli_errors
+
+slam_app = typer.Typer(help="Landmark SLAM on feature datasets (EKF; SEIF).", no_args_is_help=True)
+datasets_app = typer.Typer(help="Known datasets.", no_args_is_help=True)
+
+DATASET_HELP = (
+    "A registered name (see 'probmap datasets list'), or a path whose format is guessed: an "
+    "MRCLAM folder, a Victoria Park folder."
+)
+
+
+def limit_threads(threads: int) -> None:
+    """Cap BLAS threads before numpy loads (small dense updates run faster single-threaded)."""
+    if "numpy" not in sys.modules:
+        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ.setdefault(var, str(threads))
+
+
+def open_landmark_dataset(
+    dataset: str,
+    data_dir: Path | None,
+    robot: int,
+    unknown: bool,
+    end_time: float | None,
+) -> Any:
+    """Load a landmark dataset by name or path, passing only the options its reader takes."""
+    from probmap.datasets import registry
+
+    info = registry.DATASETS.get(dataset)
+    fmt = info.format if info is not None else registry.guess_format(dataset)
+    if info is not None and info.kind != "landmarks":
+        raise CliError(f"dataset {dataset!r} is a {info.kind} dataset, not a landmark dataset")
+    opts: dict[str, Any] = {}
+    if fmt == "mrclam":
+        opts = {"robot": robot, "known": not unknown, "end_time": end_time}
+    elif fmt == "victoria-park":
+        opts = {"end_time": end_time}
+    elif fmt == "simulation":
+        opts = {"known_correspondences": not unknown}
+    else:
+        raise CliError(f"{dataset}: format {fmt!r} holds no landmark observations")
+    return registry.load(dataset, data_directory=data_dir, **opts)
+
+
+def _fmt(v: Any, unit: str = "") -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return f"{v:.3f}{unit}"
+    return f"{v}{unit}"
+
+
+def metrics_rows(m: dict[str, Any]) -> list[tuple[str, str]]:
+    """The headline figures of a metrics dict as (label, value) rows."""
+    rows = [
+        ("steps", f"{m['steps']:,}"),
+        ("observations", f"{m['observations']:,}"),
+        ("landmarks mapped", f"{m['landmarks_mapped']:,}"),
+        ("time", f"{m['time_s']:.2f} s ({m['step_ms']['mean']:.3f} ms/step mean)"),
+    ]
+    pairs = [
+        ("ATE RMSE", "ate", "translation_m"),
+        ("ATE RMSE (SE(2)-aligned)", "ate_aligned", "translation_m"),
+        ("dead reckoning ATE RMSE", "dead_reckoning_ate", "translation_m"),
+        ("landmark RMSE", "landmarks", "error_m"),
+        ("landmark RMSE (aligned)", "landmarks_aligned", "error_m"),
+    ]
+    for label, key, sub in pairs:
+        if key in m:
+            rows.append((label, _fmt(m[key][sub]["rmse"], " m")))
+    for label, key in (("GPS RMSE", "gps"), ("dead reckoning GPS RMSE", "dead_reckoning_gps")):
+        if key in m:
+            g = m[key]
+            rows.append(
+                (
+                    label,
+                    f"{g['rmse_m']:.3f} m ({g['fixes_used']} fixes, "
+                    f"{g['fixes_rejected_as_jumps']} jumps rejected)",
+                )
+            )
+    if "pose_nees" in m:
+        rows.append(("pose NEES mean", _fmt(m["pose_nees"]["mean"])))
+    if "nis" in m:
+        rows.append(("NIS per dof", _fmt(m["nis"]["mean_per_dof"])))
+    return rows
+
+
+def run_and_report(
+    estimator: Any, dataset: Any, output: Path, title: str, plot: bool
+) -> dict[str, Any]:
+    """Run with a progress bar, evaluate, write outputs and a plot, print the metrics table."""
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+    from rich.table import Table
+
+    from probmap.slam.pipeline import evaluate, run_landmark_slam, write_slam_outputs
+
+    console = Console(stderr=True)
+    with Progress(
+        TextColumn(title),
+        BarColumn(),
+        TextColumn("{task.completed:,}/{task.total:,} steps"),
+        TimeRemainingColumn(),
+        console=console,
+        transient=True,
+    ) as bar:
+        task = bar.add_task(title, total=len(dataset))
+        result = run_landmark_slam(
+            estimator, dataset, progress=lambda i, n: bar.update(task, completed=i)
+        )
+    metrics = evaluate(result, dataset)
+    metrics["dataset"] = getattr(dataset, "name", "")
+    metrics["estimator"] = title
+    files = write_slam_outputs(result, metrics, output)
+    if plot:
+        from probmap.viz.slam import save_slam_figure
+
+        files.append(save_slam_figure(output / "slam.png", result, dataset, title=title))
+    table = Table(title=f"{title} on {metrics['dataset']}", show_header=False, box=None)
+    table.add_column(style="bold")
+    table.add_column(justify="right")
+    for k, v in metrics_rows(metrics):
+        table.add_row(k, v)
+    for f in files:
+        table.add_row("wrote", str(f))
+    Console().print(table)
+    return metrics
+
+
+@slam_app.command("ekf")
+def ekf_command(
+    dataset: str = typer.Argument(..., help=DATASET_HELP),
+    output: Path = typer.Option(..., "-o", "--output", help="Output folder."),
+    data_dir: Path | None = typer.Option(
+        None, "--data-dir", help="Data directory for registered names (default $PROBMAP_DATA)."
+    ),
+    robot: int = typer.Option(1, "--robot", help="MRCLAM robot number (1-5)."),
+    unknown: bool = typer.Option(
+        False, "--unknown", help="Ignore given landmark ids: maximum-likelihood association."
+    ),
+    end_time: float | None = typer.Option(
+        None, "--end-time", help="Stop after this many seconds of data."
+    ),
+    threads: int = typer.Option(1, "--threads", help="BLAS threads."),
+    plot: bool = typer.Option(True, "--plot/--no-plot", help="Write slam.png."),
+) -> None:
+    """EKF SLAM (Probabilistic Robotics Table 10.1/10.2): writes trajectory.csv, landmarks.csv,
+    metrics.json and slam.png into OUTPUT."""
+    limit_threads(threads)
+    with cli_errors():
+        from probmap.slam.ekf import EKFSLAM
+        from probmap.slam.pipeline import default_ekf_config
+
+        ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
+        ekf = EKFSLAM(
+            ds.motion_model,
+            ds.measurement_model,
+            ds.initial_pose,
+            ds.initial_covariance,
+            default_ekf_config(ds),
+        )
+        run_and_report(ekf, ds, output, "EKF SLAM", plot)
+
+
+@datasets_app.command("list")
+def list_command(
+    data_dir: Path | None = typer.Option(
+        None, "--data-dir", help="Data directory (default $PROBMAP_DATA)."
+    ),
+) -> None:
+    """List the registered datasets and whether they are present in the data directory."""
+    with cli_errors():
+        from rich.console import Console
+        from rich.table import Table
+
+        from probmap.datasets.registry import DATASETS
+        from probmap.datasets.registry import data_dir as find_root
+
+        root = find_root(data_dir)
+        table = Table(title=f"datasets (data directory: {root or 'not set'})")
+        for col in ("name", "kind", "format", "present", "description"):
+            table.add_column(col)
+        for info in DATASETS.values():
+            if info.relpath is None:
+                present = "generated"
+            elif root is None:
+                present = "?"
+            else:
+                present = "yes" if (root / info.relpath).exists() else "no"
+            table.add_row(info.name, info.kind, info.format, present, info.description)
+        Console().print(table)
+
+
+def register(app: typer.Typer) -> None:
+    """Mount ``probmap slam`` and ``probmap datasets``."""
+    app.add_typer(slam_app, name="slam")
+    app.add_typer(datasets_app, name="datasets")

@@ -297,3 +297,13 @@ def all_gains(cells, occ, i_ptr, i_entry, e_beam, f_ptr, f_cell, f_ll, far_ll, f
             cells[k], occ, i_ptr, i_entry, e_beam, f_ptr, f_cell, f_ll, far_ll, first, ll, l0
         )
     return out
+
+
+@njit(cache=True)
+def beam_log_likelihoods(z, zs, max_range, params, out):
+    """:func:`beam_log_likelihood` over flat arrays ``z``, ``zs`` into ``out``."""
+    for i in range(z.shape[0]):
+        out[i] = beam_log_likelihood(
+            z[i], zs[i], max_range, params[0], params[1], params[2], params[3], params[4],
+            params[5],
+        )  # fmt: skip

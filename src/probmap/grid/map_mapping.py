@@ -123,11 +123,12 @@ class BeamModelParams:
         from probmap.grid import _map_kernels as _k
 
         zz, ss = np.broadcast_arrays(np.asarray(z, float), np.asarray(zs, float))
-        out = np.empty(zz.shape)
-        a = self.as_array()
-        for i in np.ndindex(zz.shape):
-            out[i] = _k.beam_log_likelihood(float(zz[i]), float(ss[i]), float(max_range), *a)
-        return out
+        zf = np.ascontiguousarray(zz.ravel())
+        out = np.empty(zf.shape[0])
+        _k.beam_log_likelihoods(
+            zf, np.ascontiguousarray(ss.ravel()), float(max_range), self.as_array(), out
+        )
+        return out.reshape(zz.shape)
 
 
 @dataclass(frozen=True)
@@ -231,7 +232,7 @@ def _scan_inputs(
             f"ranges must have shape (S, B) with S = {P.shape[0]} poses, got {R.shape}"
         )
     A = np.asarray(angles, dtype=np.float64)
-    if A.ndim == 1:
+    if A.ndim == 1 and A.shape[0] == R.shape[1]:
         A = np.broadcast_to(A[None, :], R.shape)
     if A.shape != R.shape:
         raise ValueError(f"angles shape {np.shape(angles)} does not match ranges {R.shape}")

@@ -95,8 +95,7 @@ def cone_log_odds_grid(
     Returns
     -------
     OccupancyGrid
-        On ``spec`` (beams leaving it are clipped by growth being disabled: poses and
-        endpoints must lie inside).
+        On ``spec``; the parts of beams that leave it are cropped away.
     """
     P = np.atleast_2d(np.asarray(poses, dtype=np.float64))
     R = np.asarray(ranges, dtype=np.float64)
@@ -110,7 +109,20 @@ def cone_log_odds_grid(
     cone_ranges = np.repeat(R.reshape(s * b, 1), offs.shape[0], axis=1)
     grid = OccupancyGrid(spec.resolution, p0=p0, model=model, spec=spec)
     grid.integrate_scans(cone_poses, cone_ranges, cone_angles, max_range=max_range)
-    return grid
+    if grid.spec == spec:
+        return grid
+    # the grid grew on the same lattice for beams that leave ``spec``: crop it back
+    ox = round((spec.origin[0] - grid.spec.origin[0]) / spec.resolution)
+    oy = round((spec.origin[1] - grid.spec.origin[1]) / spec.resolution)
+    h, w = spec.shape
+    return OccupancyGrid.from_log_odds(
+        spec,
+        grid.log_odds[oy : oy + h, ox : ox + w],
+        p0=p0,
+        clamp=grid.clamp,
+        observed=grid.observed[oy : oy + h, ox : ox + w],
+        model=grid.model,
+    )
 
 
 @dataclass(frozen=True, eq=False)

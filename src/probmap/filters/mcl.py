@@ -33,7 +33,7 @@ from probmap.filters.particle import (
     weighted_pose_mean,
 )
 from probmap.grid.forward import GridGeometry, LikelihoodField
-from probmap.models.sampling import OdometryMotionModel, odometry_deltas
+from probmap.models.sampling import OdometryMotionModel, odometry_deltas, odometry_noise_std
 
 __all__ = [
     "FreeSpaceSampler",
@@ -428,10 +428,7 @@ class MonteCarloLocalization:
     ) -> None:
         """Fused odometry sampling + likelihood-field weighting for valid endpoints ``lx, ly``."""
         r1, tr, r2 = (float(v) for v in odometry_deltas(odom_prev, odom_cur))
-        a1, a2, a3, a4 = mm.alphas
-        sd1 = math.sqrt(a1 * r1 * r1 + a2 * tr * tr)
-        sdt = math.sqrt(a3 * tr * tr + a4 * (r1 * r1 + r2 * r2))
-        sd2 = math.sqrt(a1 * r2 * r2 + a2 * tr * tr)
+        sd1, sdt, sd2 = odometry_noise_std(r1, tr, r2, mm.alphas)
         noise = self.rng.standard_normal((self.n, 3))
         ll = np.zeros(self.n)
         f = lf.frame
@@ -467,10 +464,16 @@ class MonteCarloLocalization:
     def _best_cluster(self, w: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
         size = self.config.cluster_size
         cells = np.floor(self.particles[:, :2] / size).astype(np.int64)
-        keys, inverse = np.unique(cells, axis=0, return_inverse=True)
-        inverse = inverse.reshape(-1)
-        mass = np.bincount(inverse, weights=w, minlength=keys.shape[0])
-        top = keys[int(np.argmax(mass))]
+        lo = cells.min(axis=0)
+        span = cells.max(axis=0) - lo + 1
+        flat = (cells[:, 0] - lo[0]) * span[1] + (cells[:, 1] - lo[1])
+        if span[0] * span[1] <= 4 * flat.size + 1024:
+            mass = np.bincount(flat, weights=w)
+            best = int(np.argmax(mass))
+        else:  # particles spread thinly over a large area: only the occupied cells
+            keys, inverse = np.unique(flat, return_inverse=True)
+            best = int(keys[int(np.argmax(np.bincount(inverse.reshape(-1), weights=w)))])
+        top = np.array([best // span[1] + lo[0], best % span[1] + lo[1]])
         # Merge the 3x3 neighbourhood so a cluster split by a cell border stays whole.
         near = np.all(np.abs(cells - top) <= 1, axis=1)
         wc = w[near]

@@ -14,6 +14,7 @@ The densities use zero-mean normal distributions (``prob_normal_distribution``, 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,6 +26,8 @@ __all__ = [
     "motion_model_odometry",
     "motion_model_velocity",
     "odometry_deltas",
+    "odometry_noise_std",
+    "rotation_noise_scale",
     "sample_motion_model_odometry",
     "sample_motion_model_velocity",
     "wrap_angle",
@@ -33,9 +36,10 @@ __all__ = [
 # Variances below this are treated as this value so that a noise-free configuration (all
 # alphas zero, or no motion) still gives a finite density instead of a division by zero.
 _MIN_VARIANCE = 1e-12
-# Below this translation (m) the direction of travel is undefined: the first rotation is
-# taken as zero instead of the atan2 of numerical noise.
-_MIN_TRANSLATION = 1e-6
+# Below this translation (m) the direction of travel is encoder noise: the first rotation is
+# taken as zero instead of the atan2 of that noise (a turn in place would otherwise be read
+# as "turn by up to pi, creep, turn back", and the noise terms scale with those rotations).
+_MIN_TRANSLATION = 0.01
 
 
 def wrap_angle(a: ArrayLike) -> NDArray[np.float64]:
@@ -84,6 +88,16 @@ def odometry_deltas(
     return rot1, trans, rot2
 
 
+def rotation_noise_scale(rot: ArrayLike) -> NDArray[np.float64]:
+    """``min(|rot|, pi - |rot|)``: the rotation the noise terms of Table 5.6 scale with.
+
+    Driving backwards reads as ``rot1 ~ pi``; the noise should scale with the small turn
+    relative to the reversed heading, not with pi (the same correction as ROS amcl's).
+    """
+    r = np.abs(wrap_angle(rot))
+    return np.asarray(np.minimum(r, np.pi - r))
+
+
 def _prob_normal(a: ArrayLike, var: ArrayLike) -> NDArray[np.float64]:
     """Zero-mean normal density with variance ``var`` at ``a`` (Table 5.2)."""
     x = np.asarray(a, dtype=np.float64)
@@ -118,10 +132,29 @@ def motion_model_odometry(
     a1, a2, a3, a4 = alphas
     r1, tr, r2 = odometry_deltas(odom_prev, odom_cur)
     h1, htr, h2 = odometry_deltas(pose_old, pose_new)
-    p1 = _prob_normal(wrap_angle(r1 - h1), a1 * h1**2 + a2 * htr**2)
-    p2 = _prob_normal(tr - htr, a3 * htr**2 + a4 * (h1**2 + h2**2))
-    p3 = _prob_normal(wrap_angle(r2 - h2), a1 * h2**2 + a2 * htr**2)
+    q1, q2 = rotation_noise_scale(h1), rotation_noise_scale(h2)
+    p1 = _prob_normal(wrap_angle(r1 - h1), a1 * q1**2 + a2 * htr**2)
+    p2 = _prob_normal(tr - htr, a3 * htr**2 + a4 * (q1**2 + q2**2))
+    p3 = _prob_normal(wrap_angle(r2 - h2), a1 * q2**2 + a2 * htr**2)
     return p1 * p2 * p3
+
+
+def odometry_noise_std(
+    rot1: float, trans: float, rot2: float, alphas: tuple[float, float, float, float]
+) -> tuple[float, float, float]:
+    """Standard deviations of rot1, trans and rot2 in Table 5.6 (lines 5-7).
+
+    Rotations enter through :func:`rotation_noise_scale` so that reversing is not noisier
+    than driving forwards.
+    """
+    a1, a2, a3, a4 = alphas
+    q1 = float(rotation_noise_scale(rot1))
+    q2 = float(rotation_noise_scale(rot2))
+    return (
+        math.sqrt(a1 * q1 * q1 + a2 * trans * trans),
+        math.sqrt(a3 * trans * trans + a4 * (q1 * q1 + q2 * q2)),
+        math.sqrt(a1 * q2 * q2 + a2 * trans * trans),
+    )
 
 
 def sample_motion_model_odometry(
@@ -150,13 +183,13 @@ def sample_motion_model_odometry(
         New poses, heading wrapped to ``[-pi, pi)``.
     """
     p = _poses(poses, "poses").reshape(-1, 3)
-    a1, a2, a3, a4 = alphas
     r1, tr, r2 = (float(v) for v in odometry_deltas(odom_prev, odom_cur))
+    sd1, sdt, sd2 = odometry_noise_std(r1, tr, r2, alphas)
     e = rng.standard_normal((p.shape[0], 3))
-    # The book's "sample(b^2)" draws with variance b^2: scale a standard normal by sqrt.
-    h1 = r1 - e[:, 0] * np.sqrt(a1 * r1 * r1 + a2 * tr * tr)
-    htr = tr - e[:, 1] * np.sqrt(a3 * tr * tr + a4 * (r1 * r1 + r2 * r2))
-    h2 = r2 - e[:, 2] * np.sqrt(a1 * r2 * r2 + a2 * tr * tr)
+    # The book's "sample(b^2)" draws with variance b^2: a standard normal scaled by sqrt(b^2).
+    h1 = r1 - e[:, 0] * sd1
+    htr = tr - e[:, 1] * sdt
+    h2 = r2 - e[:, 2] * sd2
     out = np.empty_like(p)
     heading = p[:, 2] + h1
     out[:, 0] = p[:, 0] + htr * np.cos(heading)

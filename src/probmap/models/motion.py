@@ -14,6 +14,7 @@ Frames and units: poses ``(x, y, theta)`` in metres/radians in the world frame; 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,9 +50,10 @@ def _check(x: ArrayLike, u: ArrayLike, dt: float) -> tuple[FloatArray, FloatArra
     if u.shape != (2,):
         raise ValueError(f"control u must have shape (2,), got {u.shape}")
     dt = float(dt)
-    if not np.isfinite(dt) or dt < 0.0:
+    if not math.isfinite(dt) or dt < 0.0:
         raise ValueError(f"dt must be finite and >= 0, got {dt}")
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(u))):
+    # one scalar test: a sum is finite only if every term is (NaN and inf propagate)
+    if not math.isfinite(float(x.sum() + u.sum())):
         raise ValueError("pose and control must be finite")
     return x, u, dt
 
@@ -126,9 +128,7 @@ class VelocityModel:
         px = c * A - s * B
         py = s * A + c * B
         x_new = np.array([x[0] + v * dt * px, x[1] + v * dt * py, wrap_angle(th + d)])
-        G = np.eye(3)
-        G[0, 2] = -v * dt * py
-        G[1, 2] = v * dt * px
+        G = np.array([[1.0, 0.0, -v * dt * py], [0.0, 1.0, v * dt * px], [0.0, 0.0, 1.0]])
         V = np.zeros((3, 2))
         V[0, 0] = dt * px
         V[1, 0] = dt * py
@@ -234,9 +234,13 @@ class AckermannModel:
                 wrap_angle(x[2] + dt * k),
             ]
         )
-        G = np.eye(3)
-        G[0, 2] = dt * (-vc * s - k * oy)
-        G[1, 2] = dt * (vc * c - k * ox)
+        G = np.array(
+            [
+                [1.0, 0.0, dt * (-vc * s - k * oy)],
+                [0.0, 1.0, dt * (vc * c - k * ox)],
+                [0.0, 0.0, 1.0],
+            ]
+        )
         V = np.zeros((3, 2))
         V[0, 0] = dt * (dvc_dve * c - dk_dve * ox)
         V[0, 1] = dt * (dvc_dal * c - dk_dal * ox)

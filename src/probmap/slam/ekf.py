@@ -209,6 +209,9 @@ class EKFSLAM:
         """
         z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
         ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        if z.shape[0] == 0 and ids.shape[0] == 0:  # no scan: nothing to do
+            self.last_nis, self.last_nis_dof = np.nan, 0
+            return
         if ids.shape[0] != z.shape[0]:
             raise ValueError(f"z has {z.shape[0]} rows but ids has {ids.shape[0]}")
         if not np.all(np.isfinite(z)):

@@ -1,0 +1,47 @@
+import json
+
+import numpy as np
+from typer.testing import CliRunner
+
+from probmap.cli import register
+from probmap.cli.app import app
+
+register(app)
+runner = CliRunner()
+
+
+def test_slam_ekf_on_simulation_writes_outputs(tmp_path):
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["slam", "ekf", "simulation", "-o", str(out), "--no-plot"])
+    assert res.exit_code == 0, res.output
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["steps"] == 2000 and m["ate"]["translation_m"]["rmse"] < 1.0
+    tr = np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1)
+    assert tr.shape == (2000, 7)
+    lm = np.loadtxt(out / "landmarks.csv", delimiter=",", skiprows=1)
+    assert lm.shape[1] == 6 and lm.shape[0] == m["landmarks_mapped"]
+    assert "ATE RMSE" in res.output
+
+
+def test_slam_ekf_plot(tmp_path):
+    res = runner.invoke(app, ["slam", "ekf", "simulation", "-o", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "slam.png").stat().st_size > 1000
+
+
+def test_bad_dataset_is_one_line_error(tmp_path):
+    res = runner.invoke(app, ["slam", "ekf", str(tmp_path / "nope"), "-o", str(tmp_path)])
+    assert res.exit_code == 1
+    assert "error:" in res.output and "Traceback" not in res.output
+    bad = tmp_path / "vp"
+    bad.mkdir()
+    (bad / "inputs.dat").write_text("0.0 1.0 0.0\n0.1 x 0.0\n")
+    (bad / "measurements.dat").write_text("0.1 5.0 1.0 0.1\n")
+    (bad / "gps.dat").write_text("0.0 0.0 0.0\n")
+    res = runner.invoke(app, ["slam", "ekf", str(bad), "-o", str(tmp_path / "o")])
+    assert res.exit_code == 1 and "inputs.dat, line 2, field 'speed'" in res.output
+
+
+def test_datasets_list():
+    res = runner.invoke(app, ["datasets", "list"])
+    assert res.exit_code == 0 and "victoria-park" in res.output and "mrclam7" in res.output

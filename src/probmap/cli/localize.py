@@ -1,0 +1,197 @@
+"""``probmap localize``: Monte Carlo localization of a laser log on a map_server map."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from probmap.cli.common import CliError, cli_errors
+
+
+def _plot(ax: Any, spec: Any, probability: Any, poses: Any, reference: Any | None) -> None:
+    """Draw the map (grey, unknown light blue) and the trajectories on ``ax``."""
+    import numpy as np
+
+    p = np.asarray(probability, dtype=float)
+    img = np.where(np.isnan(p), 0.75, 1.0 - p)
+    x0, y0 = spec.origin
+    h, w = p.shape
+    r = spec.resolution
+    ax.imshow(
+        img, cmap="gray", origin="lower", extent=(x0, x0 + w * r, y0, y0 + h * r), vmin=0, vmax=1
+    )
+    if reference is not None and len(reference):
+        ax.plot(reference[:, 0], reference[:, 1], "-", color="tab:green", lw=0.8, label="reference")
+    ax.plot(poses[:, 0], poses[:, 1], "-", color="tab:red", lw=0.8, label="MCL")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_aspect("equal")
+    ax.legend(loc="upper right")
+
+
+def _write_atomic(path: Path, write: Any) -> None:
+    import os
+    import tempfile
+
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _read_reference(path: Path, offset: float) -> tuple[Any, Any]:
+    """Reference (times (M,), poses (M, 3)) from a CSV (time,x,y,theta) or a CARMEN log."""
+    import numpy as np
+
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file")
+    if path.suffix.lower() == ".csv":
+        try:
+            data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=(0, 1, 2, 3), ndmin=2)
+        except ValueError as exc:
+            raise CliError(f"{path}: expected CSV columns time,x,y,theta: {exc}") from None
+        return data[:, 0] + offset, data[:, 1:4]
+    from probmap.datasets.carmen import load_scans
+
+    ref = load_scans(path)
+    return ref.times + offset, ref.laser_poses
+
+
+def localize_command(
+    map_yaml: Path = typer.Argument(..., help="map_server YAML map (e.g. from probmap map)."),
+    log: Path = typer.Argument(..., help="Laser log with odometry: CARMEN, plain, .gz or .bz2."),
+    output: Path = typer.Option(..., "-o", "--output", help="Output folder."),
+    particles: int = typer.Option(2000, "--particles", "-n", help="Number of particles."),
+    global_: bool = typer.Option(
+        False, "--global", help="Global localization: start from particles over free space."
+    ),
+    reference: Path | None = typer.Option(
+        None, "--reference", help="Reference trajectory: CSV time,x,y,theta or a CARMEN log."
+    ),
+    reference_offset: float = typer.Option(
+        0.0,
+        "--reference-offset",
+        help="Seconds added to the reference times (Intel corrected log: 976052857.337284).",
+    ),
+    seed: int = typer.Option(0, "--seed", help="Random seed."),
+    start: int = typer.Option(0, "--start", help="First scan to use."),
+    stop: int | None = typer.Option(None, "--stop", help="Scan to stop before."),
+) -> None:
+    """Track (or globally localize) the robot of a laser log on a map with MCL."""
+    with cli_errors():
+        import numpy as np
+        from rich.console import Console
+        from rich.progress import Progress
+        from rich.table import Table
+
+        from probmap.datasets.carmen import load_scans
+        from probmap.filters.localize import (
+            LocalizeConfig,
+            localize_scans,
+            match_times,
+            trajectory_errors,
+        )
+        from probmap.grid.io import read_map_server
+
+        if particles <= 0:
+            raise CliError(f"--particles must be positive, got {particles}")
+        for p in (map_yaml, log):
+            if not p.exists():
+                raise FileNotFoundError(f"{p}: no such file")
+        if output.exists() and not output.is_dir():
+            raise CliError(f"{output}: exists and is not a folder")
+        m = read_map_server(map_yaml)
+        batch = load_scans(log, poses="odometry")
+        odo = np.asarray(batch.robot_poses)
+        if odo.shape[0] < 2 or np.all(odo == odo[0]):
+            raise CliError(f"{log}: no odometry (every scan carries the same robot pose)")
+        angles = np.asarray(batch.angles)
+        if angles.ndim != 1:
+            raise CliError(f"{log}: scans with differing beam geometry are not supported")
+        ref_t = ref_p = None
+        always = None
+        if reference is not None:
+            ref_t, ref_p = _read_reference(reference, reference_offset)
+            always, _ = match_times(batch.times, ref_t)
+            if always.size == 0:
+                raise CliError(
+                    f"{reference}: no reference time within 20 ms of a scan "
+                    "(check --reference-offset)"
+                )
+        cfg = LocalizeConfig(n_particles=particles, global_localization=global_, seed=seed)
+        with Progress(transient=True) as bar:
+            task = bar.add_task(f"localizing {log.name}", total=None)
+
+            def tick(done: int, total: int) -> None:
+                bar.update(task, completed=done, total=total)
+
+            run = localize_scans(
+                m.spec,
+                m.probability,
+                batch.times,
+                batch.ranges,
+                angles,
+                odo,
+                batch.max_range,
+                cfg,
+                start=start,
+                stop=stop,
+                always_update=always,
+                progress=tick,
+            )
+        output.mkdir(parents=True, exist_ok=True)
+        rows = np.column_stack([run.times, run.poses, run.spread])
+        traj = output / "trajectory.csv"
+        _write_atomic(
+            traj,
+            lambda tmp: np.savetxt(
+                tmp, rows, delimiter=",", fmt="%.6f", header="time,x,y,theta,spread", comments=""
+            ),
+        )
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(figsize=(8, 8))
+        _plot(ax, m.spec, m.probability, run.poses, ref_p)
+        plot = output / "trajectory.png"
+        _write_atomic(plot, lambda tmp: fig.savefig(tmp, dpi=120, format="png"))
+        plt.close(fig)
+
+        console = Console()
+        summary = Table(title=f"probmap localize {log.name}", show_header=False, box=None)
+        summary.add_column(style="bold")
+        summary.add_column(justify="right")
+        summary.add_row("updates", f"{run.times.size:,}")
+        summary.add_row("final spread", f"{run.spread[-1]:.3f} m" if run.spread.size else "-")
+        summary.add_row("wrote", f"{traj}, {plot}")
+        console.print(summary)
+        if ref_t is not None and ref_p is not None:
+            err, head = trajectory_errors(run, ref_t, ref_p)
+            if err.size == 0:
+                raise CliError("no update coincides with a reference pose")
+            table = Table(title=f"error against {reference.name if reference else ''}")
+            for col in ("", "n", "median", "mean", "95th pct", "max"):
+                table.add_column(col, justify="right")
+            for name, e, unit in (("position", err, "m"), ("heading", np.degrees(head), "deg")):
+                table.add_row(
+                    name,
+                    f"{e.size}",
+                    f"{np.median(e):.3f} {unit}",
+                    f"{e.mean():.3f} {unit}",
+                    f"{np.percentile(e, 95):.3f} {unit}",
+                    f"{e.max():.3f} {unit}",
+                )
+            console.print(table)
+
+
+def register(app: typer.Typer) -> None:
+    """Attach ``probmap localize``."""
+    app.command("localize")(localize_command)

@@ -8,6 +8,10 @@ Rows, all on the same file in the same process (best of ``--repeat`` runs each):
 - ``probmap load_scans``: every FLASER and ODOM line parsed and validated, arrays stacked;
 - ``probmap CarmenLog iteration``: streaming LaserScan records.
 
+Then the map of that log (odometry poses, 0.05 m) is written by ``save_map`` (YAML + PGM + NPZ +
+PNG through temporary files, fsync and renames) beside a reference that only encodes the same
+files in memory with numpy's ``savez_compressed`` and pillow's default PNG settings.
+
 Run:  python benchmarks/bench_carmen.py [--log PATH] [--repeat 3]
 """
 
@@ -71,6 +75,34 @@ def peak_mib(fn: Callable[[Path], int], path: Path) -> float:
         tracemalloc.stop()
 
 
+def bench_write(path: Path, repeat: int) -> None:
+    import io
+    import tempfile
+
+    from PIL import Image
+
+    from probmap.grid import io as gio
+    from probmap.pipelines import MappingConfig, map_log
+
+    grid = map_log(path, MappingConfig(resolution=0.05, poses="odometry")).grid  # as `probmap map`
+
+    def reference(_: Path) -> int:
+        grey, _alpha = gio.encode_map_server(grid)
+        gio.pgm_bytes(grey)
+        np.savez_compressed(io.BytesIO(), **gio._npz_arrays(grid))  # type: ignore[arg-type]
+        Image.fromarray(gio.preview_image(grid)).save(io.BytesIO(), format="PNG")
+        return 4
+
+    with tempfile.TemporaryDirectory() as tmp:
+        ours = best_of(lambda _: len(gio.save_map(Path(tmp) / "m", grid)), path, repeat)[0]
+    ref = best_of(reference, path, repeat)[0]
+    h, w = grid.spec.shape
+    print(f"\nWriting the {w} x {h}-cell map (best of {repeat}):\n")
+    print("| writer | seconds | vs reference |\n| --- | ---: | ---: |")
+    print(f"| probmap save_map (4 files, atomic) | {ours:.3f} | {ref / ours:.2f}x |")
+    print(f"| reference: numpy/pillow defaults, in memory | {ref:.3f} | 1.00x |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--log", type=Path, default=DATA / "intel-research-lab" / "intel.clf.bz2")
@@ -94,6 +126,7 @@ def main() -> None:
         f"\nPeak traced Python memory: streaming iteration {stream:.1f} MiB, "
         f"load_scans {batch:.1f} MiB (the stacked float64 arrays are part of it)"
     )
+    bench_write(args.log, args.repeat)
 
 
 if __name__ == "__main__":

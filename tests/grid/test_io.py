@@ -61,6 +61,11 @@ def test_npz_round_trip_is_exact(tmp_path):
     assert back.p0 == 0.4 and back.clamp == grid.clamp
     np.testing.assert_array_equal(back.classify(), grid.classify())
     assert os.listdir(tmp_path) == ["g.npz"]
+    # the layout is numpy's own: np.load reads ours, and load_npz reads numpy's
+    with np.load(path) as z:
+        np.testing.assert_array_equal(z["log_odds"], grid.log_odds)
+    np.savez_compressed(tmp_path / "np.npz", **gio._npz_arrays(grid))  # type: ignore[arg-type]
+    np.testing.assert_array_equal(load_npz(tmp_path / "np.npz").log_odds, grid.log_odds)
 
 
 def _npz_with(path: Path, **changes):
@@ -164,6 +169,26 @@ def test_negate(tmp_path):
     cls = grid.classify()
     assert (pixels[cls == 1] == 255).all() and (pixels[cls == 0] == 1).all()
     assert (pixels[cls == -1] == 50).all()
+
+
+@pytest.mark.parametrize("mode,tol", [("trinary", None), ("scale", 0.5 / 255), ("raw", 0.005)])
+@pytest.mark.parametrize("image", ["m.pgm", "m.png"])
+def test_negate_round_trips_in_every_mode(tmp_path, mode, tol, image):
+    grid = random_grid(seed=8)
+    write_map_server(tmp_path / "m.yaml", grid, negate=True, mode=mode, image=image)
+    plain = tmp_path / "p"
+    plain.mkdir()
+    write_map_server(plain / "m.yaml", grid, mode=mode, image=image)
+    a, b = pil_grey(tmp_path / image), pil_grey(plain / image)
+    np.testing.assert_array_equal(
+        a[..., 0] if a.ndim == 3 else a, 255 - (b[..., 0] if b.ndim == 3 else b)
+    )
+    back = read_map_server(tmp_path / "m.yaml")
+    seen = grid.observed
+    if tol is None:
+        np.testing.assert_array_equal(back.classify(), grid.classify())
+    else:
+        assert np.abs(back.probability - grid.probability())[seen].max() <= tol + 1e-12
 
 
 def test_scale_mode_round_trip_within_one_grey_level(tmp_path):

@@ -382,6 +382,8 @@ def test_bad_arguments(tmp_path):
         load_scans(path, poses="gps")
     with pytest.raises(ValueError, match="sources"):
         load_scans(path, sources=("ODOM",))
+    with pytest.raises(ValueError, match="front laser only"):
+        load_scans(path, poses="odometry", sources=("FLASER", "RLASER"))
 
 
 # --------------------------------------------------------------------------- batches

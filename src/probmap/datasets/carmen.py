@@ -554,6 +554,9 @@ def load_scans(
     unknown = set(sources) - set(LASER_TYPES)
     if unknown or not sources:
         raise ValueError(f"sources must be among {LASER_TYPES}, got {tuple(sources)!r}")
+    if poses == "odometry" and "RLASER" in sources:
+        # the rear laser's mounting (offset and heading) is not described by the front PARAMs
+        raise ValueError("poses='odometry' supports the front laser only; use poses='corrected'")
     log = CarmenLog(
         path,
         start_angle=start_angle,

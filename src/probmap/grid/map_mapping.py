@@ -158,6 +158,10 @@ class MapMappingConfig:
     tol : float
         A flip must raise the objective by more than this to be taken (guards against cycling
         on round-off).
+    order : str
+        ``"gain"`` (default: in each sweep, cells whose flip helps, greatest gain first) or
+        ``"raster"`` (every cell row by row, as Table 9.3 is written); see
+        :meth:`MapMapper.sweep`.
     """
 
     resolution: float = 0.1
@@ -169,6 +173,7 @@ class MapMappingConfig:
     opening: float = 0.0
     subrays: int = 1
     tol: float = 1e-9
+    order: str = "gain"
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.resolution) and self.resolution > 0):
@@ -188,6 +193,8 @@ class MapMappingConfig:
                 f"subrays must be >= 1, and 1 when opening is 0; got {self.subrays} "
                 f"with opening {self.opening}"
             )
+        if self.order not in ("gain", "raster"):
+            raise ValueError(f"order must be 'gain' or 'raster', got {self.order!r}")
         if not self.tol >= 0.0:
             raise ValueError(f"tol must be >= 0, got {self.tol}")
 
@@ -419,13 +426,24 @@ class MapMapper:
         Starting map (default all free, Table 9.3 line 2).
     tol : float
         Minimum gain of an accepted flip.
+    order : str
+        ``"gain"`` or ``"raster"``: the order cells are visited in a sweep (see :meth:`sweep`).
     """
 
     def __init__(
-        self, index: BeamIndex, l0: float, init: ArrayLike | None = None, *, tol: float = 1e-9
+        self,
+        index: BeamIndex,
+        l0: float,
+        init: ArrayLike | None = None,
+        *,
+        tol: float = 1e-9,
+        order: str = "gain",
     ) -> None:
         from probmap.grid import _map_kernels as _k
 
+        if order not in ("gain", "raster"):
+            raise ValueError(f"order must be 'gain' or 'raster', got {order!r}")
+        self.order = order
         self.index = index
         self.l0 = float(l0)
         self.tol = float(tol)
@@ -483,12 +501,29 @@ class MapMapper:
         return out.reshape(self.index.spec.shape)
 
     def sweep(self) -> SweepRecord:
-        """Visit every cell once in raster order, flipping it when that raises the objective."""
+        """One sweep of Table 9.3: visit the cells, flipping each one whose flip (given the
+        flips made so far) raises the objective.
+
+        ``order="gain"`` visits only the cells whose flip gain is positive at the start of the
+        sweep, largest gain first; ``order="raster"`` visits every cell row by row, the
+        book's literal loop. Both accept a flip only when it raises the objective, and a sweep
+        that flips nothing certifies a local optimum. Greatest gain first matters with wide
+        hit Gaussians: in raster order, a cell a little short of a wall (which explains the
+        beams better than no obstacle at all) can be taken before the wall cell behind it,
+        and then shadows it for good.
+        """
         from probmap.grid import _map_kernels as _k
 
         t0 = time.perf_counter()
         kernel: Any = _k.sweep
-        flips, gain = kernel(self._cells, *self._args(), self.l0, self.tol)
+        if self.order == "gain":
+            gains: Any = _k.all_gains
+            g = gains(self._cells, *self._args(), self.l0)
+            good = np.nonzero(g > self.tol)[0]
+            cells = np.ascontiguousarray(self._cells[good[np.argsort(-g[good], kind="stable")]])
+        else:
+            cells = self._cells
+        flips, gain = kernel(cells, *self._args(), self.l0, self.tol)
         self._objective += gain
         rec = SweepRecord(len(self.history), int(flips), self._objective, time.perf_counter() - t0)
         self.history.append(rec)
@@ -600,7 +635,7 @@ def map_mapping(
             subrays=cfg.subrays,
         )  # fmt: skip
         init = grid.classify(0.5, 0.5) == 1
-    mapper = MapMapper(index, cfg.l0, init, tol=cfg.tol)
+    mapper = MapMapper(index, cfg.l0, init, tol=cfg.tol, order=cfg.order)
     if progress is not None:
         progress(mapper.history[0])
     converged = mapper.run(cfg.max_sweeps, progress)

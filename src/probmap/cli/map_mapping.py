@@ -1,0 +1,169 @@
+"""``probmap fit-sensor-model`` and the body of ``probmap map LOG --method map``.
+
+:func:`run_map_method` is what ``probmap map`` calls for ``--method map``: it shows the
+objective per sweep while MAP mapping runs and writes the same files as the log-odds method.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from probmap.cli.common import cli_errors
+
+
+def _table(title: str, rows: list[tuple[str, str]]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=title, show_header=False, box=None)
+    table.add_column(style="bold")
+    table.add_column(justify="right")
+    for k, v in rows:
+        table.add_row(k, v)
+    Console().print(table)
+
+
+def run_map_method(
+    log: Path,
+    output: Path,
+    config: Any,
+    *,
+    p0: float = 0.3,
+    max_sweeps: int = 50,
+    init: str = "free",
+) -> Any:
+    """MAP mapping of ``log`` with a live display of the objective per sweep; writes
+    ``PREFIX.{yaml,pgm,npz,png}`` and prints a summary. ``config`` is a
+    :class:`probmap.pipelines.MappingConfig`. Returns the written ``MappingResult``.
+
+    Raises the library's errors (call it inside :func:`probmap.cli.common.cli_errors`).
+    """
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from probmap.grid.map_mapping import MapMappingConfig, SweepRecord, map_log_map
+    from probmap.pipelines import check_output_prefix, write_map
+
+    if not log.exists():
+        raise FileNotFoundError(f"{log}: no such file")
+    check_output_prefix(output)
+    mcfg = MapMappingConfig(resolution=config.resolution, p0=p0, max_sweeps=max_sweeps, init=init)
+    with Progress(
+        TextColumn("[bold]MAP {task.description}"),
+        BarColumn(),
+        TextColumn("sweep {task.completed:.0f}/{task.total:.0f}"),
+        TextColumn("{task.fields[status]}"),
+        TimeElapsedColumn(),
+        transient=True,
+    ) as bar:
+        task = bar.add_task(log.name, total=max_sweeps, status="indexing beams")
+
+        def tick(rec: SweepRecord) -> None:
+            bar.update(
+                task,
+                completed=rec.sweep,
+                status=f"objective {rec.objective:,.1f}, {rec.flips:,} flips",
+            )
+
+        result = map_log_map(log, config, tick, map_config=mcfg)
+    result = write_map(output, result)
+    ex = result.extra
+    spec = result.grid.spec
+    sweeps = int(ex["sweeps"])
+    rows = [
+        ("scans", f"{result.stats.scans:,}"),
+        (
+            "beams",
+            f"{result.stats.beams:,} ({result.stats.hits:,} windowed, "
+            f"{result.stats.max_range:,} max-range, {result.stats.dropped:,} dropped)",
+        ),
+        ("beam-cell dependencies", f"{result.stats.cell_updates:,}"),
+        ("map size", f"{spec.width} x {spec.height} cells at {spec.resolution:g} m"),
+        (
+            "objective",
+            f"{ex['objective_0']:,.1f} (start) -> {ex['objective']:,.1f} after {sweeps} sweeps"
+            + (" (converged)" if ex["converged"] else " (sweep limit reached)"),
+        ),
+        (
+            "time",
+            f"{result.parse_seconds + result.map_seconds + result.write_seconds:.2f} s (parse "
+            f"{result.parse_seconds:.2f}, index {ex['index_seconds']:.2f}, sweeps "
+            f"{ex['sweep_seconds']:.2f}, write {result.write_seconds:.2f})",
+        ),
+    ]
+    for f in result.files:
+        rows.append(("wrote", str(f)))
+    _table(f"probmap map --method map {log.name}", rows)
+    return result
+
+
+def fit_sensor_model_command(
+    log: Path = typer.Argument(..., help="Laser log: CARMEN .clf/.log, plain, .gz or .bz2."),
+    output: Path | None = typer.Option(
+        None, "-o", "--output", help="Write the fitted parameters to this YAML file."
+    ),
+    resolution: float = typer.Option(
+        0.05, "--resolution", "-r", help="Cell size (m) of the map the ranges are cast in."
+    ),
+    every: int = typer.Option(1, "--every", help="Use every N-th scan."),
+    max_range: float | None = typer.Option(
+        None, "--max-range", help="Sensor max range in metres (default: from the log)."
+    ),
+    poses: str = typer.Option(
+        "corrected", "--poses", help="corrected: the scans' laser poses; odometry: odometry."
+    ),
+    skip_bad_lines: bool = typer.Option(
+        False, "--skip-bad-lines", help="Skip and count malformed log lines."
+    ),
+) -> None:
+    """Fit the beam model's parameters to a log by EM (Probabilistic Robotics Table 6.2)."""
+    with cli_errors():
+        import dataclasses
+        import os
+        import tempfile
+
+        import yaml
+
+        from probmap.grid.fit import fit_log
+
+        if not log.exists():
+            raise FileNotFoundError(f"{log}: no such file")
+        if output is not None and not output.parent.resolve().is_dir():
+            raise FileNotFoundError(f"output folder {output.parent} does not exist")
+        fit = fit_log(
+            log,
+            resolution=resolution,
+            every=every,
+            max_range=max_range,
+            poses=poses,
+            skip_bad_lines=skip_bad_lines,
+        )
+        params = dataclasses.asdict(fit.params)
+        rows = [(k, f"{v:.6g}") for k, v in params.items()]
+        rows += [
+            ("readings", f"{fit.readings:,}"),
+            (
+                "mean log-likelihood",
+                f"{fit.log_likelihood[0]:.4f} -> {fit.log_likelihood[-1]:.4f} in "
+                f"{fit.iterations} iterations" + ("" if fit.converged else " (not converged)"),
+            ),
+        ]
+        if output is not None:
+            doc = {"beam_model": {k: float(v) for k, v in params.items()}}
+            fd, tmp = tempfile.mkstemp(dir=output.parent.resolve(), suffix=".tmp")
+            try:
+                with os.fdopen(fd, "w") as fh:
+                    yaml.safe_dump(doc, fh, sort_keys=False)
+                os.replace(tmp, output)
+            except BaseException:
+                Path(tmp).unlink(missing_ok=True)
+                raise
+            rows.append(("wrote", str(output)))
+        _table(f"probmap fit-sensor-model {log.name}", rows)
+
+
+def register(app: typer.Typer) -> None:
+    """Attach ``fit-sensor-model``."""
+    app.command("fit-sensor-model")(fit_sensor_model_command)

@@ -81,8 +81,11 @@ def map_command(
 ) -> None:
     """Build an occupancy grid map from a laser log with known poses."""
     with cli_errors():
+        import warnings
+
         from rich.progress import Progress
 
+        from probmap.datasets.carmen import BadLinesWarning
         from probmap.pipelines import MappingConfig, check_output_prefix, map_log, write_map
 
         if not log.exists():
@@ -97,7 +100,9 @@ def map_command(
             max_clear_range=max_clear,
             skip_bad_lines=skip_bad_lines,
         )
-        with Progress(transient=True) as bar:
+        with Progress(transient=True) as bar, warnings.catch_warnings():
+            # the summary table reports skipped lines; no Python warning text on the terminal
+            warnings.simplefilter("ignore", BadLinesWarning)
             task = bar.add_task(f"mapping {log.name}", total=None)
 
             def tick(done: int, total: int) -> None:

@@ -22,6 +22,12 @@ def _summary(title: str, rows: list[tuple[str, str]]) -> None:
     Console().print(table)
 
 
+def _fmt(v: object) -> str:
+    if isinstance(v, float):
+        return f"{v:.0f}" if v.is_integer() else f"{v:.4g}"
+    return str(v)
+
+
 def _mapping_rows(result: Any) -> list[tuple[str, str]]:
     s = result.stats
     spec = result.grid.spec
@@ -127,7 +133,7 @@ def demo_command(
             from probmap.filters.demo import run_localize_demo
 
             summary = run_localize_demo(output)
-            _summary("probmap demo --localize", [(k, str(v)) for k, v in summary.items()])
+            _summary("probmap demo --localize", [(k, _fmt(v)) for k, v in summary.items()])
             return
         from probmap.pipelines import check_output_prefix, run_mapping_demo
 

@@ -215,6 +215,9 @@ def test_landmark_log_likelihood_closed_form():
     ll = lm.log_likelihood(np.array([[0.0, 0.0, 0.5]]), z, [7])
     expect = -0.5 * ((0.1 / 0.2) ** 2 + (0.05 / 0.1) ** 2) - math.log(2 * math.pi * 0.02)
     assert ll[0, 0] == pytest.approx(expect)
+    robust = RangeBearingLandmarks(np.array([7]), np.array([[3.0, 4.0]]), 0.2, 0.1, 0.1, 20.0)
+    got = robust.log_likelihood(np.array([[0.0, 0.0, 0.5]]), z, [7])[0, 0]
+    assert got == pytest.approx(math.log(0.9 * math.exp(expect) + 0.1 / (20 * 2 * math.pi)))
     with pytest.raises(ValueError, match="unknown landmark id 3"):
         lm.log_likelihood(np.zeros((1, 3)), z, [3])
 

@@ -175,12 +175,20 @@ class RangeBearingLandmarks:
         Range noise standard deviation (m).
     sigma_bearing : float
         Bearing noise standard deviation (rad).
+    outlier_probability : float
+        Mixture weight of a uniform outlier component over ``[0, max_range] x [-pi, pi)``
+        (0 gives the book's pure Gaussian model). A few percent keeps one bad detection from
+        collapsing the particle set.
+    max_range : float
+        Range (m) over which outliers are uniform.
     """
 
     ids: NDArray[np.int64]
     positions: NDArray[np.float64]
     sigma_range: float = 0.1
     sigma_bearing: float = 0.05
+    outlier_probability: float = 0.0
+    max_range: float = 20.0
     _lookup: dict[int, int] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -192,6 +200,8 @@ class RangeBearingLandmarks:
             )
         if not (self.sigma_range > 0 and self.sigma_bearing > 0):
             raise ValueError("sigma_range and sigma_bearing must be positive")
+        if not (0.0 <= self.outlier_probability < 1.0 and self.max_range > 0):
+            raise ValueError("need 0 <= outlier_probability < 1 and max_range > 0")
         object.__setattr__(self, "ids", ids)
         object.__setattr__(self, "positions", pos)
         object.__setattr__(self, "_lookup", {int(i): k for k, i in enumerate(ids)})
@@ -225,7 +235,12 @@ class RangeBearingLandmarks:
         er = (zz[None, :, 0] - r_hat) / self.sigma_range
         eb = ((zz[None, :, 1] - b_hat + np.pi) % (2 * np.pi) - np.pi) / self.sigma_bearing
         norm = math.log(2 * math.pi * self.sigma_range * self.sigma_bearing)
-        return np.asarray(-0.5 * (er * er + eb * eb) - norm)
+        ll = -0.5 * (er * er + eb * eb) - norm
+        eps = self.outlier_probability
+        if eps > 0.0:
+            uniform = -math.log(self.max_range * 2 * math.pi)
+            ll = np.logaddexp(math.log1p(-eps) + ll, math.log(eps) + uniform)
+        return np.asarray(ll)
 
     def log_likelihood_sum(
         self, poses: ArrayLike, z: ArrayLike, ids: ArrayLike

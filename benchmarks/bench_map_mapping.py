@@ -10,7 +10,10 @@ Rows, all in one process after a warm-up run that loads the cached kernels:
 3. Synthetic floor plans of growing size (``simulate_laser_world``): cells, beams,
    (beam, cell) dependencies, index and sweep time, to show how the cost grows.
 
-Run:  python benchmarks/bench_map_mapping.py [--log PATH] [--repeat 3]
+Run:  python benchmarks/bench_map_mapping.py [--log PATH] [--repeat 3] [--figure PNG]
+
+``--figure`` also draws the log-odds map and the MAP map of the log side by side with their
+objectives (the README's figure, ``docs/intel_map_vs_logodds.png``).
 """
 
 from __future__ import annotations
@@ -34,7 +37,29 @@ def table(title: str, header: list[str], rows: list[list[str]]) -> None:
         print("| " + " | ".join(r) + " |")
 
 
-def intel(log: Path, repeat: int) -> None:
+def figure(path: Path, res, occ_lo, obj_lo: float) -> None:  # type: ignore[no-untyped-def]
+    """Log-odds map and MAP map side by side (free white, occupied black, unobserved grey)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 6.2))
+    for ax, occ, title in (
+        (axes[0], occ_lo, f"log-odds (Table 9.1), thresholded at 0.5\nobjective {obj_lo:,.0f}"),
+        (axes[1], res.occupied, f"MAP (Table 9.3)\nobjective {res.objective:,.0f}"),
+    ):
+        img = np.where(res.observed, np.where(occ, 0.0, 1.0), 0.75)
+        ax.imshow(img, cmap="gray", vmin=0, vmax=1, origin="lower", extent=res.spec.extent)
+        ax.set_title(title)
+        ax.set_xlabel("x [m]")
+    axes[0].set_ylabel("y [m]")
+    fig.suptitle("Intel Research Lab, corrected log, 0.1 m cells: eq. 9.25 objectives")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+
+
+def intel(log: Path, repeat: int, fig: Path | None = None) -> None:
     from probmap.datasets.carmen import load_scans
     from probmap.grid.occupancy import OccupancyGrid
 
@@ -68,6 +93,8 @@ def intel(log: Path, repeat: int) -> None:
     pad = np.zeros((max(g.spec.shape[0], sy + h), max(g.spec.shape[1], sx + w)), bool)
     pad[: occ_lo.shape[0], : occ_lo.shape[1]] = occ_lo
     obj_lo = res.index.objective(pad[sy : sy + h, sx : sx + w], cfg.l0)
+    if fig is not None:
+        figure(fig, res, pad[sy : sy + h, sx : sx + w], obj_lo)
     rows = [
         [
             f"sweep {r.sweep}",
@@ -191,8 +218,9 @@ def main() -> None:
         "--log", type=Path, default=DATA / "intel-research-lab" / "intel-corrected.log.gz"
     )
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--figure", type=Path, default=None)
     args = ap.parse_args()
-    intel(args.log, args.repeat)
+    intel(args.log, args.repeat, args.figure)
     synthetic()
 
 

@@ -25,3 +25,6 @@ def register(app: typer.Typer) -> None:
     from probmap.cli import localize
 
     localize.register(app)
+    from probmap.cli import bag
+
+    bag.register(app)

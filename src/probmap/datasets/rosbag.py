@@ -323,7 +323,7 @@ def _open_reader(path: Path) -> Iterator[Any]:
     from rosbags.typesys import Stores, get_typestore
 
     if not path.exists():
-        raise FileNotFoundError(2, f"{path}: no such file or directory", str(path))
+        raise FileNotFoundError(f"{path}: no such file or directory")
     target = path
     if path.is_file() and path.suffix in (".db3", ".mcap"):
         if not (path.parent / "metadata.yaml").is_file():
@@ -629,7 +629,7 @@ class RosBag:
     ) -> None:
         self.path = Path(path)
         if not self.path.exists():
-            raise FileNotFoundError(2, f"{self.path}: no such file or directory", str(self.path))
+            raise FileNotFoundError(f"{self.path}: no such file or directory")
         if int(echo) != echo or echo < 0:
             raise ValueError(f"echo must be a non-negative integer, got {echo!r}")
         require_rosbags()
@@ -1088,10 +1088,10 @@ def write_map_to_bag(
         raise ValueError(f"stamp must be a non-negative time in seconds, got {stamp}")
     folder = out.parent if str(out.parent) else Path(".")
     if not folder.is_dir():
-        raise FileNotFoundError(2, f"{folder}: output folder does not exist", str(folder))
+        raise FileNotFoundError(f"{folder}: output folder does not exist")
     ros1 = out.suffix == ".bag"
     if not ros1 and out.exists():
-        raise FileExistsError(17, f"{out}: a ROS 2 bag folder exists already", str(out))
+        raise FileExistsError(f"{out}: a ROS 2 bag folder exists already")
     tmpdir = Path(tempfile.mkdtemp(prefix=".probmap-bag-", dir=folder))
     try:
         tmp = tmpdir / out.name

@@ -1,0 +1,71 @@
+"""``probmap info BAG``: topics, message types, counts, frames and durations of a ROS bag."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import typer
+
+from probmap.cli.common import cli_errors
+
+
+def _seconds(t: float) -> str:
+    return "-" if math.isnan(t) else f"{t:.3f}"
+
+
+def info_command(
+    bag: Path = typer.Argument(
+        ..., help="A ROS 1 .bag file, or a ROS 2 bag folder (.db3 or .mcap storage)."
+    ),
+) -> None:
+    """List a ROS bag's topics, message types, counts, frames and time spans."""
+    with cli_errors():
+        from rich.console import Console
+        from rich.table import Table
+
+        from probmap.datasets.rosbag import SCAN_TYPES, summarize_bag
+
+        s = summarize_bag(bag)
+        console = Console()
+        table = Table(title=f"{bag.name}: ROS {s.ros_version} bag")
+        for name, justify in (
+            ("topic", "left"),
+            ("type", "left"),
+            ("count", "right"),
+            ("frames", "left"),
+            ("start (s)", "right"),
+            ("duration (s)", "right"),
+        ):
+            table.add_column(name, justify=justify, overflow="fold")  # type: ignore[arg-type]
+        for t in s.topics:
+            table.add_row(
+                t.topic,
+                t.msgtype.replace("/msg/", "/"),
+                f"{t.count:,}",
+                ", ".join(t.frames) or "-",
+                _seconds(t.start - s.start),
+                _seconds(t.end - t.start),
+            )
+        console.print(table)
+        rows = [
+            ("messages", f"{s.messages:,}"),
+            ("duration", f"{_seconds(s.duration)} s ({_seconds(s.start)} to {_seconds(s.end)})"),
+            ("frames", ", ".join(s.frames) or "-"),
+        ]
+        for parent, child, static, count in s.tf_links:
+            kind = "static" if static else f"{count:,} transforms"
+            rows.append(("tf", f"{parent} -> {child} ({kind})"))
+        scans = [t.topic for t in s.topics_of(SCAN_TYPES)]
+        rows.append(("laser topics", ", ".join(scans) or "none"))
+        summary = Table(show_header=False, box=None)
+        summary.add_column(style="bold")
+        summary.add_column()
+        for k, v in rows:
+            summary.add_row(k, v)
+        console.print(summary)
+
+
+def register(app: typer.Typer) -> None:
+    """Attach ``probmap info``."""
+    app.command("info")(info_command)

@@ -411,3 +411,12 @@ def test_intel_corrected_converges(shared_data):
     rate = float(near.mean())
     print(f"Intel MAP: {100 * rate:.1f} % of endpoints within one cell of an occupied cell")
     assert rate > 0.85
+
+
+@pytest.mark.parametrize("name", ["probmap.grid.map_mapping", "probmap.grid.fit"])
+def test_doctests(name):
+    import doctest
+    import importlib
+
+    result = doctest.testmod(importlib.import_module(name), optionflags=doctest.ELLIPSIS)
+    assert result.attempted > 0 and result.failed == 0

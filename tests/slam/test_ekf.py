@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 from scipy.stats import chi2
+from threadpoolctl import threadpool_limits
 
 from probmap.datasets.simulation import simulate_landmarks
 from probmap.geometry.se2 import wrap_angle
@@ -75,6 +76,13 @@ class DenseReferenceEKF:
             self.P = P
             self.mu = np.concatenate([self.mu, lm])
             self.slot[int(ids[i])] = len(self.slot)
+
+
+@pytest.fixture(autouse=True)
+def _one_blas_thread():
+    # small dense updates: BLAS threads only add start-up cost (see BENCHMARKS.md)
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
 
 
 def make(sim, **kw):

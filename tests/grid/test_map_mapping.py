@@ -420,3 +420,21 @@ def test_doctests(name):
 
     result = doctest.testmod(importlib.import_module(name), optionflags=doctest.ELLIPSIS)
     assert result.attempted > 0 and result.failed == 0
+
+
+# ----------------------------------------------------------------------------- sonar cones
+
+
+@pytest.mark.parametrize("tilt", [0.0, 0.2, 0.5])
+def test_cone_reading_is_nearest_subray_to_a_wall(tilt):
+    """A wall at x = 3 m: each sub-ray at angle a from the normal reads 3 / cos(a) (minus the
+    sensor's x); the cone reads the smallest."""
+    from probmap.grid.sonar import simulate_cone_ranges
+
+    spec = GridSpec(0.05, (-1.0, -5.0), (200, 120))
+    occ = np.zeros(spec.shape, bool)
+    occ[:, spec.world_to_cell([[3.0, 0.0]])[0, 0] :] = True
+    pose = np.array([[0.0, 0.0, 0.0]])
+    z = simulate_cone_ranges(occ, spec, pose, [tilt], 8.0, opening=0.6, subrays=7)
+    expected = min(3.0 / math.cos(tilt + o) for o in cone_offsets(0.6, 7))
+    assert z[0, 0] == pytest.approx(expected, abs=1e-9)

@@ -131,30 +131,35 @@ class InformationStore:
         idx = np.asarray(slots, dtype=np.intp)
         xi[3:] = self._xi[idx].reshape(-1)
         mu[3:] = self._mu[idx].reshape(-1)
-        diag = self._omega[idx]
-        pos = self.local_index(slots)
-        links = self.robot_links
+        pos = {s: a for a, s in enumerate(slots)}
+        # landmark blocks as a (k, k, 2, 2) array: diagonal, then each link once (s < t)
+        L = np.zeros((k, k, 2, 2))
+        ar = np.arange(k)
+        L[ar, ar] = self._omega[idx]
+        A: list[int] = []
+        B: list[int] = []
+        blocks: list[FloatArray] = []
         adjacency = self.adjacency
-        for s, r in pos.items():
-            omega[r : r + 2, r : r + 2] = diag[(r - 3) // 2]
-            rl = links.get(s)
-            if rl is not None:
-                omega[:3, r : r + 2] = rl
-                omega[r : r + 2, :3] = rl.T
-            nbrs = adjacency[s]
-            if len(nbrs) < k:
-                for t, block in nbrs.items():
-                    ct = pos.get(t)
-                    if ct is not None and s < t:
-                        omega[r : r + 2, ct : ct + 2] = block
-                        omega[ct : ct + 2, r : r + 2] = block.T
-            else:
-                for t, c in pos.items():
-                    if s < t:
-                        found = nbrs.get(t)
-                        if found is not None:
-                            omega[r : r + 2, c : c + 2] = found
-                            omega[c : c + 2, r : r + 2] = found.T
+        for s, a in pos.items():
+            for t, block in adjacency[s].items():
+                if s < t:
+                    b = pos.get(t)
+                    if b is not None:
+                        A.append(a)
+                        B.append(b)
+                        blocks.append(block)
+        if blocks:
+            stacked = np.stack(blocks)
+            L[A, B] = stacked
+            L[B, A] = stacked.transpose(0, 2, 1)
+        omega[3:, 3:] = L.transpose(0, 2, 1, 3).reshape(2 * k, 2 * k)
+        links = self.robot_links
+        R = np.zeros((k, 3, 2))
+        have = [a for s, a in pos.items() if s in links]
+        if have:
+            R[have] = np.stack([links[slots[a]] for a in have])
+            omega[:3, 3:] = R.transpose(1, 0, 2).reshape(3, 2 * k)
+            omega[3:, :3] = omega[:3, 3:].T
         return omega, xi, mu
 
     def boundary(self, slots: Sequence[int]) -> FloatArray:
@@ -199,28 +204,30 @@ class InformationStore:
         self._xi[idx] = xi[3:].reshape(k, 2)
         if mu is not None:
             self._mu[idx] = mu[3:].reshape(k, 2)
+        L = omega[3:, 3:].reshape(k, 2, k, 2).transpose(0, 2, 1, 3)  # (k, k, 2, 2)
+        ar = np.arange(k)
+        self._omega[idx] = L[ar, ar]
+        R = omega[:3, 3:].reshape(3, k, 2).transpose(1, 0, 2)  # (k, 3, 2)
+        robot_nz = np.any(R != 0.0, axis=(1, 2)).tolist()
+        link_nz = np.any(L != 0.0, axis=(2, 3))
         links = self.robot_links
         adjacency = self.adjacency
         for a, s in enumerate(slots):
-            r = 3 + 2 * a
-            self._omega[s] = omega[r : r + 2, r : r + 2]
-            rl = omega[:3, r : r + 2]
-            if rl.any():
-                links[s] = rl.copy()
+            if robot_nz[a]:
+                links[s] = R[a].copy()
             else:
                 links.pop(s, None)
+            row = link_nz[a].tolist()
             for b in range(a + 1, k):
                 t = slots[b]
-                c = 3 + 2 * b
-                block = omega[r : r + 2, c : c + 2]
                 lo, hi = (s, t) if s < t else (t, s)
-                if block.any():
-                    stored = block.copy() if s < t else block.T.copy()
+                if row[b]:
+                    stored = L[a, b].copy() if s < t else L[b, a].copy()
                     adjacency[lo][hi] = stored
                     adjacency[hi][lo] = stored
-                else:
-                    adjacency[lo].pop(hi, None)
-                    adjacency[hi].pop(lo, None)
+                elif hi in adjacency[lo]:
+                    del adjacency[lo][hi]
+                    del adjacency[hi][lo]
 
     # ------------------------------------------------------------------ whole-state views
     def to_sparse(self):  # type: ignore[no-untyped-def]

@@ -64,6 +64,10 @@ __all__ = [
 ]
 
 
+LANDMARK_COVARIANCE_EXACT_MAX = 5000
+"""Up to this many landmarks, :meth:`SEIFSlam.landmarks` returns exact marginal covariances."""
+
+
 class SingularInformationError(ValueError):
     """An information block is singular or indefinite; the update was rejected, state unchanged."""
 
@@ -290,11 +294,13 @@ class SeifConfig:
     new_landmark_probability : float
         An unmatched observation whose every Mahalanobis distance exceeds this chi-square
         quantile starts a new landmark; between the two quantiles it is discarded.
-    cell_size : float
-        Cell of the spatial hash used to find association candidates (m).
+    search_radius : float
+        Association candidates are the landmarks whose mean lies within this distance (m) of an
+        observation's inverse-model position (found through a spatial hash with cells this size).
     exact_covariance_max : int
-        Up to this many landmarks, covariances are exact marginals (sparse LU); beyond it, the
-        pose covariance is the Markov-blanket conditional one (overconfident, see docs).
+        Up to this many landmarks, :attr:`SEIFSlam.pose_covariance` is the exact marginal
+        (sparse LU, O(n) per call); beyond it, the covariance conditioned on the landmarks outside
+        the robot's Markov blanket (smaller than the marginal).
     """
 
     max_active: int | None = 10
@@ -302,8 +308,8 @@ class SeifConfig:
     exact_mean: bool = False
     gate_probability: float = 0.99
     new_landmark_probability: float = 0.9999
-    cell_size: float = 20.0
-    exact_covariance_max: int = 2000
+    search_radius: float = 10.0
+    exact_covariance_max: int = 150
 
     def __post_init__(self) -> None:
         if self.max_active is not None and self.max_active < 1:
@@ -315,8 +321,8 @@ class SeifConfig:
                 "need 0 < gate_probability <= new_landmark_probability < 1, got "
                 f"{self.gate_probability}, {self.new_landmark_probability}"
             )
-        if not self.cell_size > 0:
-            raise ValueError(f"cell_size must be > 0, got {self.cell_size}")
+        if not self.search_radius > 0:
+            raise ValueError(f"search_radius must be > 0, got {self.search_radius}")
 
 
 class SEIFSlam:
@@ -333,7 +339,7 @@ class SEIFSlam:
     initial_covariance : array_like, shape (3, 3)
         Symmetric positive definite.
     max_active, passive_sweeps, exact_mean, gate_probability, new_landmark_probability,
-    cell_size, exact_covariance_max
+    search_radius, exact_covariance_max
         See :class:`SeifConfig`.
     """
 
@@ -349,8 +355,8 @@ class SEIFSlam:
         exact_mean: bool = False,
         gate_probability: float = 0.99,
         new_landmark_probability: float = 0.9999,
-        cell_size: float = 20.0,
-        exact_covariance_max: int = 2000,
+        search_radius: float = 10.0,
+        exact_covariance_max: int = 150,
     ) -> None:
         self.config = SeifConfig(
             max_active,
@@ -358,7 +364,7 @@ class SEIFSlam:
             exact_mean,
             gate_probability,
             new_landmark_probability,
-            cell_size,
+            search_radius,
             exact_covariance_max,
         )
         mu0 = np.asarray(initial_pose, dtype=np.float64)
@@ -418,8 +424,8 @@ class SEIFSlam:
         """Covariance (3x3) of the pose: the marginal of ``Omega^-1``.
 
         Exact (sparse LU) up to ``exact_covariance_max`` landmarks; beyond it, the inverse of the
-        information over the robot, the active landmarks and their neighbours, which conditions
-        on the rest and so is smaller than the true marginal.
+        information over the robot and the active landmarks (its Markov blanket), which
+        conditions on the passive landmarks and so is smaller than the true marginal.
         """
         if self._cov_cache is not None and self._cov_cache[0] == self._version:
             return self._cov_cache[1].copy()
@@ -432,12 +438,6 @@ class SEIFSlam:
             P = splu(st.to_sparse()).solve(E)[:3, :3]
         else:
             local = list(self._active)
-            seen = set(local)
-            for s in list(local):
-                for t in st.adjacency[s]:
-                    if t not in seen:
-                        seen.add(t)
-                        local.append(t)
             Omega, _, _ = st.gather(local)
             P = np.linalg.inv(Omega)[:3, :3]
         P = 0.5 * (P + P.T)
@@ -560,7 +560,7 @@ class SEIFSlam:
         return s
 
     def _cell(self, xy: FloatArray) -> tuple[int, int]:
-        c = self.config.cell_size
+        c = self.config.search_radius
         return (int(math.floor(xy[0] / c)), int(math.floor(xy[1] / c)))
 
     def _update_known(self, z: FloatArray, ids: IntArray) -> None:
@@ -744,10 +744,10 @@ class SEIFSlam:
     def associate(self, z: FloatArray, ids: IntArray) -> tuple[FloatArray, IntArray]:
         """Maximum-likelihood association of the observations with ``ids == -1``.
 
-        Candidates are the landmarks whose mean lies within the farthest observed range (plus
-        one cell) of the robot (spatial hash, O(1) in the map size). Their joint covariance with
-        the robot is recovered locally: the inverse of the information over the robot, the active
-        landmarks, the candidates and the candidates' neighbours. Each observation goes to the
+        Candidates are the landmarks whose mean lies within ``search_radius`` of an
+        observation's inverse-model position (spatial hash, O(1) in the map size). Their joint
+        covariance with the robot is recovered locally: the inverse of the information over the
+        robot, the active landmarks and the candidates (conditioned on the rest at their means). Each observation goes to the
         candidate of smallest Mahalanobis distance inside the ``gate_probability`` gate (each
         candidate at most once per batch, greedy by distance); one beyond the
         ``new_landmark_probability`` gate of every candidate starts a new landmark; the rest are
@@ -762,8 +762,8 @@ class SEIFSlam:
         out_ids = ids.copy()
         keep = np.ones(len(ids), dtype=bool)
         mu_x = st.robot_mu
-        reach = float(np.max(z[unknown, 0])) + self.config.cell_size
-        cand = self._candidates(mu_x[:2], reach)
+        guess = np.stack([self.measurement_model.inverse(mu_x, z[i])[0] for i in unknown])
+        cand = self._candidates(guess, self.config.search_radius)
         if cand:
             local = list(self._active)
             seen = set(local)
@@ -771,11 +771,6 @@ class SEIFSlam:
                 if s not in seen:
                     seen.add(s)
                     local.append(s)
-            for s in cand:
-                for t in st.adjacency[s]:
-                    if t not in seen:
-                        seen.add(t)
-                        local.append(t)
             Omega, _, _ = st.gather(local)
             try:
                 Sigma = sla.cho_solve(sla.cho_factor(Omega), np.eye(Omega.shape[0]))
@@ -813,22 +808,21 @@ class SEIFSlam:
                 keep[i] = False
         return z[keep], out_ids[keep]
 
-    def _candidates(self, xy: FloatArray, reach: float) -> list[int]:
-        c = self.config.cell_size
-        i0, j0 = self._cell(xy)
-        r = int(math.ceil(reach / c))
-        mus = self._store.mu_landmarks
-        out: list[int] = []
-        for i in range(i0 - r, i0 + r + 1):
-            for j in range(j0 - r, j0 + r + 1):
-                cell = self._cells.get((i, j))
-                if cell:
-                    out.extend(cell)
-        if not out:
-            return out
-        arr = np.array(sorted(out))
-        d = mus[arr] - xy
-        near = np.einsum("ij,ij->i", d, d) <= reach * reach
+    def _candidates(self, points: FloatArray, radius: float) -> list[int]:
+        """Landmarks whose mean lies within ``radius`` of any of ``points`` (m, 2)."""
+        found: set[int] = set()
+        for p in points:
+            i0, j0 = self._cell(p)
+            for i in (i0 - 1, i0, i0 + 1):
+                for j in (j0 - 1, j0, j0 + 1):
+                    cell = self._cells.get((i, j))
+                    if cell:
+                        found.update(cell)
+        if not found:
+            return []
+        arr = np.array(sorted(found))
+        d = self._store.mu_landmarks[arr][:, None, :] - points[None, :, :]
+        near = np.any(np.einsum("cpi,cpi->cp", d, d) <= radius * radius, axis=1)
         return [int(s) for s in arr[near]]
 
     # ------------------------------------------------------------------ outputs
@@ -841,7 +835,7 @@ class SEIFSlam:
         xy : ndarray, shape (n, 2)
             Means (world frame, m).
         cov : ndarray, shape (n, 2, 2)
-            Marginal covariances: exact (sparse LU) up to ``exact_covariance_max`` landmarks,
+            Marginal covariances: exact (sparse LU) up to ``LANDMARK_COVARIANCE_EXACT_MAX`` (5000),
             otherwise the conditional ``Omega_jj^-1`` (smaller than the marginal), with a
             ``RuntimeWarning``.
         """
@@ -852,7 +846,7 @@ class SEIFSlam:
         xy = mu[3:].reshape(n, 2).copy()
         if n == 0:
             return ids, xy, np.zeros((0, 2, 2))
-        if n <= self.config.exact_covariance_max:
+        if n <= LANDMARK_COVARIANCE_EXACT_MAX:
             from scipy.sparse.linalg import splu
 
             lu = splu(st.to_sparse())
@@ -869,7 +863,7 @@ class SEIFSlam:
                     cov[j] = X[r : r + 2, cj : cj + 2]
         else:
             warnings.warn(
-                f"{n} landmarks > exact_covariance_max={self.config.exact_covariance_max}: "
+                f"{n} landmarks > {LANDMARK_COVARIANCE_EXACT_MAX}: "
                 "landmark covariances are conditional (Omega_jj^-1), smaller than the marginals",
                 RuntimeWarning,
                 stacklevel=2,
@@ -892,6 +886,6 @@ def build_seif(dataset: Any, config: SeifConfig | None = None) -> SEIFSlam:
         exact_mean=cfg.exact_mean,
         gate_probability=cfg.gate_probability,
         new_landmark_probability=cfg.new_landmark_probability,
-        cell_size=cfg.cell_size,
+        search_radius=cfg.search_radius,
         exact_covariance_max=cfg.exact_covariance_max,
     )

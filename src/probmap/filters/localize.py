@@ -257,7 +257,8 @@ def match_times(
 def trajectory_errors(
     run: LocalizationRun, ref_times: ArrayLike, ref_poses: ArrayLike, max_dt: float = 0.02
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Position and heading errors at the updates that have a reference pose within ``max_dt``.
+    """Position and heading errors at the reference poses that have an update within ``max_dt``
+    (the nearest update in time when several do).
 
     Returns
     -------
@@ -279,7 +280,12 @@ def trajectory_errors(
     )
     if rt.size > 1:
         j = np.where(np.abs(rt[j - 1] - run.times) < np.abs(rt[j] - run.times), j - 1, j)
-    ok = np.abs(rt[j] - run.times) <= max_dt
+    gap = np.abs(rt[j] - run.times)
+    ok = np.flatnonzero(gap <= max_dt)
+    # one error per reference pose: the update nearest to it in time
+    ok = ok[np.argsort(gap[ok], kind="stable")]
+    _, first = np.unique(j[ok], return_index=True)
+    ok = np.sort(ok[first])
     d = run.poses[ok] - rp[j[ok]]
     heading = np.abs((d[:, 2] + np.pi) % (2 * np.pi) - np.pi)
     return np.hypot(d[:, 0], d[:, 1]), heading

@@ -24,6 +24,7 @@ from probmap.datasets.rosbag import (  # noqa: E402
     BagError,
     RosBag,
     TfBuffer,
+    is_bag,
     load_bag_scans,
     occupancy_percent,
     read_map_from_bag,
@@ -557,3 +558,14 @@ def test_real_backpack_bag_topics_counts_and_scan_geometry(shared_data):
                 break
     with pytest.raises(BagError, match="2 scan topics"):
         load_bag_scans(path)
+
+
+def test_is_bag_and_resolved_frames(tmp_path, world):
+    path = write_sim_bag(tmp_path / "s.bag", world, ros=1, source="tf")
+    assert is_bag(path) and not is_bag(tmp_path / "log.clf.gz")
+    bag = RosBag(path)
+    assert bag.resolved_frames is None
+    bag.batch()
+    assert bag.resolved_frames == ("odom", "base_link", "laser")
+    b2 = write_sim_bag(tmp_path / "d", world, ros=2, source="odom")
+    assert is_bag(b2) and not is_bag(tmp_path)

@@ -47,6 +47,7 @@ __all__ = [
     "RosBag",
     "TfBuffer",
     "TopicSummary",
+    "is_bag",
     "load_bag_scans",
     "read_map_from_bag",
     "require_rosbags",
@@ -313,6 +314,15 @@ class TfBuffer:
 
 
 # ---------------------------------------------------------------------------- opening bags
+
+
+def is_bag(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` looks like a ROS bag: a ``.bag`` file, a ROS 2 bag folder (with
+    ``metadata.yaml``) or a ``.db3``/``.mcap`` storage file. Nothing is opened."""
+    p = Path(path)
+    if p.is_dir():
+        return (p / "metadata.yaml").is_file()
+    return p.suffix in (".bag", ".db3", ".mcap")
 
 
 @contextmanager
@@ -641,6 +651,8 @@ class RosBag:
         self.name = self.path.stem if self.path.suffix == ".bag" else self.path.name
         self._count: int | None = None
         self._base: str | None = None
+        #: ``(fixed, base, laser)`` frames the last complete read used (None before one).
+        self.resolved_frames: tuple[str, str, str] | None = None
 
     def __repr__(self) -> str:
         return f"RosBag({str(self.path)!r})"
@@ -820,9 +832,10 @@ class RosBag:
             tf, odom_frame = self._tf(reader, odom_conns)
             topic = scan_conns[0].topic
             buf: list[_RawScan] = []
-            fixed = base = ""
+            fixed = base = laser = ""
             for raw in self._read_raw_scans(reader, scan_conns):
                 if not fixed:
+                    laser = raw.frame
                     fixed = self._resolve_fixed(tf, odom_frame, raw.frame)
                     base = self._base_frame(tf, raw.frame)
                     if fixed == raw.frame:
@@ -833,6 +846,8 @@ class RosBag:
                     buf = []
             if buf:
                 yield buf, *self._poses(tf, fixed, base, buf, topic)
+            if fixed:
+                self.resolved_frames = (fixed, base, laser)
 
     def _poses(
         self, tf: TfBuffer, fixed: str, base: str, scans: list[_RawScan], topic: str

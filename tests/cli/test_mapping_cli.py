@@ -132,3 +132,19 @@ def test_unwritable_output(tmp_path, monkeypatch):
     )
     _assert_one_line_error(run("map", str(log), "-o", str(ro / "m")), "not writable")
     assert not list(ro.iterdir())
+
+
+def test_map_method_map(tmp_path):
+    log = tmp_path / "wall.clf"
+    _write_log(log)
+    res = run("map", str(log), "-o", str(tmp_path / "m"), "--resolution", "0.1", "--method", "map")
+    assert res.exit_code == 0, res.output
+    assert "objective" in res.output
+    from probmap.grid.io import load_npz
+
+    grid = load_npz(tmp_path / "m.npz")
+    wall = grid.spec.world_to_cell([5.02, 0.0])
+    assert grid.classify()[wall[1], wall[0]] == 1
+    _assert_one_line_error(
+        run("map", str(log), "-o", str(tmp_path / "x"), "--method", "nope"), "--method"
+    )

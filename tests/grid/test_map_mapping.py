@@ -376,8 +376,7 @@ def test_bad_init_shape():
 
 def test_intel_corrected_converges(shared_data):
     from probmap.datasets.carmen import load_scans
-    from probmap.grid.map_mapping import map_log_map
-    from probmap.pipelines import MappingConfig
+    from probmap.pipelines import MappingConfig, map_log_map
 
     log = shared_data("intel-research-lab/intel-corrected.log.gz")
     sweeps = []

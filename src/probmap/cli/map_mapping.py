@@ -43,8 +43,8 @@ def run_map_method(
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from probmap.grid.map_mapping import MapMappingConfig, SweepRecord, map_log_map
-    from probmap.pipelines import check_output_prefix, write_map
+    from probmap.grid.map_mapping import MapMappingConfig, SweepRecord
+    from probmap.pipelines import check_output_prefix, map_log_map, write_map
 
     if not log.exists():
         raise FileNotFoundError(f"{log}: no such file")

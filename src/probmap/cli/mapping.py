@@ -84,6 +84,11 @@ def map_command(
     skip_bad_lines: bool = typer.Option(
         False, "--skip-bad-lines", help="Skip and count malformed log lines."
     ),
+    method: str = typer.Option(
+        "log-odds",
+        "--method",
+        help="log-odds: per-cell Bayes filter; map: MAP mapping with the beam model (Table 9.3).",
+    ),
 ) -> None:
     """Build an occupancy grid map from a laser log with known poses."""
     with cli_errors():
@@ -106,6 +111,15 @@ def map_command(
             max_clear_range=max_clear,
             skip_bad_lines=skip_bad_lines,
         )
+        if method not in ("log-odds", "map"):
+            raise ValueError(f"--method must be 'log-odds' or 'map', got {method!r}")
+        if method == "map":
+            from probmap.cli.map_mapping import run_map_method
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", BadLinesWarning)
+                run_map_method(log, output, cfg)
+            return
         with Progress(transient=True) as bar, warnings.catch_warnings():
             # the summary table reports skipped lines; no Python warning text on the terminal
             warnings.simplefilter("ignore", BadLinesWarning)

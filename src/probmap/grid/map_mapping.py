@@ -26,7 +26,6 @@ does not depend on ``z*``) and enter the objective as a constant.
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -39,7 +38,7 @@ from probmap.grid.logodds import logit
 from probmap.grid.spec import GridSpec
 
 if TYPE_CHECKING:  # pragma: no cover
-    from probmap.pipelines import MappingConfig, MappingResult
+    pass
 
 __all__ = [
     "BeamIndex",
@@ -49,7 +48,6 @@ __all__ = [
     "MapMappingResult",
     "SweepRecord",
     "cone_offsets",
-    "map_log_map",
     "map_mapping",
 ]
 
@@ -653,75 +651,4 @@ def map_mapping(
         objective=final,
         index_seconds=t1 - t0,
         index=index,
-    )
-
-
-def map_log_map(
-    path: str | os.PathLike[str],
-    config: MappingConfig | None = None,
-    progress: Callable[[SweepRecord], None] | None = None,
-    *,
-    map_config: MapMappingConfig | None = None,
-) -> MappingResult:
-    """MAP mapping of a CARMEN log, in the shape of :func:`probmap.pipelines.map_log`.
-
-    ``config`` gives the resolution, pose source, maximum range, clamp and bad-line policy;
-    ``map_config`` the MAP parameters (its resolution is replaced by ``config.resolution``).
-    The binary map becomes an :class:`~probmap.grid.occupancy.OccupancyGrid` whose occupied
-    cells hold ``logit(clamp[1])``, free observed cells ``logit(clamp[0])`` and unobserved
-    cells the prior, so :func:`probmap.pipelines.write_map` writes the usual files.
-    ``MappingResult.extra`` holds ``objective``, ``sweeps``, ``converged``,
-    ``index_seconds``, ``sweep_seconds`` and ``objective_<k>`` per sweep.
-    """
-    from dataclasses import replace
-
-    from probmap.datasets.carmen import load_scans
-    from probmap.grid.occupancy import OccupancyGrid, ScanStats
-    from probmap.pipelines import MappingConfig, MappingResult
-
-    cfg = config or MappingConfig(resolution=0.1)
-    mcfg = replace(map_config or MapMappingConfig(), resolution=cfg.resolution)
-    t0 = time.perf_counter()
-    batch = load_scans(
-        path, poses=cfg.poses, max_range=cfg.max_range, skip_bad_lines=cfg.skip_bad_lines
-    )
-    t1 = time.perf_counter()
-    max_range = float(cfg.max_range if cfg.max_range is not None else batch.max_range)
-    res = map_mapping(
-        np.asarray(batch.laser_poses), batch.ranges, np.asarray(batch.angles), max_range, mcfg,
-        progress=progress,
-    )  # fmt: skip
-    t2 = time.perf_counter()
-    lo = np.full(res.spec.shape, float(logit(cfg.p0)), dtype=np.float32)
-    lo[res.observed] = float(logit(cfg.clamp[0]))
-    lo[res.occupied] = float(logit(cfg.clamp[1]))
-    grid = OccupancyGrid.from_log_odds(
-        res.spec, lo, p0=cfg.p0, clamp=cfg.clamp, observed=res.observed | res.occupied
-    )
-    ranges = np.asarray(batch.ranges)
-    n_total = int(ranges.size)
-    stats = ScanStats(
-        scans=int(ranges.shape[0]),
-        beams=n_total,
-        hits=res.index.beams,
-        max_range=res.index.max_range_beams,
-        dropped=res.index.dropped,
-        cell_updates=res.index.entries,
-    )
-    extra = {
-        "objective": res.objective,
-        "sweeps": float(len(res.history) - 1),
-        "converged": float(res.converged),
-        "index_seconds": res.index_seconds,
-        "sweep_seconds": res.sweep_seconds,
-    }
-    for r in res.history:
-        extra[f"objective_{r.sweep}"] = r.objective
-    return MappingResult(
-        grid=grid,
-        stats=stats,
-        parse_seconds=t1 - t0,
-        map_seconds=t2 - t1,
-        skipped_lines=int(getattr(batch, "skipped_lines", 0)),
-        extra=extra,
     )

@@ -906,6 +906,33 @@ class RosBag:
             for rec, _, _ in self._odometry(reader, conns):
                 yield rec
 
+    def resolve_frames(self) -> tuple[str, str, str]:
+        """``(fixed, base, laser)``: the frames a read would use, from tf, the odometry and the
+        first scan (no scan is posed). Also stored in :attr:`resolved_frames`.
+
+        Raises
+        ------
+        BagError
+            As iteration: no scan topic, no pose source, an empty scan topic.
+        """
+        self._base = None
+        with _open_reader(self.path) as reader:
+            scan_conns = self._pick(reader, self.scan_topic, SCAN_TYPES, "scan")
+            if scan_conns is None:
+                raise BagError(
+                    "no sensor_msgs/LaserScan or MultiEchoLaserScan topic in the bag",
+                    path=self.path,
+                )
+            odom_conns = self._pick(reader, self.odom_topic, (ODOM_TYPE,), "odom")
+            tf, odom_frame = self._tf(reader, odom_conns)
+            first = next(self._read_raw_scans(reader, scan_conns), None)
+            if first is None:
+                raise BagError(f"topic {scan_conns[0].topic!r} holds no message", path=self.path)
+            fixed = self._resolve_fixed(tf, odom_frame, first.frame)
+            base = first.frame if fixed == first.frame else self._base_frame(tf, first.frame)
+        self.resolved_frames = (fixed, base, first.frame)
+        return self.resolved_frames
+
     def tf_buffer(self) -> TfBuffer:
         """The bag's transform tree: tf, tf_static and the odometry topic's links."""
         self._base = None

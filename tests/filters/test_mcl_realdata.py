@@ -97,6 +97,54 @@ def test_intel_global_localization_converges(intel, seed):
     assert late.size >= 1 and late.max() < 0.3
 
 
+def test_intel_kidnapped_robot_recovers_with_augmented_mcl(intel):
+    from probmap.filters.mcl import FreeSpaceSampler, MCLConfig, MonteCarloLocalization
+    from probmap.grid.forward import LikelihoodField
+    from probmap.models.sampling import OdometryMotionModel
+
+    grid, raw, ref_t, ref_p, raw_idx, ref_idx = intel
+    prob = grid.probability()
+    lf = LikelihoodField(
+        grid.spec, prob, max_range=80.0, sigma_hit=0.2, z_hit=0.5, z_rand=0.5, max_distance=1.0
+    )
+    free = FreeSpaceSampler(grid.spec, (np.nan_to_num(prob, nan=1.0) < 0.3) & (lf.distance > 0.15))
+    mcl = MonteCarloLocalization(
+        lf,
+        OdometryMotionModel(0.3, 0.1, 0.1, 0.3),
+        np.random.default_rng(0),
+        MCLConfig(n_particles=5000, augmented=True),
+        free,
+    )
+    mcl.initialize_pose(ref_p[ref_idx[0]], np.diag([0.01, 0.01, 0.0025]))
+    forced = np.zeros(len(raw.times), dtype=bool)
+    forced[raw_idx] = True
+
+    def track(first, stop):
+        errs, last = [], first
+        for k in range(first + 1, stop):
+            d = raw.robot_poses[k] - raw.robot_poses[last]
+            turn = abs((d[2] + np.pi) % (2 * np.pi) - np.pi)
+            if np.hypot(d[0], d[1]) < 0.1 and turn < 0.1 and not forced[k]:
+                continue
+            est = mcl.update_scan(
+                raw.robot_poses[last], raw.robot_poses[k], raw.ranges[k, ::3], raw.angles[::3]
+            )
+            last = k
+            if forced[k]:
+                i = int(np.argmin(np.abs(ref_t - raw.times[k])))
+                errs.append(np.hypot(*(est.best_cluster[:2] - ref_p[i, :2])))
+        return np.array(errs)
+
+    # track to the 60th matched scan, then the robot is carried 9 m to where the 400th was
+    a, b = int(raw_idx[60]), int(raw_idx[400])
+    assert np.hypot(*(ref_p[ref_idx[60], :2] - ref_p[ref_idx[400], :2])) > 5.0
+    before = track(int(raw_idx[0]), a + 1)
+    assert np.median(before) < 0.1
+    after = track(b, b + 1000)
+    assert after[0] > 5.0  # the kidnap is felt
+    assert np.all(after[-10:] < 0.3)  # and recovered from
+
+
 # MCL median position error must beat this per robot over the first 200 s. The issue asks
 # 0.15 m; robot 1 gets 0.154 m here (its ranges run up to 0.4 m short for stretches and it
 # goes up to 39 s without a landmark on bad odometry), so its bound is 0.20 m.

@@ -683,8 +683,8 @@ class RosBag:
         if not cands:
             return None
         raise BagError(
-            f"{len(cands)} {what} topics ({', '.join(cands)}): choose one with the "
-            f"{what.replace(' ', '_')}_topic option",
+            f"{len(cands)} {what} topics ({', '.join(cands)}): choose one with "
+            f"{what}_topic= (probmap map --{what}-topic)",
             path=self.path,
         )
 
@@ -801,8 +801,8 @@ class RosBag:
         if len(chain) == 1:
             raise BagError(
                 f"the bag has no tf link and no nav_msgs/Odometry into the laser frame "
-                f"{laser!r}: cannot place the scans (pass fixed_frame={laser!r} to read them "
-                "in the laser's own frame)",
+                f"{laser!r}: cannot place the scans (fixed_frame={laser!r}, or probmap map "
+                f"--fixed-frame {laser}, reads them in the laser's own frame)",
                 path=self.path,
             )
         return chain[-1]

@@ -93,3 +93,16 @@ def test_write_metrics_json_round_trip(tmp_path):
     p = write_metrics_json(tmp_path / "metrics.json", {"a": np.float64(1.5), "b": [np.nan]})
     assert json.loads(p.read_text()) == {"a": 1.5, "b": [None]}
     assert list(tmp_path.iterdir()) == [p]
+
+
+def test_landmark_rmse_nearest_matching():
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(-20, 20, (30, 2))
+    truth = {100 + i: p for i, p in enumerate(pts)}
+    est = apply_se2([0.5, -0.3, 0.05], pts[:20] + rng.normal(0, 0.05, (20, 2)))
+    err, T = landmark_rmse(np.arange(20), est, truth, match="nearest")
+    assert err.errors.size == 20 and err.rmse < 0.15
+    raw, _ = landmark_rmse(np.arange(20), est, truth, align=False, match="nearest")
+    assert raw.rmse > err.rmse
+    with pytest.raises(ValueError):
+        landmark_rmse([0], [[0, 0]], truth, match="bogus")

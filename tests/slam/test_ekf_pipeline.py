@@ -20,3 +20,13 @@ def test_pipeline_runs_and_evaluates_simulation():
     assert 0.5 < m["nis"]["mean_per_dof"] < 1.5
     dr = dead_reckoning(sim)
     assert np.allclose(dr[:, 0], res.trajectory[:, 0])
+
+
+def test_unknown_correspondences_evaluated_by_nearest_landmark():
+    sim = simulate_landmarks(40, 400, seed=12, density=0.05, known_correspondences=False)
+    ekf = EKFSLAM(sim.motion_model, sim.measurement_model, sim.initial_pose, sim.initial_covariance)
+    res = run_landmark_slam(ekf, sim)
+    assert not res.known_correspondences
+    m = evaluate(res, sim)
+    assert m["landmarks"]["matched_by"] == "nearest"
+    assert m["landmarks"]["error_m"]["rmse"] < 0.3

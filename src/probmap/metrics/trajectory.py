@@ -208,8 +208,9 @@ def landmark_rmse(
     truth: dict[int, ArrayLike],
     *,
     align: bool = True,
+    match: str = "id",
 ) -> tuple[ErrorSeries, FloatArray]:
-    """Landmark position errors for the estimated landmarks whose id has a true position.
+    """Landmark position errors of an estimated map against true landmark positions.
 
     Parameters
     ----------
@@ -218,6 +219,10 @@ def landmark_rmse(
     truth : dict[int, (2,)]
     align : bool
         Fit an SE(2) transform of the estimated map onto the truth first (needs >= 2 matches).
+    match : {"id", "nearest"}
+        ``"id"``: compare landmarks whose id has a true position (known correspondences).
+        ``"nearest"``: pair each estimated landmark with the nearest true one (for estimators
+        that chose their own ids); with ``align`` the pairing is redone once after the fit.
 
     Returns
     -------
@@ -227,6 +232,24 @@ def landmark_rmse(
     """
     ids = np.asarray(ids, dtype=np.int64)
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    if match == "nearest":
+        if not truth or xy.shape[0] == 0:
+            return ErrorSeries(np.zeros(0)), np.zeros(3)
+        tru = np.array([np.asarray(v, dtype=np.float64)[:2] for v in truth.values()])
+
+        def nearest(points: FloatArray) -> FloatArray:
+            d = np.linalg.norm(points[:, None, :] - tru[None, :, :], axis=2)
+            return tru[np.argmin(d, axis=1)]
+
+        ref = nearest(xy)
+        T = np.zeros(3)
+        if align and xy.shape[0] >= 2:
+            T = align_se2(xy, ref)
+            ref = nearest(apply_se2(T, xy))
+            T = align_se2(xy, ref)
+        return ErrorSeries(np.linalg.norm(apply_se2(T, xy) - ref, axis=1)), T
+    if match != "id":
+        raise ValueError(f"match must be 'id' or 'nearest', got {match!r}")
     sel = [i for i, j in enumerate(ids) if int(j) in truth]
     if not sel:
         return ErrorSeries(np.zeros(0)), np.zeros(3)

@@ -72,6 +72,9 @@ class SlamResult:
         Ground-truth pose of each step when the records carry one.
     peak_rss_bytes : int
         Peak resident memory of the process after the run.
+    known_correspondences : bool
+        Whether the records gave landmark ids (else the estimator chose its own ids, and
+        landmark errors are computed against the nearest true landmark).
     """
 
     trajectory: FloatArray
@@ -85,6 +88,7 @@ class SlamResult:
     nis_dof: IntArray
     gt_poses: FloatArray | None
     peak_rss_bytes: int
+    known_correspondences: bool = True
 
 
 def run_landmark_slam(
@@ -135,6 +139,7 @@ def _run(
     nis_dof = np.zeros(total, dtype=np.int64)
     gt = np.full((total, 3), np.nan)
     have_gt = False
+    any_known = False
     i = -1
     clock = time.perf_counter
     for i, step in enumerate(dataset):
@@ -150,6 +155,8 @@ def _run(
         nobs[i] = step.z.shape[0]
         nis[i] = getattr(estimator, "last_nis", np.nan)
         nis_dof[i] = getattr(estimator, "last_nis_dof", 0)
+        if not any_known and step.ids.size and bool((step.ids >= 0).any()):
+            any_known = True
         if step.gt_pose is not None:
             gt[i] = step.gt_pose
             have_gt = True
@@ -172,6 +179,7 @@ def _run(
         nis_dof=nis_dof[:n],
         gt_poses=gt[:n] if have_gt else None,
         peak_rss_bytes=int(rss),
+        known_correspondences=any_known,
     )
 
 
@@ -299,9 +307,11 @@ def evaluate(
         }
     truth = getattr(dataset, "landmark_truth", None)
     if truth:
-        err, T = landmark_rmse(result.landmark_ids, result.landmark_xy, truth, align=False)
-        err_a, T_a = landmark_rmse(result.landmark_ids, result.landmark_xy, truth, align=True)
-        m["landmarks"] = {"error_m": err.stats()}
+        how = "id" if result.known_correspondences else "nearest"
+        ids, xy = result.landmark_ids, result.landmark_xy
+        err, T = landmark_rmse(ids, xy, truth, align=False, match=how)
+        err_a, T_a = landmark_rmse(ids, xy, truth, align=True, match=how)
+        m["landmarks"] = {"error_m": err.stats(), "matched_by": how}
         m["landmarks_aligned"] = {"error_m": err_a.stats(), "alignment": T_a.tolist()}
     gps = getattr(dataset, "gps", None)
     if gps is not None and len(gps) >= 2 and traj.shape[0] >= 2:

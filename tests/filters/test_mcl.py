@@ -155,7 +155,13 @@ def test_kidnapped_robot_recovers_only_with_augmented_mcl(world, field):
 
 
 def test_kld_sampling_adapts_the_particle_count(world, field):
+    from scipy.stats import chi2
+
     assert kld_sample_size(1, 0.05, 0.01) == 1
+    # Wilson-Hilferty approximates chi2_{k-1, 1-delta} / (2 eps) (Fox 2003) to within 1 %
+    for k in (2, 10, 100, 1000):
+        exact = chi2.ppf(0.99, k - 1) / (2 * 0.05)
+        assert abs(kld_sample_size(k, 0.05, 0.01) / exact - 1) < 0.01
     # Table 8.4 bound grows roughly linearly in the number of bins
     assert 2.5 < kld_sample_size(200, 0.05, 0.01) / kld_sample_size(60, 0.05, 0.01) < 4.0
     cfg = KLDConfig(epsilon=0.05, delta=0.01, n_min=200, n_max=8000)

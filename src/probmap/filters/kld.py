@@ -1,7 +1,7 @@
 """KLD-sampling: an adaptive particle count (Probabilistic Robotics Table 8.4, Fox 2003).
 
 Particles are drawn one batch at a time; each drawn pose is put into a histogram bin, and
-drawing stops once the count exceeds the bound of equation (8.xx) for the number of
+drawing stops once the count exceeds the bound (Table 8.4, line 14) for the number of
 non-empty bins ``k``:
 
     n = (k - 1) / (2 eps) * (1 - 2 / (9 (k - 1)) + sqrt(2 / (9 (k - 1))) z_{1-delta})^3
@@ -59,6 +59,9 @@ def kld_sample_size(k: int, epsilon: float, delta: float) -> int:
     """Particles needed for ``k`` non-empty bins, Table 8.4 line 14 (Wilson-Hilferty).
 
     Returns 1 for ``k <= 1``.
+
+    >>> kld_sample_size(1, 0.05, 0.01), kld_sample_size(2, 0.05, 0.01)
+    (1, 66)
     """
     if k <= 1:
         return 1

@@ -78,6 +78,14 @@ def low_variance_resample(
     -------
     (M,) int64 ndarray
         Indexes into the particle set, sorted ascending.
+
+    Examples
+    --------
+    Each particle gets ``floor(N w)`` or ``ceil(N w)`` copies:
+
+    >>> idx = low_variance_resample([0.5, 0.25, 0.25, 0.0], np.random.default_rng(0))
+    >>> np.bincount(idx, minlength=4).tolist()
+    [2, 1, 1, 0]
     """
     w = _check_weights(weights)
     m = _count(n, w)

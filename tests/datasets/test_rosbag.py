@@ -473,6 +473,14 @@ def test_corrupt_and_truncated_bags_name_the_file(tmp_path, world):
     cut.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
     with pytest.raises(BagError, match=r"cut\.bag.*corrupt or truncated"):
         load_bag_scans(cut)
+    for storage in ("sqlite3", "mcap"):
+        folder = write_sim_bag(
+            tmp_path / f"r2{storage}", world, ros=2, source="tf", storage=storage
+        )
+        store = next(f for f in folder.iterdir() if f.suffix in (".db3", ".mcap"))
+        store.write_bytes(store.read_bytes()[:3000])
+        with pytest.raises(BagError, match=rf"r2{storage}.*corrupt or truncated"):
+            load_bag_scans(folder)
     with pytest.raises(BagError, match=r"not a ROS bag"):
         (tmp_path / "x.txt").write_text("hello")
         load_bag_scans(tmp_path / "x.txt")

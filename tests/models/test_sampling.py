@@ -152,3 +152,21 @@ def test_bad_shapes_and_controls():
         VelocityMotionModel().sample(np.zeros((4, 3)), [1.0, 0.0], 0.0, rng)
     with pytest.raises(ValueError, match="control"):
         VelocityMotionModel().sample(np.zeros((4, 3)), [1.0], 1.0, rng)
+
+
+def test_reversing_is_not_noisier_than_driving_forwards():
+    # Backing up 1 m reads as rot1 = pi, trans = 1, rot2 = -pi; the rotation noise must scale
+    # with the small turn relative to reversing (0 here), not with pi.
+    alphas = (0.1, 0.0, 0.0, 0.1)
+    model = OdometryMotionModel(*alphas)
+    rng = np.random.default_rng(0)
+    start = np.zeros((2000, 3))
+    back = model.sample(start, [0.0, 0.0, 0.0], [-1.0, 0.0, 0.0], rng)
+    fwd = model.sample(start, [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], rng)
+    assert np.allclose(back[:, :2].mean(axis=0), [-1.0, 0.0], atol=0.01)
+    assert np.std(back[:, 2]) < 1e-9 and np.std(fwd[:, 2]) < 1e-9
+    # a turn in place with encoder jitter of 5 mm: no phantom rotations of order pi
+    # (sideways, so a naive atan2 would read it as rot1 = pi/2 then rot2 = -pi/2 + 0.5)
+    jitter = model.sample(start, [0.0, 0.0, 0.0], [0.0, 0.005, 0.5], rng)
+    expected = 0.5 * np.sqrt(0.1)  # only rot2 = 0.5 is noisy: sd sqrt(alpha1) * 0.5
+    assert abs(np.std(jitter[:, 2]) / expected - 1) < 0.1

@@ -10,7 +10,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -107,6 +107,7 @@ def map_log(
     config: MappingConfig | None = None,
     *,
     progress: Callable[[int, int], None] | None = None,
+    bag_options: dict[str, Any] | None = None,
 ) -> MappingResult:
     """Build an occupancy grid from a laser log with known poses (Table 9.1).
 
@@ -127,9 +128,16 @@ def map_log(
 
     cfg = config or MappingConfig()
     t0 = time.perf_counter()
-    batch = load_scans(
-        path, poses=cfg.poses, max_range=cfg.max_range, skip_bad_lines=cfg.skip_bad_lines
-    )
+    from probmap.datasets.rosbag import is_bag, load_bag_scans
+
+    if is_bag(path):
+        batch = load_bag_scans(path, **(bag_options or {}))
+    elif bag_options and any(v not in (None, 0) for v in bag_options.values()):
+        raise ValueError(f"{path}: topic/frame options apply to ROS bags only")
+    else:
+        batch = load_scans(
+            path, poses=cfg.poses, max_range=cfg.max_range, skip_bad_lines=cfg.skip_bad_lines
+        )
     t1 = time.perf_counter()
     max_range = float(cfg.max_range if cfg.max_range is not None else batch.max_range)
     grid = cfg.make_grid()

@@ -66,3 +66,33 @@ def test_info_on_the_real_backpack_bag(shared_data):
         "9.995 s",
     ):
         assert want in text
+
+
+def test_probmap_map_on_a_simulated_bag_and_to_bag(tmp_path):
+    """``probmap map BAG -o PREFIX --to-bag OUT`` maps a bag like the simulator's own poses."""
+    from test_rosbag import write_sim_bag
+
+    from probmap.cli import register
+    from probmap.cli.app import app
+    from probmap.datasets.rosbag import read_map_from_bag
+    from probmap.grid.io import load_npz
+    from probmap.grid.simworld import simulate_laser_world
+
+    register(app)
+    world = simulate_laser_world(seed=3, size=(8.0, 12.0), range_noise=0.01)
+    bag = write_sim_bag(tmp_path / "sim.bag", world, ros=1, source="odom")
+    out = tmp_path / "out.bag"
+    res = CliRunner().invoke(
+        app,
+        ["map", str(bag), "-o", str(tmp_path / "m"), "--resolution", "0.1", "--to-bag", str(out)],
+    )
+    assert res.exit_code == 0, res.output
+    grid = load_npz(tmp_path / "m.npz")
+    assert f"{len(world.poses)}" in res.output  # scans in the summary table
+    assert (grid.classify() == 1).sum() > 500
+    back = read_map_from_bag(out)
+    assert back is not None
+    res = CliRunner().invoke(
+        app, ["map", str(bag), "-o", str(tmp_path / "x"), "--scan-topic", "/nope"]
+    )
+    assert res.exit_code == 1 and "/nope" in res.output and "Traceback" not in res.output

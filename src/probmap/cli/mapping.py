@@ -89,6 +89,27 @@ def map_command(
         "--method",
         help="log-odds: per-cell Bayes filter; map: MAP mapping with the beam model (Table 9.3).",
     ),
+    scan_topic: str | None = typer.Option(
+        None,
+        "--scan-topic",
+        help="ROS bag: LaserScan/MultiEchoLaserScan topic (default: the only one).",
+    ),
+    odom_topic: str | None = typer.Option(
+        None, "--odom-topic", help="ROS bag: nav_msgs/Odometry topic (default: the only one)."
+    ),
+    fixed_frame: str | None = typer.Option(
+        None,
+        "--fixed-frame",
+        help="ROS bag: world frame of the map (default: odometry frame, map or odom).",
+    ),
+    laser_frame: str | None = typer.Option(
+        None, "--laser-frame", help="ROS bag: the scans' frame (default: their header.frame_id)."
+    ),
+    to_bag: Path | None = typer.Option(
+        None,
+        "--to-bag",
+        help="ROS bag: also write the map as nav_msgs/OccupancyGrid into this new bag (.bag: ROS 1, else a ROS 2 folder).",
+    ),
 ) -> None:
     """Build an occupancy grid map from a laser log with known poses."""
     with cli_errors():
@@ -128,9 +149,21 @@ def map_command(
             def tick(done: int, total: int) -> None:
                 bar.update(task, completed=done, total=total)
 
-            result = map_log(log, cfg, progress=tick)
+            bag_options: dict[str, Any] = {
+                "scan_topic": scan_topic,
+                "odom_topic": odom_topic,
+                "fixed_frame": fixed_frame,
+                "laser_frame": laser_frame,
+            }
+            result = map_log(log, cfg, progress=tick, bag_options=bag_options)
         result = write_map(output, result)
-        _summary(f"probmap map {log.name}", _mapping_rows(result))
+        rows = _mapping_rows(result)
+        if to_bag is not None:
+            from probmap.datasets.rosbag import RosBag, write_map_to_bag
+
+            frame = RosBag(log, **bag_options).resolve_frames()[0]
+            rows.append(("wrote", str(write_map_to_bag(to_bag, result.grid, frame_id=frame))))
+        _summary(f"probmap map {log.name}", rows)
 
 
 def demo_command(

@@ -379,3 +379,18 @@ def test_indefinite_information_block_rejected_state_unchanged():
         seif.update(step.z, step.ids)
     assert seif.n_landmarks == n
     assert np.array_equal(seif.information_matrix(), Omega)
+
+
+def test_prior_landmarks_are_independent_gaussians():
+    ds = simulate_landmarks(50, 5, seed=13)
+    seif = build_seif(ds)
+    cov = np.array([[[0.5, 0.1], [0.1, 0.3]], [[0.2, 0.0], [0.0, 0.2]]])
+    seif.add_landmarks([7, 9], [[1.0, 2.0], [-3.0, 4.0]], cov)
+    ids, xy, c = seif.landmarks()
+    assert ids.tolist() == [7, 9]
+    assert np.allclose(xy, [[1.0, 2.0], [-3.0, 4.0]])
+    assert np.allclose(c, cov)
+    with pytest.raises(ValueError, match="already in the state"):
+        seif.add_landmarks([7], [[0.0, 0.0]], cov[:1])
+    with pytest.raises(ValueError, match="positive definite"):
+        seif.add_landmarks([8], [[0.0, 0.0]], -cov[:1])

@@ -19,6 +19,9 @@ def register(app: typer.Typer) -> None:
     from probmap.cli import slam
 
     slam.register(app)
+    from probmap.cli import seif
+
+    seif.register(app)
     from probmap.cli import map_mapping
 
     map_mapping.register(app)

@@ -464,6 +464,41 @@ class SEIFSlam:
         """Bytes of numbers stored for the state (see ``InformationStore.state_nbytes``)."""
         return self._store.state_nbytes()
 
+    def add_landmarks(self, ids: ArrayLike, xy: ArrayLike, cov: ArrayLike) -> None:
+        """Add landmarks with independent Gaussian priors (a prior map), O(k).
+
+        Parameters
+        ----------
+        ids : array_like, shape (k,)
+            New landmark ids (>= 0, not yet in the state).
+        xy : array_like, shape (k, 2)
+            Prior means (world frame, m).
+        cov : array_like, shape (k, 2, 2)
+            Prior covariances, symmetric positive definite.
+        """
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        cov = np.asarray(cov, dtype=np.float64).reshape(-1, 2, 2)
+        if not (ids.shape[0] == xy.shape[0] == cov.shape[0]):
+            raise ValueError("ids, xy and cov must have the same length")
+        if np.any(ids < 0) or len(set(ids.tolist())) != ids.size:
+            raise ValueError("landmark ids must be distinct and >= 0")
+        if any(int(i) in self._slot_of for i in ids):
+            raise ValueError("a landmark id is already in the state")
+        if not (np.all(np.isfinite(xy)) and np.all(np.isfinite(cov))):
+            raise ValueError("prior means and covariances must be finite")
+        try:
+            np.linalg.cholesky(cov)
+        except np.linalg.LinAlgError as exc:
+            raise ValueError("prior covariances must be positive definite") from exc
+        info = np.linalg.inv(cov)
+        st = self._store
+        for i in range(ids.size):
+            s = self._new_landmark(int(ids[i]), xy[i])
+            st._omega[s] = info[i]
+            st._xi[s] = info[i] @ xy[i]
+        self._version += 1
+
     # ------------------------------------------------------------------ Table 12.2
     def predict(self, u: ArrayLike, dt: float) -> None:
         """Motion update with control ``u`` (2,) over ``dt`` seconds (Table 12.2)."""

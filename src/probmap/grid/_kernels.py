@@ -270,3 +270,70 @@ def cast_rays(occ, ox, oy, res, poses, angles, max_range, out):  # pragma: no co
                     iy += sy
                     tmy += tdy
             out[p, b] = min(hit, max_range)
+
+
+@njit(cache=True, inline="always")
+def walk_start(gx0, gy0, gx1, gy1, include_last):  # pragma: no cover - compiled
+    """State of the Amanatides-Woo walk from grid point (gx0, gy0) to (gx1, gy1) (cell units).
+
+    The same traversal as :func:`_walk_update`, split into a start and a step so that other
+    kernels can visit exactly the same cells in the same order. Returns
+    ``(ix, iy, ex, ey, sx, sy, tmx, tmy, tdx, tdy, n)``: the first cell, the last cell, the step
+    directions, the ray parameters of the next x / y boundary and between boundaries, and the
+    number of cells to visit (the last one only if ``include_last``). Visit ``n`` cells, calling
+    :func:`walk_next` after each.
+    """
+    ix = int(math.floor(gx0))
+    iy = int(math.floor(gy0))
+    ex = int(math.floor(gx1))
+    ey = int(math.floor(gy1))
+    dx = gx1 - gx0
+    dy = gy1 - gy0
+    if dx > 0.0:
+        sx = 1
+        tdx = 1.0 / dx
+        tmx = (ix + 1.0 - gx0) * tdx
+    elif dx < 0.0:
+        sx = -1
+        tdx = -1.0 / dx
+        tmx = (gx0 - ix) * tdx
+    else:
+        sx = 0
+        tdx = _INF
+        tmx = _INF
+    if dy > 0.0:
+        sy = 1
+        tdy = 1.0 / dy
+        tmy = (iy + 1.0 - gy0) * tdy
+    elif dy < 0.0:
+        sy = -1
+        tdy = -1.0 / dy
+        tmy = (gy0 - iy) * tdy
+    else:
+        sy = 0
+        tdy = _INF
+        tmy = _INF
+    n = abs(ex - ix) + abs(ey - iy)
+    if include_last:
+        n += 1
+    return ix, iy, ex, ey, sx, sy, tmx, tmy, tdx, tdy, n
+
+
+@njit(cache=True, inline="always")
+def walk_next(ix, iy, ex, ey, sx, sy, tmx, tmy, tdx, tdy):  # pragma: no cover - compiled
+    """One step of the walk started by :func:`walk_start`: returns ``(ix, iy, tmx, tmy)``.
+
+    Never steps past the last cell on either axis (as :func:`_walk_update`)."""
+    if ix == ex:
+        iy += sy
+        tmy += tdy
+    elif iy == ey:
+        ix += sx
+        tmx += tdx
+    elif tmx < tmy:
+        ix += sx
+        tmx += tdx
+    else:
+        iy += sy
+        tmy += tdy
+    return ix, iy, tmx, tmy

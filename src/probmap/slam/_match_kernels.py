@@ -1,0 +1,229 @@
+"""Numba kernels of the scan matcher and of the tiled particle maps (private).
+
+Every kernel takes contiguous arrays and scalars; the public functions in
+:mod:`probmap.slam.scan_matching` and :mod:`probmap.slam._tiles` validate inputs once.
+Field convention: ``field[iy, ix]`` is the value at the centre of cell ``(ix, iy)``, whose
+lower-left corner is ``(ox + ix * res, oy + iy * res)``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def bilinear(field, ox, oy, res, px, py):  # pragma: no cover - compiled
+    """Bilinear value of ``field`` at world point (px, py) and its gradient (per metre).
+
+    Outside the field the value and the gradient are 0.
+    """
+    h, w = field.shape
+    u = (px - ox) / res - 0.5
+    v = (py - oy) / res - 0.5
+    i0 = math.floor(u)
+    j0 = math.floor(v)
+    if i0 < 0 or j0 < 0 or i0 + 1 >= w or j0 + 1 >= h:
+        return 0.0, 0.0, 0.0
+    fx = u - i0
+    fy = v - j0
+    f00 = field[j0, i0]
+    f10 = field[j0, i0 + 1]
+    f01 = field[j0 + 1, i0]
+    f11 = field[j0 + 1, i0 + 1]
+    val = (1 - fy) * ((1 - fx) * f00 + fx * f10) + fy * ((1 - fx) * f01 + fx * f11)
+    dx = ((1 - fy) * (f10 - f00) + fy * (f11 - f01)) / res
+    dy = ((1 - fx) * (f01 - f00) + fx * (f11 - f10)) / res
+    return val, dx, dy
+
+
+@njit(cache=True)
+def point_terms(field, ox, oy, res, pts, x, y, th, out):  # pragma: no cover - compiled
+    """Per point: field value and its derivative w.r.t. the pose, ``out[i] = (M, dM/dx,
+    dM/dy, dM/dtheta)`` for the point ``pts[i]`` (sensor frame) seen from pose (x, y, th)."""
+    c = math.cos(th)
+    s = math.sin(th)
+    for i in range(pts.shape[0]):
+        px = pts[i, 0]
+        py = pts[i, 1]
+        qx = x + c * px - s * py
+        qy = y + s * px + c * py
+        val, gx, gy = bilinear(field, ox, oy, res, qx, qy)
+        out[i, 0] = val
+        out[i, 1] = gx
+        out[i, 2] = gy
+        out[i, 3] = gx * (-s * px - c * py) + gy * (c * px - s * py)
+
+
+@njit(cache=True)
+def gauss_newton_terms(field, ox, oy, res, pts, x, y, th, g, H):  # pragma: no cover
+    """Accumulate the normal equations of ``sum_i r_i^2 / 2`` with ``r_i = 1 - M(q_i)``.
+
+    ``g = J^T r`` (gradient), ``H = J^T J`` (Gauss-Newton Hessian); returns ``sum_i M(q_i)``
+    and ``sum_i r_i^2``.
+    """
+    c = math.cos(th)
+    s = math.sin(th)
+    for a in range(3):
+        g[a] = 0.0
+        for b in range(3):
+            H[a, b] = 0.0
+    score = 0.0
+    sq = 0.0
+    J = np.empty(3)
+    for i in range(pts.shape[0]):
+        px = pts[i, 0]
+        py = pts[i, 1]
+        qx = x + c * px - s * py
+        qy = y + s * px + c * py
+        val, gx, gy = bilinear(field, ox, oy, res, qx, qy)
+        r = 1.0 - val
+        J[0] = -gx
+        J[1] = -gy
+        J[2] = -(gx * (-s * px - c * py) + gy * (c * px - s * py))
+        for a in range(3):
+            g[a] += J[a] * r
+            for b in range(3):
+                H[a, b] += J[a] * J[b]
+        score += val
+        sq += r * r
+    return score, sq
+
+
+@njit(cache=True)
+def nearest_score(field, ox, oy, res, pts, x, y, th):  # pragma: no cover - compiled
+    """Sum of the field at the cells holding the points (nearest cell, 0 outside)."""
+    h, w = field.shape
+    c = math.cos(th)
+    s = math.sin(th)
+    total = 0.0
+    for i in range(pts.shape[0]):
+        qx = x + c * pts[i, 0] - s * pts[i, 1]
+        qy = y + s * pts[i, 0] + c * pts[i, 1]
+        ix = math.floor((qx - ox) / res)
+        iy = math.floor((qy - oy) / res)
+        if 0 <= ix < w and 0 <= iy < h:
+            total += field[iy, ix]
+    return total
+
+
+@njit(cache=True)
+def correlative_search(
+    field, ox, oy, res, pts, x0, y0, th0, lin_window, lin_step, ang_window, ang_step, out
+):  # pragma: no cover - compiled
+    """Exhaustive search of the nearest-cell score over a box of poses around (x0, y0, th0).
+
+    ``out`` receives the best ``(x, y, theta, score)``; of equal scores the first visited wins
+    (loops: angle, then x, then y, each from the most negative offset).
+    """
+    nl = int(round(lin_window / lin_step))
+    na = int(round(ang_window / ang_step))
+    h, w = field.shape
+    best = -1.0
+    bx = x0
+    by = y0
+    bt = th0
+    n = pts.shape[0]
+    rx = np.empty(n)
+    ry = np.empty(n)
+    for ka in range(-na, na + 1):
+        th = th0 + ka * ang_step
+        c = math.cos(th)
+        s = math.sin(th)
+        for i in range(n):
+            rx[i] = c * pts[i, 0] - s * pts[i, 1]
+            ry[i] = s * pts[i, 0] + c * pts[i, 1]
+        for kx in range(-nl, nl + 1):
+            x = x0 + kx * lin_step
+            for ky in range(-nl, nl + 1):
+                y = y0 + ky * lin_step
+                total = 0.0
+                for i in range(n):
+                    ix = math.floor((x + rx[i] - ox) / res)
+                    iy = math.floor((y + ry[i] - oy) / res)
+                    if 0 <= ix < w and 0 <= iy < h:
+                        total += field[iy, ix]
+                if total > best:  # strictly better: the first of equals wins
+                    best = total
+                    bx = x
+                    by = y
+                    bt = th
+    out[0] = bx
+    out[1] = by
+    out[2] = bt
+    out[3] = best
+
+
+@njit(cache=True)
+def integrate_window(
+    lo,
+    stamp,
+    ox,
+    oy,
+    res,
+    x,
+    y,
+    th,
+    ranges,
+    angles,
+    max_range,
+    clear_range,
+    l_hit,
+    l_miss,
+    l_min,
+    l_max,
+):  # pragma: no cover - compiled
+    """Integrate one scan into a dense log-odds window (Table 9.1), each cell once.
+
+    Endpoints (``r < max_range``) get ``l_hit`` first, then cells crossed by any beam and not
+    hit get ``l_miss`` (hit wins). Max-range beams clear up to ``clear_range``. ``stamp`` (same
+    shape, zero on entry) marks the cells updated (1 = hit, 2 = miss). Cells outside the window
+    are ignored.
+    """
+    h, w = lo.shape
+    c = math.cos(th)
+    s = math.sin(th)
+    sx = (x - ox) / res
+    sy = (y - oy) / res
+    nb = ranges.shape[0]
+    for b in range(nb):
+        r = ranges[b]
+        if not (r > 0.0) or r >= max_range:
+            continue
+        a = th + angles[b]
+        ix = math.floor(sx + r * math.cos(a) / res)
+        iy = math.floor(sy + r * math.sin(a) / res)
+        if 0 <= ix < w and 0 <= iy < h and stamp[iy, ix] == 0:
+            stamp[iy, ix] = 1
+            v = lo[iy, ix] + l_hit
+            lo[iy, ix] = min(max(v, l_min), l_max)
+    for b in range(nb):
+        r = ranges[b]
+        if not (r > 0.0) or math.isnan(r):
+            continue
+        hit = r < max_range
+        if not hit:
+            r = clear_range
+            if r <= 0.0:
+                continue
+        a = th + angles[b]
+        ex = sx + r * math.cos(a) / res
+        ey = sy + r * math.sin(a) / res
+        steps = int(math.ceil(max(abs(ex - sx), abs(ey - sy)) * 2.0))
+        if steps == 0:
+            continue
+        dx = (ex - sx) / steps
+        dy = (ey - sy) / steps
+        eix = math.floor(ex)
+        eiy = math.floor(ey)
+        for k in range(steps):
+            ix = math.floor(sx + k * dx)
+            iy = math.floor(sy + k * dy)
+            if hit and ix == eix and iy == eiy:
+                break
+            if 0 <= ix < w and 0 <= iy < h and stamp[iy, ix] == 0:
+                stamp[iy, ix] = 2
+                v = lo[iy, ix] + l_miss
+                lo[iy, ix] = min(max(v, l_min), l_max)

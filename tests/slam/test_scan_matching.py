@@ -1,0 +1,185 @@
+"""Scan matcher: kernels against pure-Python references, derivatives against numerical ones,
+recovery of a known offset on the simulated world."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from probmap.grid.occupancy import OccupancyGrid
+from probmap.grid.simworld import simulate_laser_world
+from probmap.grid.spec import GridSpec
+from probmap.slam.scan_matching import (
+    MatcherConfig,
+    MatchField,
+    correlative_search,
+    match_scan,
+    normal_equations,
+    point_terms,
+    scan_points,
+    score_scan,
+)
+
+
+# ----------------------------------------------------------------- pure-Python references
+def ref_bilinear(f: MatchField, x: float, y: float) -> float:
+    u = (x - f.origin[0]) / f.resolution - 0.5
+    v = (y - f.origin[1]) / f.resolution - 0.5
+    i, j = math.floor(u), math.floor(v)
+    h, w = f.values.shape
+    if i < 0 or j < 0 or i + 1 >= w or j + 1 >= h:
+        return 0.0
+    a, b = u - i, v - j
+    F = f.values
+    return float(
+        (1 - a) * (1 - b) * F[j, i]
+        + a * (1 - b) * F[j, i + 1]
+        + (1 - a) * b * F[j + 1, i]
+        + a * b * F[j + 1, i + 1]
+    )
+
+
+def ref_world(pose, p):
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    return pose[0] + c * p[0] - s * p[1], pose[1] + s * p[0] + c * p[1]
+
+
+def ref_nearest(f: MatchField, pts, pose) -> float:
+    total = 0.0
+    h, w = f.values.shape
+    for p in pts:
+        qx, qy = ref_world(pose, p)
+        ix = math.floor((qx - f.origin[0]) / f.resolution)
+        iy = math.floor((qy - f.origin[1]) / f.resolution)
+        if 0 <= ix < w and 0 <= iy < h:
+            total += f.values[iy, ix]
+    return total
+
+
+def ref_search(f, pts, p0, cfg):
+    nl = round(cfg.linear_window / cfg.linear_step)
+    na = round(cfg.angular_window / cfg.angular_step)
+    best, arg = -1.0, None
+    for ka in range(-na, na + 1):
+        for kx in range(-nl, nl + 1):
+            for ky in range(-nl, nl + 1):
+                pose = (
+                    p0[0] + kx * cfg.linear_step,
+                    p0[1] + ky * cfg.linear_step,
+                    p0[2] + ka * cfg.angular_step,
+                )
+                s = ref_nearest(f, pts, pose)
+                if s > best:
+                    best, arg = s, pose
+    return np.array(arg), best
+
+
+@pytest.fixture(scope="module")
+def world():
+    return simulate_laser_world(seed=3, range_noise=0.005)
+
+
+@pytest.fixture(scope="module")
+def grid(world):
+    # a map as scans see it (wall surfaces only), built with the true poses
+    g = OccupancyGrid(resolution=0.05)
+    g.integrate_scans(world.poses, world.ranges, world.angles, max_range=world.max_range)
+    return g
+
+
+@pytest.fixture(scope="module")
+def field(grid):
+    return MatchField.from_grid(grid, sigma=0.08)
+
+
+def _points(world, k):
+    return scan_points(world.ranges[k], world.angles, world.max_range)
+
+
+def test_field_is_one_on_walls_and_the_gaussian_of_the_distance_elsewhere():
+    occ = np.zeros((5, 7), dtype=bool)
+    occ[2, 3] = True
+    spec = GridSpec(0.1, (-1.0, 2.0), (5, 7))
+    f = MatchField.from_occupied(occ, spec, sigma=0.2)
+    iy, ix = np.mgrid[0:5, 0:7]
+    d = 0.1 * np.hypot(iy - 2, ix - 3)
+    np.testing.assert_allclose(f.values, np.exp(-0.5 * (d / 0.2) ** 2))
+    assert f.origin == (-1.0, 2.0)
+    with pytest.raises(ValueError, match="shape"):
+        MatchField.from_occupied(occ[:4], spec)
+
+
+def test_point_terms_match_reference_and_numerical_derivatives(world, field):
+    pts = _points(world, 10)[::7]
+    pose = world.poses[10] + np.array([0.013, -0.021, 0.012])
+    terms = point_terms(field, pts, pose)
+    eps = 1e-6
+    for i, p in enumerate(pts):
+        assert terms[i, 0] == pytest.approx(ref_bilinear(field, *ref_world(pose, p)), abs=1e-12)
+        for a in range(3):
+            d = np.zeros(3)
+            d[a] = eps
+            num = (
+                ref_bilinear(field, *ref_world(pose + d, p))
+                - ref_bilinear(field, *ref_world(pose - d, p))
+            ) / (2 * eps)
+            assert terms[i, 1 + a] == pytest.approx(num, rel=1e-4, abs=1e-4)
+
+
+def test_normal_equations_gradient_is_numerical_derivative_of_cost(world, field):
+    pts = _points(world, 20)
+    pose = world.poses[20] + np.array([0.02, 0.01, -0.015])
+
+    def cost(q):
+        return 0.5 * sum((1 - ref_bilinear(field, *ref_world(q, p))) ** 2 for p in pts)
+
+    score, g, H = normal_equations(field, pts, pose)
+    terms = point_terms(field, pts, pose)
+    assert score == pytest.approx(terms[:, 0].sum())
+    J = -terms[:, 1:]
+    np.testing.assert_allclose(H, J.T @ J, rtol=1e-10, atol=1e-10)
+    eps = 1e-6
+    num = [
+        (cost(pose + eps * np.eye(3)[a]) - cost(pose - eps * np.eye(3)[a])) / (2 * eps)
+        for a in range(3)
+    ]
+    np.testing.assert_allclose(g, num, rtol=1e-4, atol=1e-4)
+
+
+def test_nearest_score_and_correlative_search_match_references(world, field):
+    pts = _points(world, 30)[::5]
+    p0 = world.poses[30] + np.array([0.1, -0.05, 0.03])
+    assert score_scan(field, pts, p0) == pytest.approx(ref_nearest(field, pts, p0), abs=1e-9)
+    cfg = MatcherConfig(linear_window=0.15, linear_step=0.05, angular_window=0.04)
+    pose, s = correlative_search(field, pts, p0, cfg)
+    rpose, rs = ref_search(field, pts, p0, cfg)
+    assert s == pytest.approx(rs, abs=1e-9)
+    np.testing.assert_allclose(pose, rpose, atol=1e-12)
+
+
+@pytest.mark.parametrize("k", [15, 60, 120])
+def test_match_recovers_a_known_offset(world, field, k):
+    pts = _points(world, k)
+    truth = world.poses[k]
+    res = match_scan(field, pts, truth + np.array([0.12, -0.09, 0.06]))
+    assert np.hypot(*(res.pose[:2] - truth[:2])) < 0.02
+    assert abs(res.pose[2] - truth[2]) < 0.01
+    assert res.score > 0.5
+    # a positive-definite covariance, small where the geometry constrains the pose
+    assert np.all(np.linalg.eigvalsh(res.covariance) > 0)
+    assert np.sqrt(res.covariance[0, 0]) < 0.05
+
+
+def test_bad_input_is_refused(field):
+    with pytest.raises(ValueError, match="points"):
+        match_scan(field, np.zeros((4, 3)), [0, 0, 0])
+    with pytest.raises(ValueError, match="at least 3"):
+        match_scan(field, np.zeros((2, 2)), [0, 0, 0])
+    with pytest.raises(ValueError, match="pose"):
+        match_scan(field, np.zeros((5, 2)), [0, np.nan, 0])
+    with pytest.raises(ValueError, match="sigma"):
+        MatcherConfig(sigma=0)
+    with pytest.raises(ValueError, match="angles"):
+        scan_points([1.0, 2.0], [0.0], 10.0)

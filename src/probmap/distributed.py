@@ -1,0 +1,654 @@
+"""Occupancy grid mapping of many logs on a Dask cluster: increments per task, a tree sum.
+
+The log-odds update of Table 9.1 adds ``inverse_sensor_model - l0`` to a cell for every scan that
+sees it, so without clamping the map is ``l0`` plus a sum over scans, and sums split across
+machines. Every task here reads a share of the scans (a log, or a chunk of one long log) and
+counts, per cell, how many scans hit it and how many crossed it, on a tile-aligned window of the
+common cell lattice (cell ``(i, j)`` covers ``[i r, (i+1) r) x [j r, (j+1) r)`` for every task).
+Counts are integers, so the tree reduction that sums them is exact and independent of how the
+scans were split or in which order the partial sums meet. The prior and the clamping are applied
+once, at the end:
+
+    l_i = clip(l0 + n_hit,i (l_hit - l0) + n_free,i (l_miss - l0), l_min, l_max)
+
+Where this differs from sequential mapping
+------------------------------------------
+Sequential mapping (:class:`~probmap.grid.occupancy.OccupancyGrid`) clamps after *every* update.
+Clamping at the end gives the same value in a cell whenever no prefix of its updates, in any
+order, can leave ``[l_min, l_max]``: that holds when the cell received updates of one sign only
+(clipping a monotone sequence once or at every step is the same), or when
+``l0 + n_hit (l_hit - l0) <= l_max`` and ``l0 + n_free (l_miss - l0) >= l_min`` (every partial
+sum lies between those two). Elsewhere both values lie in ``[l_min, l_max]`` and differ by at
+most ``l_max - l_min``; :func:`clamping_bound` gives this bound per cell (0 where the map is
+exact). Apart from clamping, the two differ only by float32 rounding: the sequential grid rounds
+to float32 after every update, the distributed one once.
+
+For a single log the default is the exact sequential semantics (one task runs
+:func:`probmap.pipelines.map_log`); ``mode="increments"`` splits it into chunks instead.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from probmap.grid.occupancy import InverseSensorModel, OccupancyGrid, ScanStats
+from probmap.grid.spec import GridSpec
+from probmap.pipelines import MappingConfig, MappingResult
+
+if TYPE_CHECKING:
+    from probmap.datasets.records import ScanBatch
+
+# Per kernel call the hit count is encoded as multiples of 2**16 and the free count in the low
+# 16 bits of a float64 (exact integers up to 2**53); a cell changes at most once per scan, so a
+# call integrates at most 2**16 - 1 scans.
+_FREE_BITS = 16
+_MAX_SCANS_PER_CALL = (1 << _FREE_BITS) - 1
+
+
+class DistributedMappingError(RuntimeError):
+    """Some inputs could not be mapped. ``result`` holds the map of those that were (or None)."""
+
+    def __init__(self, message: str, result: DistributedMappingResult | None) -> None:
+        super().__init__(message)
+        self.result = result
+
+
+@dataclass(frozen=True)
+class DistributedOptions:
+    """How the work is split over the cluster.
+
+    Parameters
+    ----------
+    mode : {"auto", "sequential", "increments"}
+        ``"sequential"``: one task maps one log with clamping after every update (exact
+        sequential semantics; a single log only). ``"increments"``: tasks count updates and a
+        tree reduction sums them (clamping at the end). ``"auto"``: sequential for one log with
+        ``chunks == 1``, increments otherwise.
+    chunks : int
+        Tasks per log: each log is read once and its scans split into this many contiguous
+        chunks (``>= 1``). Chunking by whole scans keeps the once-per-scan rule exact.
+    tile : int
+        Task windows start and end on multiples of ``tile`` cells of the common lattice.
+    fan_in : int
+        Partial sums merged per reduction task (``>= 2``).
+    retries : int
+        Times Dask retries a failed task before reporting it (a killed worker also reschedules).
+    """
+
+    mode: str = "auto"
+    chunks: int = 1
+    tile: int = 64
+    fan_in: int = 4
+    retries: int = 2
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("auto", "sequential", "increments"):
+            raise ValueError(
+                f"mode must be 'auto', 'sequential' or 'increments', got {self.mode!r}"
+            )
+        if self.chunks < 1:
+            raise ValueError(f"chunks must be >= 1, got {self.chunks}")
+        if self.tile < 1:
+            raise ValueError(f"tile must be >= 1 cells, got {self.tile}")
+        if self.fan_in < 2:
+            raise ValueError(f"fan_in must be >= 2, got {self.fan_in}")
+        if self.retries < 0:
+            raise ValueError(f"retries must be >= 0, got {self.retries}")
+
+
+@dataclass(frozen=True)
+class IncrementGrid:
+    """Update counts of a share of the scans on a window of the common cell lattice.
+
+    Parameters
+    ----------
+    resolution : float
+        Cell side in metres.
+    cell0 : tuple of int
+        ``(ix0, iy0)``: lattice index of the window's cell ``[0, 0]``; its lower-left corner is
+        at ``(ix0 r, iy0 r)`` metres in the world frame.
+    hits, frees : ndarray of int32, shape (H, W)
+        Scans that hit the cell (endpoint or obstacle thickness) and scans whose beams crossed
+        it, indexed ``[iy, ix]``. The log-odds increment is
+        ``hits (l_hit - l0) + frees (l_miss - l0)``.
+    stats : ScanStats
+        Counts of the scans integrated.
+    """
+
+    resolution: float
+    cell0: tuple[int, int]
+    hits: NDArray[np.int32]
+    frees: NDArray[np.int32]
+    stats: ScanStats
+
+    @property
+    def spec(self) -> GridSpec:
+        """Geometry of the window (origin on the common lattice)."""
+        r = self.resolution
+        return GridSpec(r, (self.cell0[0] * r, self.cell0[1] * r), self.hits.shape)
+
+    @classmethod
+    def empty(cls, resolution: float) -> IncrementGrid:
+        """No scans, no cells."""
+        z = np.zeros((0, 0), dtype=np.int32)
+        return cls(float(resolution), (0, 0), z, z.copy(), ScanStats(0, 0, 0, 0, 0, 0))
+
+    def merge(self, other: IncrementGrid) -> IncrementGrid:
+        """The sum of two increment grids on the union of their windows (exact: integers)."""
+        if self.resolution != other.resolution:
+            raise ValueError(
+                f"cannot merge grids of resolution {self.resolution} and {other.resolution}"
+            )
+        parts = [g for g in (self, other) if g.hits.size]
+        if not parts:
+            return IncrementGrid(
+                self.resolution, self.cell0, self.hits, self.frees, self.stats + other.stats
+            )
+        x0 = min(g.cell0[0] for g in parts)
+        y0 = min(g.cell0[1] for g in parts)
+        x1 = max(g.cell0[0] + g.hits.shape[1] for g in parts)
+        y1 = max(g.cell0[1] + g.hits.shape[0] for g in parts)
+        hits = np.zeros((y1 - y0, x1 - x0), dtype=np.int32)
+        frees = np.zeros_like(hits)
+        for g in parts:
+            oy, ox = g.cell0[1] - y0, g.cell0[0] - x0
+            h, w = g.hits.shape
+            hits[oy : oy + h, ox : ox + w] += g.hits
+            frees[oy : oy + h, ox : ox + w] += g.frees
+        return IncrementGrid(self.resolution, (x0, y0), hits, frees, self.stats + other.stats)
+
+    def log_odds(self, config: MappingConfig) -> NDArray[np.float32]:
+        """Final log odds: prior plus increments, clamped once (see the module notes), (H, W)."""
+        l0, d_hit, d_free, l_min, l_max = _levels(config)
+        lo = l0 + self.hits * d_hit + self.frees * d_free
+        return np.clip(lo, l_min, l_max).astype(np.float32)
+
+    def to_grid(self, config: MappingConfig) -> OccupancyGrid:
+        """The occupancy grid these counts describe, cropped to the observed cells."""
+        grid = OccupancyGrid.from_log_odds(
+            self.spec,
+            self.log_odds(config),
+            p0=config.p0,
+            clamp=config.clamp,
+            observed=(self.hits > 0) | (self.frees > 0),
+            model=_model(config),
+        )
+        return grid.cropped()
+
+
+def _model(config: MappingConfig) -> InverseSensorModel:
+    return InverseSensorModel(config.p_hit, config.p_miss, config.thickness, config.max_clear_range)
+
+
+def _levels(config: MappingConfig) -> tuple[float, float, float, float, float]:
+    from probmap.grid.logodds import logit
+
+    l0 = float(logit(config.p0))
+    model = _model(config)
+    return (
+        l0,
+        model.l_hit - l0,
+        model.l_miss - l0,
+        float(logit(config.clamp[0])),
+        float(logit(config.clamp[1])),
+    )
+
+
+def clamping_bound(increments: IncrementGrid, config: MappingConfig) -> NDArray[np.float64]:
+    """Per-cell bound on ``|distributed - sequential|`` log odds due to the clamping order.
+
+    0 where no ordering of the cell's updates can reach a clamp (updates of one sign only, or
+    ``l0 + n_hit d_hit <= l_max`` and ``l0 + n_free d_free >= l_min``); ``l_max - l_min``
+    elsewhere (both maps lie in the clamp interval). Float32 rounding is not included: it adds
+    at most a few units in the last place per update. Shape (H, W) of ``increments``.
+    """
+    l0, d_hit, d_free, l_min, l_max = _levels(config)
+    hi = l0 + increments.hits * max(d_hit, 0.0) + increments.frees * max(d_free, 0.0)
+    lo = l0 + increments.hits * min(d_hit, 0.0) + increments.frees * min(d_free, 0.0)
+    one_sign = (increments.hits == 0) | (increments.frees == 0)
+    if d_hit * d_free >= 0:  # both updates push the same way: monotone sequences
+        one_sign = np.ones_like(one_sign)
+    exact = one_sign | ((hi <= l_max) & (lo >= l_min))
+    return np.where(exact, 0.0, l_max - l_min)
+
+
+# ------------------------------------------------------------------ task bodies (run on workers)
+def integrate_increments(
+    poses: NDArray[np.float64],
+    ranges: NDArray[np.float64],
+    angles: NDArray[np.float64],
+    max_range: float,
+    config: MappingConfig,
+    *,
+    tile: int = 64,
+) -> IncrementGrid:
+    """Count the updates of a batch of scans (Table 9.1 without prior or clamping).
+
+    Parameters
+    ----------
+    poses : ndarray, shape (S, 3)
+        Sensor poses ``(x, y, theta)`` in the world frame (metres, radians).
+    ranges : ndarray, shape (S, B)
+        Ranges in metres; NaN/inf/non-positive readings are dropped, ``>= max_range`` means no
+        return.
+    angles : ndarray, shape (B,) or (S, B)
+        Beam angles in the sensor frame, radians.
+    max_range : float
+        The sensor's maximum range in metres.
+    config : MappingConfig
+        Resolution and inverse sensor model (prior and clamp are not used here).
+    tile : int
+        The window is aligned to multiples of ``tile`` cells of the common lattice.
+
+    Returns
+    -------
+    IncrementGrid
+        Exactly the updates :meth:`OccupancyGrid.integrate_scans` would apply, one per cell
+        and scan, with the hit winning over free space within a scan.
+    """
+    from probmap.grid import _kernels
+
+    P = np.ascontiguousarray(poses, dtype=np.float64)
+    R = np.ascontiguousarray(ranges, dtype=np.float64)
+    if P.ndim != 2 or P.shape[1] != 3 or R.ndim != 2 or R.shape[0] != P.shape[0]:
+        raise ValueError(f"poses must be (S, 3) and ranges (S, B), got {P.shape} and {R.shape}")
+    if not np.isfinite(P).all():
+        bad = int(np.nonzero(~np.isfinite(P).all(axis=1))[0][0])
+        raise ValueError(f"poses must be finite numbers; pose {bad} is {P[bad].tolist()}")
+    A = np.asarray(angles, dtype=np.float64)
+    shared = A.ndim == 1
+    A = np.ascontiguousarray(A[None, :] if shared else A)
+    if A.shape[-1] != R.shape[1] or (not shared and A.shape[0] != R.shape[0]):
+        raise ValueError(f"angles shape {np.shape(angles)} does not match ranges {R.shape}")
+    if not np.isfinite(A).all():
+        raise ValueError("angles must be finite")
+    if not max_range > 0.0:
+        raise ValueError(f"max_range must be > 0 m, got {max_range}")
+    res = float(config.resolution)
+    if P.shape[0] == 0:
+        return IncrementGrid.empty(res)
+    model = _model(config)
+    clear = model.max_clear_range
+    clear_range = (max_range if math.isfinite(max_range) else 0.0) if clear is None else clear
+    # window: every pose and endpoint plus one cell, rounded out to whole tiles
+    box = np.empty(4)
+    _kernels.scan_bounds(P, R, A, shared, float(max_range), clear_range, model.thickness, box)
+    ix0 = (math.floor(box[0] / res) - 1) // tile * tile
+    iy0 = (math.floor(box[2] / res) - 1) // tile * tile
+    ix1 = -((-(math.floor(box[1] / res) + 2)) // tile) * tile
+    iy1 = -((-(math.floor(box[3] / res) + 2)) // tile) * tile
+    shape = (iy1 - iy0, ix1 - ix0)
+    hits = np.zeros(shape, dtype=np.int32)
+    frees = np.zeros(shape, dtype=np.int32)
+    code = np.zeros(shape, dtype=np.float64)
+    stamp = np.zeros(shape, dtype=np.int32)
+    counts = np.zeros(4, dtype=np.int64)
+    n = P.shape[0]
+    for start in range(0, n, _MAX_SCANS_PER_CALL):
+        stop = min(start + _MAX_SCANS_PER_CALL, n)
+        code[:] = 0.0
+        _kernels.integrate_scans(
+            code,
+            stamp,
+            start + 1,
+            ix0 * res,
+            iy0 * res,
+            res,
+            P[start:stop],
+            R[start:stop],
+            A if shared else A[start:stop],
+            shared,
+            float(max_range),
+            clear_range,
+            model.thickness,
+            float(1 << _FREE_BITS),  # a hit adds 2**16
+            1.0,  # a crossing adds 1
+            -math.inf,
+            math.inf,
+            counts,
+        )
+        c = code.astype(np.int64)
+        hits += (c >> _FREE_BITS).astype(np.int32)
+        frees += (c & _MAX_SCANS_PER_CALL).astype(np.int32)
+    stats = ScanStats(
+        n, int(R.size), int(counts[0]), int(counts[1]), int(counts[2]), int(counts[3])
+    )
+    return IncrementGrid(res, (int(ix0), int(iy0)), hits, frees, stats)
+
+
+def _load(path: str, config: MappingConfig) -> ScanBatch:
+    from probmap.datasets.carmen import load_scans
+
+    return load_scans(
+        path, poses=config.poses, max_range=config.max_range, skip_bad_lines=config.skip_bad_lines
+    )
+
+
+def _max_range(batch: ScanBatch, config: MappingConfig) -> float:
+    return float(config.max_range if config.max_range is not None else batch.max_range)
+
+
+def _chunk_task(
+    batch: ScanBatch, start: int, stop: int, config: MappingConfig, tile: int
+) -> IncrementGrid:
+    angles = np.asarray(batch.angles)
+    return integrate_increments(
+        np.asarray(batch.laser_poses)[start:stop],
+        np.asarray(batch.ranges)[start:stop],
+        angles if angles.ndim == 1 else angles[start:stop],
+        _max_range(batch, config),
+        config,
+        tile=tile,
+    )
+
+
+def _log_task(path: str, config: MappingConfig, tile: int) -> tuple[IncrementGrid, int]:
+    batch = _load(path, config)
+    return _chunk_task(batch, 0, len(batch.times), config, tile), int(batch.skipped_lines)
+
+
+def _split_task(path: str, config: MappingConfig) -> tuple[ScanBatch, int]:
+    batch = _load(path, config)
+    return batch, len(batch.times)
+
+
+def _merge_task(*parts: IncrementGrid) -> IncrementGrid:
+    out = parts[0]
+    for p in parts[1:]:
+        out = out.merge(p)
+    return out
+
+
+def _first(pair: tuple[Any, Any]) -> Any:
+    return pair[0]
+
+
+def _second(pair: tuple[Any, Any]) -> Any:
+    return pair[1]
+
+
+def _skipped_lines(pair: tuple[ScanBatch, int]) -> int:
+    return int(pair[0].skipped_lines)
+
+
+def tree_sum(parts: Sequence[IncrementGrid], fan_in: int = 4) -> IncrementGrid:
+    """Sum increment grids the way the cluster does, level by level (for tests and one machine)."""
+    if not parts:
+        raise ValueError("nothing to sum")
+    level = list(parts)
+    while len(level) > 1:
+        level = [_merge_task(*level[i : i + fan_in]) for i in range(0, len(level), fan_in)]
+    return level[0]
+
+
+# ------------------------------------------------------------------ results and the pipeline
+@dataclass(frozen=True)
+class DistributedMappingResult:
+    """A map built on a cluster, which inputs went into it and which did not.
+
+    ``increments`` is None in sequential mode. ``failed`` pairs each input that could not be
+    mapped with the error its task raised (after Dask's retries).
+    """
+
+    grid: OccupancyGrid
+    stats: ScanStats
+    mode: str
+    mapped: tuple[Path, ...]
+    failed: tuple[tuple[Path, str], ...]
+    tasks: int
+    workers: int
+    seconds: float
+    skipped_lines: int = 0
+    increments: IncrementGrid | None = None
+
+    def as_mapping_result(self) -> MappingResult:
+        """The result in the shape :func:`probmap.pipelines.write_map` writes."""
+        return MappingResult(
+            grid=self.grid,
+            stats=self.stats,
+            parse_seconds=0.0,
+            map_seconds=self.seconds,
+            skipped_lines=self.skipped_lines,
+            extra={"tasks": float(self.tasks), "workers": float(self.workers)},
+        )
+
+
+def _resolve_mode(n_logs: int, options: DistributedOptions) -> str:
+    if options.mode == "sequential":
+        if n_logs != 1 or options.chunks != 1:
+            raise ValueError(
+                "mode='sequential' maps one log in one task; use mode='increments' for "
+                f"{n_logs} logs or chunks={options.chunks}"
+            )
+        return "sequential"
+    if options.mode == "auto" and n_logs == 1 and options.chunks == 1:
+        return "sequential"
+    return "increments"
+
+
+def _error_text(exc: BaseException | None) -> str:
+    if exc is None:
+        return "unknown error"
+    msg = str(exc) or exc.__class__.__name__
+    if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
+        msg = f"{exc.filename}: {msg}"
+    return msg
+
+
+def map_logs_distributed(
+    paths: Sequence[str | os.PathLike[str]],
+    config: MappingConfig | None = None,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: bool | Callable[[int, int], None] = True,
+    options: DistributedOptions | None = None,
+    allow_partial: bool = False,
+    client: Any = None,
+) -> DistributedMappingResult:
+    """Map many CARMEN logs (or chunks of one) on a Dask cluster and sum the increments.
+
+    Parameters
+    ----------
+    paths : sequence of path-like
+        The logs; all are mapped into one grid in the world frame of their poses.
+    config : MappingConfig, optional
+        Mapping parameters, as for :func:`probmap.pipelines.map_log`.
+    workers : int, optional
+        Start a local cluster of this many single-threaded worker processes (default: one per
+        CPU). Ignored with ``scheduler`` or ``client``.
+    scheduler : str, optional
+        Address of a running Dask scheduler (``tcp://host:8786``) to use instead.
+    progress : bool or callable
+        True shows Dask's progress bar in the terminal; a callable is called as
+        ``progress(done, total)`` as input tasks finish; False shows nothing.
+    options : DistributedOptions, optional
+        Mode, chunks per log, tile size, reduction fan-in, retries.
+    allow_partial : bool
+        If false (default) any input that fails raises :class:`DistributedMappingError`; if
+        true the map of the other inputs is returned with ``failed`` filled in.
+    client : distributed.Client, optional
+        An existing client (it is left open).
+
+    Returns
+    -------
+    DistributedMappingResult
+
+    Raises
+    ------
+    ImportError
+        Dask is not installed (``pip install 'probmap[distributed]'``).
+    DistributedMappingError
+        Some (or all) inputs could not be mapped; the message names each file and its error.
+    """
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError as exc:  # pragma: no cover - dask is in the test extra
+        raise ImportError(
+            "distributed mapping needs Dask: pip install 'probmap[distributed]'"
+        ) from exc
+    cfg = config or MappingConfig()
+    opts = options or DistributedOptions()
+    files = [Path(p) for p in paths]
+    if not files:
+        raise ValueError("no input logs given")
+    for f in files:
+        if not f.is_file():
+            raise FileNotFoundError(f"{f}: no such log file")
+    if workers is not None and workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    mode = _resolve_mode(len(files), opts)
+    cluster = None
+    own_client = client is None
+    t0 = time.perf_counter()
+    if client is None:
+        if scheduler is not None:
+            client = Client(scheduler)
+        else:
+            cluster = LocalCluster(
+                n_workers=workers or os.cpu_count() or 1,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+            )
+            client = Client(cluster)
+    try:
+        n_workers = len(client.scheduler_info()["workers"])
+        return _run(client, files, cfg, opts, mode, progress, allow_partial, n_workers, t0)
+    finally:
+        if own_client:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _run(
+    client: Any,
+    files: list[Path],
+    cfg: MappingConfig,
+    opts: DistributedOptions,
+    mode: str,
+    progress: bool | Callable[[int, int], None],
+    allow_partial: bool,
+    n_workers: int,
+    t0: float,
+) -> DistributedMappingResult:
+    from probmap.pipelines import map_log
+
+    retries = opts.retries
+    if mode == "sequential":
+        fut = client.submit(map_log, str(files[0]), cfg, retries=retries, pure=False)
+        _wait(client, [fut], progress)
+        if fut.status != "finished":
+            msg = _error_text(fut.exception())
+            raise DistributedMappingError(f"could not map {files[0]}: {msg}", None)
+        res: MappingResult = fut.result()
+        return DistributedMappingResult(
+            grid=res.grid,
+            stats=res.stats,
+            mode=mode,
+            mapped=(files[0],),
+            failed=(),
+            tasks=1,
+            workers=n_workers,
+            seconds=time.perf_counter() - t0,
+            skipped_lines=res.skipped_lines,
+        )
+    # one task per log; with chunks > 1, a read task per log and one task per chunk
+    per_log: list[list[Any]] = []
+    loads = []
+    if opts.chunks == 1:
+        for f in files:
+            fut = client.submit(_log_task, str(f), cfg, opts.tile, retries=retries, pure=False)
+            loads.append(fut)
+            per_log.append([client.submit(_first, fut, retries=retries)])
+    else:
+        loads = [
+            client.submit(_split_task, str(f), cfg, retries=retries, pure=False) for f in files
+        ]
+    _wait(client, loads, progress)
+    mapped: list[Path] = []
+    failed: list[tuple[Path, str]] = []
+    skipped = 0
+    parts: list[Any] = []
+    n_tasks = len(loads)
+    for i, (f, fut) in enumerate(zip(files, loads, strict=True)):
+        if fut.status != "finished":
+            failed.append((f, _error_text(fut.exception())))
+            continue
+        mapped.append(f)
+        if opts.chunks == 1:
+            parts.extend(per_log[i])
+            skipped += int(client.submit(_second, fut).result())
+            continue
+        batch_future = client.submit(_first, fut)
+        n_scans = int(client.submit(_second, fut).result())
+        bounds = np.linspace(0, n_scans, opts.chunks + 1).round().astype(int)
+        for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+            if b > a:
+                parts.append(
+                    client.submit(
+                        _chunk_task, batch_future, int(a), int(b), cfg, opts.tile, retries=retries
+                    )
+                )
+        skipped += int(client.submit(_skipped_lines, fut).result())
+    n_tasks += len(parts)
+    if not parts:
+        msgs = "; ".join(f"{f}: {m}" for f, m in failed)
+        raise DistributedMappingError(f"no input could be mapped ({msgs})", None)
+    # tree reduction: fan_in partial sums per task, level by level
+    level = parts
+    while len(level) > 1:
+        level = [
+            client.submit(_merge_task, *level[i : i + opts.fan_in], retries=retries)
+            for i in range(0, len(level), opts.fan_in)
+        ]
+        n_tasks += len(level)
+    total: IncrementGrid = level[0].result()
+    grid = total.to_grid(cfg)
+    result = DistributedMappingResult(
+        grid=grid,
+        stats=total.stats,
+        mode=mode,
+        mapped=tuple(mapped),
+        failed=tuple(failed),
+        tasks=n_tasks,
+        workers=n_workers,
+        seconds=time.perf_counter() - t0,
+        skipped_lines=skipped,
+        increments=total,
+    )
+    if failed and not allow_partial:
+        lines = "; ".join(f"{f}: {m}" for f, m in failed)
+        raise DistributedMappingError(
+            f"{len(failed)} of {len(files)} inputs could not be mapped ({lines}); "
+            f"mapped: {', '.join(str(p) for p in mapped)}",
+            result,
+        )
+    return result
+
+
+def _wait(client: Any, futures: list[Any], progress: bool | Callable[[int, int], None]) -> None:
+    from distributed import as_completed, wait
+
+    if progress is True:
+        from distributed.diagnostics.progressbar import progress as dask_progress
+
+        dask_progress(futures)
+        wait(futures)
+    elif callable(progress):
+        done = 0
+        for _ in as_completed(futures):
+            done += 1
+            progress(done, len(futures))
+    else:
+        wait(futures)

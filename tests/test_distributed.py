@@ -1,0 +1,304 @@
+"""Distributed mapping: increments, tree sums and a 2-worker LocalCluster against sequential maps."""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from probmap.distributed import (
+    DistributedMappingError,
+    DistributedOptions,
+    IncrementGrid,
+    clamping_bound,
+    integrate_increments,
+    map_logs_distributed,
+    tree_sum,
+)
+from probmap.grid.logodds import logit
+from probmap.grid.occupancy import OccupancyGrid
+from probmap.grid.simworld import simulate_laser_world
+from probmap.pipelines import MappingConfig, map_log
+
+distributed = pytest.importorskip("distributed")
+
+# wide clamps: logit(1 - 1e-15) = 34.5, so no cell of the small logs below reaches them
+NO_CLAMP = MappingConfig(
+    resolution=0.1, max_range=8.0, clamp=(1e-15, 1 - 1e-15), max_clear_range=None
+)
+CLAMPED = MappingConfig(resolution=0.1, max_range=8.0, max_clear_range=None)
+
+
+def world(seed: int, **kw: object):
+    """A simulated tour whose poses are moved off the cell boundaries.
+
+    The simulator places poses on multiples of 0.25 m, exactly on cell boundaries; there the
+    cell of a pose depends on the rounding of ``(x - origin) / r``, i.e. on the grid's origin
+    (see the notes of :mod:`probmap.distributed`). Real logs do not sit on boundaries.
+    """
+    from dataclasses import replace
+
+    w = simulate_laser_world(seed=seed, **kw)  # type: ignore[arg-type]
+    return replace(w, poses=w.poses + np.array([0.0123, 0.0077, 0.0]))
+
+
+def write_carmen(path: Path, poses: np.ndarray, ranges: np.ndarray, max_range: float) -> Path:
+    """A minimal CARMEN log: one PARAM line and FLASER lines (laser pose = odometry pose)."""
+    lines = [f"PARAM robot_front_laser_max {max_range}"]
+    for i, (p, r) in enumerate(zip(poses, ranges, strict=True)):
+        rs = " ".join("nan" if not np.isfinite(v) else f"{v:.3f}" for v in r)
+        pose = f"{p[0]:.6f} {p[1]:.6f} {p[2]:.6f}"
+        lines.append(f"FLASER {len(r)} {rs} {pose} {pose} {i * 0.1:.3f} sim {i * 0.1:.3f}")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
+    """Three robots' logs in the same building (different seeds), 20-25 scans each."""
+    folder = tmp_path_factory.mktemp("fleet")
+    out = []
+    for seed in range(3):
+        w = world(seed, size=(8.0, 12.0), step=0.5, n_beams=91, range_noise=0.02, dropout=0.02)
+        k = slice(seed * 8, seed * 8 + 20 + seed * 2)
+        out.append(write_carmen(folder / f"robot{seed}.log", w.poses[k], w.ranges[k], 8.0))
+    return out
+
+
+@pytest.fixture(scope="module")
+def client():
+    """A LocalCluster of 2 single-threaded worker processes, closed after the module."""
+    from distributed import Client, LocalCluster
+
+    cluster = LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    )
+    c = Client(cluster)
+    try:
+        yield c
+    finally:
+        c.close()
+        cluster.close()
+
+
+def sequential(paths: list[Path], cfg: MappingConfig) -> OccupancyGrid:
+    """Reference: one grid integrating all logs in order, clamping after every update."""
+    from probmap.datasets.carmen import load_scans
+
+    grid = cfg.make_grid()
+    for p in paths:
+        b = load_scans(p, max_range=cfg.max_range)
+        grid.integrate_scans(b.laser_poses, b.ranges, b.angles, max_range=cfg.max_range or 8.0)
+    return grid.cropped()
+
+
+def aligned(a: OccupancyGrid, b: OccupancyGrid) -> tuple[np.ndarray, ...]:
+    """``(lo_b, seen_b, lo_a, seen_a)``: log odds and observed masks on the union window."""
+    r = a.spec.resolution
+    ax = round(a.spec.origin[0] / r)
+    ay = round(a.spec.origin[1] / r)
+    bx = round(b.spec.origin[0] / r)
+    by = round(b.spec.origin[1] / r)
+    x0, y0 = min(ax, bx), min(ay, by)
+    x1 = max(ax + a.spec.width, bx + b.spec.width)
+    y1 = max(ay + a.spec.height, by + b.spec.height)
+    out = []
+    for g, gx, gy in ((b, bx, by), (a, ax, ay)):
+        lo = np.full((y1 - y0, x1 - x0), np.float32(logit(g.p0)), dtype=np.float32)
+        seen = np.zeros(lo.shape, dtype=bool)
+        h, w = g.spec.shape
+        lo[gy - y0 : gy - y0 + h, gx - x0 : gx - x0 + w] = g.log_odds
+        seen[gy - y0 : gy - y0 + h, gx - x0 : gx - x0 + w] = g.observed
+        out += [lo, seen]
+    return out[0], out[1], out[2], out[3]
+
+
+def rounding_tol(n_updates: np.ndarray | int, level: float) -> np.ndarray:
+    """Float32 rounding of the sequential sum: half an ulp of the running value per update."""
+    return (n_updates + 1) * level * np.finfo(np.float32).eps
+
+
+# ------------------------------------------------------------------ increments without a cluster
+def test_increments_match_sequential_grid_without_clamping() -> None:
+    w = world(4, size=(8.0, 12.0), step=0.5, n_beams=61, dropout=0.05)
+    inc = integrate_increments(w.poses, w.ranges, w.angles, w.max_range, NO_CLAMP, tile=16)
+    assert inc.cell0[0] % 16 == 0 and inc.cell0[1] % 16 == 0
+    assert inc.hits.shape[0] % 16 == 0 and inc.hits.shape[1] % 16 == 0
+    assert np.all(clamping_bound(inc, NO_CLAMP) == 0)
+    ref = NO_CLAMP.make_grid()
+    ref_stats = ref.integrate_scans(w.poses, w.ranges, w.angles, max_range=w.max_range)
+    assert inc.stats == ref_stats
+    got = inc.to_grid(NO_CLAMP)
+    lo_ref, seen_ref, lo, seen = aligned(got, ref.cropped())
+    np.testing.assert_array_equal(seen, seen_ref)
+    n = (inc.hits + inc.frees).max()
+    assert np.abs(lo - lo_ref).max() <= rounding_tol(n, 35.0)
+    assert int((inc.hits + inc.frees).sum()) == ref_stats.cell_updates
+
+
+def test_increment_counts_against_python_reference() -> None:
+    """A few beams on a coarse grid: hits/frees counted by hand with the once-per-scan rule."""
+    cfg = MappingConfig(resolution=1.0, max_clear_range=None)
+    poses = np.array([[0.5, 0.5, 0.0], [0.5, 0.5, 0.0], [0.5, 0.5, math.pi / 2]])
+    ranges = np.array([[3.0, 3.0], [2.0, np.nan], [2.0, 9.0]])
+    angles = np.array([0.0, 1e-3])
+    inc = integrate_increments(poses, ranges, angles, 9.0, cfg, tile=4)
+
+    def count(ix: int, iy: int) -> tuple[int, int]:
+        j, i = iy - inc.cell0[1], ix - inc.cell0[0]
+        return int(inc.hits[j, i]), int(inc.frees[j, i])
+
+    # scan 0: both beams end in cell (3, 0) -> one hit; cells 0..2 crossed once
+    # scan 1: beam ends in (2, 0) -> hit; (0, 0), (1, 0) crossed
+    # scan 2: up the y axis, hit at (0, 2); the max-range beam at angle 1e-3 (heading pi/2)
+    # clears up to 9 m along x = 0.5 - 9e-3 .. cells (0, 0..8) but (0, 2) is the hit (hit wins)
+    assert count(3, 0) == (1, 0)
+    assert count(2, 0) == (1, 1)
+    assert count(1, 0) == (0, 2)
+    assert count(0, 0) == (0, 3)
+    assert count(0, 2) == (1, 0)
+    assert count(0, 1) == (0, 1)
+    assert count(0, 8) == (0, 1)
+    assert int(inc.hits.sum()) == 3 and inc.stats.dropped == 1 and inc.stats.max_range == 1
+
+
+def test_tree_sum_is_exact_and_order_free() -> None:
+    w = world(5, size=(8.0, 12.0), step=0.5, n_beams=61)
+    whole = integrate_increments(w.poses, w.ranges, w.angles, w.max_range, CLAMPED, tile=8)
+    cuts = [0, 7, 8, 30, 31, len(w.poses)]
+    parts = [
+        integrate_increments(w.poses[a:b], w.ranges[a:b], w.angles, w.max_range, CLAMPED, tile=8)
+        for a, b in zip(cuts[:-1], cuts[1:], strict=True)
+    ]
+    for fan_in in (2, 3):
+        for order in (parts, parts[::-1]):
+            total = tree_sum(order, fan_in=fan_in)
+            assert total.stats == whole.stats
+            g1, g2 = total.to_grid(CLAMPED), whole.to_grid(CLAMPED)
+            assert g1.spec == g2.spec
+            np.testing.assert_array_equal(g1.log_odds, g2.log_odds)
+    assert tree_sum([IncrementGrid.empty(0.1), parts[0]]).stats == parts[0].stats
+
+
+def test_clamping_bound_holds_and_is_tight_where_zero() -> None:
+    """Default clamps (0.12, 0.97): cells with bound 0 match the sequential map to rounding,
+    the others within l_max - l_min, and some cells really differ."""
+    w = world(6, size=(8.0, 12.0), step=0.25, n_beams=91, range_noise=0.05)
+    inc = integrate_increments(w.poses, w.ranges, w.angles, w.max_range, CLAMPED, tile=8)
+    bound = clamping_bound(inc, CLAMPED)
+    ref = CLAMPED.make_grid()
+    ref.integrate_scans(w.poses, w.ranges, w.angles, max_range=w.max_range)
+    # compare on the increments' own (uncropped) window
+    full = OccupancyGrid.from_log_odds(inc.spec, inc.log_odds(CLAMPED), clamp=CLAMPED.clamp)
+    lo_ref, _, lo, _ = aligned(full, ref.cropped())
+    assert lo.shape == bound.shape
+    n = inc.hits + inc.frees
+    b = bound
+    diff = np.abs(lo.astype(np.float64) - lo_ref)
+    tol = rounding_tol(n, 4.0)
+    assert (b == 0).sum() > 1000 and (b > 0).sum() > 10
+    assert np.all(diff[b == 0] <= tol[b == 0])
+    assert np.all(diff <= b + tol)
+    assert diff[b > 0].max() > 0.1  # clamping order matters somewhere
+
+
+def test_options_are_validated() -> None:
+    with pytest.raises(ValueError, match="mode"):
+        DistributedOptions(mode="fast")
+    with pytest.raises(ValueError, match="chunks"):
+        DistributedOptions(chunks=0)
+    with pytest.raises(ValueError, match="poses must be"):
+        integrate_increments(np.zeros((2, 2)), np.zeros((2, 3)), np.zeros(3), 8.0, CLAMPED)
+
+
+# ------------------------------------------------------------------ on a 2-worker LocalCluster
+def test_cluster_fleet_equals_sequential_without_clamping(client, fleet) -> None:
+    res = map_logs_distributed(fleet, NO_CLAMP, client=client, progress=False)
+    assert res.mode == "increments" and res.mapped == tuple(fleet) and not res.failed
+    ref = sequential(fleet, NO_CLAMP)
+    assert res.increments is not None and np.all(clamping_bound(res.increments, NO_CLAMP) == 0)
+    lo_ref, seen_ref, lo, seen = aligned(res.grid, ref)
+    np.testing.assert_array_equal(seen, seen_ref)
+    assert np.abs(lo - lo_ref).max() <= rounding_tol(200, 35.0)
+    assert res.stats.scans == sum(1 for p in fleet for line in p.open() if line[:6] == "FLASER")
+
+
+def test_cluster_chunks_of_one_log_equal_whole_log(client, fleet) -> None:
+    opts = DistributedOptions(chunks=4, fan_in=2)
+    res = map_logs_distributed([fleet[2]], CLAMPED, client=client, progress=False, options=opts)
+    assert res.mode == "increments" and res.tasks > 4
+    seq = map_logs_distributed([fleet[2]], CLAMPED, client=client, progress=False)
+    assert seq.mode == "sequential" and seq.increments is None
+    # the sequential default is map_log itself
+    direct = map_log(fleet[2], CLAMPED).grid
+    np.testing.assert_array_equal(seq.grid.log_odds, direct.log_odds)
+    # chunked: within the clamping bound of the sequential map
+    assert res.increments is not None
+    bound = clamping_bound(res.increments, CLAMPED)
+    lo_ref, seen_ref, lo, seen = aligned(res.grid, direct)
+    np.testing.assert_array_equal(seen, seen_ref)
+    assert np.abs(lo - lo_ref).max() <= bound.max() + 1e-4
+    progress: list[tuple[int, int]] = []
+    again = map_logs_distributed(
+        [fleet[2]], CLAMPED, client=client, progress=lambda d, t: progress.append((d, t)),
+        options=opts,
+    )  # fmt: skip
+    np.testing.assert_array_equal(again.grid.log_odds, res.grid.log_odds)
+    assert progress[-1] == (1, 1)
+
+
+def test_cluster_reports_unreadable_log(client, fleet, tmp_path: Path) -> None:
+    bad = tmp_path / "broken.log"
+    bad.write_text("FLASER 3 1.0 2.0\n")
+    with pytest.raises(DistributedMappingError, match="broken.log") as info:
+        map_logs_distributed([fleet[0], bad], NO_CLAMP, client=client, progress=False)
+    partial = info.value.result
+    assert partial is not None and partial.mapped == (fleet[0],)
+    assert partial.failed[0][0] == bad and "line 1" in partial.failed[0][1]
+    res = map_logs_distributed(
+        [fleet[0], bad], NO_CLAMP, client=client, progress=False, allow_partial=True
+    )
+    alone = map_logs_distributed([fleet[0]], NO_CLAMP, client=client, progress=False,
+                                 options=DistributedOptions(mode="increments"))  # fmt: skip
+    np.testing.assert_array_equal(res.grid.log_odds, alone.grid.log_odds)
+    with pytest.raises(FileNotFoundError, match="missing.log"):
+        map_logs_distributed([tmp_path / "missing.log"], NO_CLAMP, client=client)
+    with pytest.raises(DistributedMappingError, match="no input could be mapped"):
+        map_logs_distributed([bad, bad], NO_CLAMP, client=client, progress=False)
+
+
+def _slow_chunk(path: str, delay: float) -> IncrementGrid:
+    """A task that takes a while, so a worker can be killed while it runs."""
+    import time
+
+    from probmap.distributed import _log_task
+
+    time.sleep(delay)
+    return _log_task(path, NO_CLAMP, 64)[0]
+
+
+def test_killed_worker_does_not_change_the_result(client, fleet) -> None:
+    futures = [client.submit(_slow_chunk, str(p), 1.0, pure=False) for p in fleet * 2]
+    # wait until tasks run on both workers, then kill the process of one of them
+    import time
+
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        processing = client.processing()
+        if sum(1 for v in processing.values() if v) == 2:
+            break
+        time.sleep(0.05)
+    victim = next(a for a, v in client.processing().items() if v)
+    pid = client.run(os.getpid, workers=[victim])[victim]
+    os.kill(pid, signal.SIGKILL)  # the nanny starts a new worker; its tasks are rescheduled
+    total = tree_sum(client.gather(futures))
+    assert victim not in client.scheduler_info()["workers"]  # it really died mid-run
+    expected = tree_sum([_slow_chunk(str(p), 0.0) for p in fleet * 2])
+    assert total.stats == expected.stats
+    np.testing.assert_array_equal(total.hits, expected.hits)
+    np.testing.assert_array_equal(total.frees, expected.frees)
+    client.wait_for_workers(2, timeout=30)

@@ -36,6 +36,8 @@ __all__ = [
     "LabelledInverseModel",
     "SemanticGrid",
     "class_entropy",
+    "check_labels",
+    "check_probabilities",
     "class_posterior",
     "inverse_term",
     "map_argmax",
@@ -773,43 +775,82 @@ class SemanticGrid:
                         f"{self.classes[0]!r}"
                     )
                 return np.zeros((S, B), np.int64), self.model.hit_probabilities(np.ones((1, 1)))
-            lab = _per_scan("labels", labels, S, B, ())
-            if lab.dtype.kind not in "iub":
-                if (
-                    lab.dtype.kind == "f"
-                    and np.all(np.isfinite(lab[hit]))
-                    and np.all(lab[hit] == np.round(lab[hit]))
-                ):
-                    lab = np.where(hit, lab, 0)
-                else:
-                    raise ValueError(f"labels must be integers 1..{K}, got dtype {lab.dtype}")
-            lab = lab.astype(np.int64)
-            bad = hit & ((lab < 1) | (lab > K))
-            if bad.any():
-                s, b = (int(v) for v in np.argwhere(bad)[0])
-                raise ValueError(
-                    f"scan {s}: label {int(lab[s, b])} of beam {b} is outside 1..{K} "
-                    f"(classes {list(self.classes[1:])})"
-                )
+            lab = check_labels(_per_scan("labels", labels, S, B, ()), hit, self.classes)
             qrow = np.where(hit, lab - 1, 0).astype(np.int64)
-            return np.ascontiguousarray(qrow), self.model.hit_probabilities(self.model.confusion(K))
-        prb = _per_scan("probabilities", probabilities, S, B, (K,)).astype(np.float64)
-        v = np.where(hit[..., None], prb, 1.0 / K)
-        finite = np.isfinite(v).all(axis=-1)
-        neg = (v < 0.0).any(axis=-1)
-        tot = v.sum(axis=-1)
-        off = np.abs(tot - 1.0) > PROB_SUM_TOL
-        for mask, what in (
-            (~finite, "is not finite"),
-            (neg & finite, "has negative entries"),
-            (off & finite & ~neg, "does not sum to 1"),
-        ):
-            if mask.any():
-                s, b = (int(i) for i in np.argwhere(mask)[0])
-                raise ValueError(
-                    f"scan {s}: probability vector of beam {b} {what}: "
-                    f"{np.round(v[s, b], 6).tolist()} (sum {tot[s, b]:.6g})"
-                )
-        v = v / tot[..., None]
+            q = self.model.hit_probabilities(self.model.confusion(K))
+            return np.ascontiguousarray(qrow), q
+        v = check_probabilities(_per_scan("probabilities", probabilities, S, B, (K,)), hit)
         q = self.model.hit_probabilities(v.reshape(S * B, K))
         return np.arange(S * B, dtype=np.int64).reshape(S, B), np.ascontiguousarray(q)
+
+
+def check_labels(
+    labels: ArrayLike, hit: NDArray[np.bool_], classes: Sequence[str]
+) -> NDArray[np.int64]:
+    """Validate hard labels (S, B): every beam with an endpoint (``hit``) must carry 1..K.
+
+    Beams without an endpoint may carry anything (it is ignored; 0 is returned for them).
+
+    Raises
+    ------
+    ValueError
+        Naming the first scan and beam with a label out of range (or not an integer).
+    """
+    K = len(classes) - 1
+    lab = np.asarray(labels)
+    if lab.shape != hit.shape:
+        raise ValueError(f"labels have shape {lab.shape}, ranges {hit.shape}")
+    if lab.dtype.kind == "f":
+        ok = np.isfinite(lab) & (lab == np.round(lab))
+        bad = hit & ~ok
+        if bad.any():
+            s, b = (int(v) for v in np.argwhere(bad)[0])
+            raise ValueError(f"scan {s}: label {lab[s, b]} of beam {b} is not an integer")
+        lab = np.where(hit, lab, 0)
+    elif lab.dtype.kind not in "iub":
+        raise ValueError(f"labels must be integers 1..{K}, got dtype {lab.dtype}")
+    lab = np.where(hit, lab, 0).astype(np.int64)
+    bad = hit & ((lab < 1) | (lab > K))
+    if bad.any():
+        s, b = (int(v) for v in np.argwhere(bad)[0])
+        raise ValueError(
+            f"scan {s}: label {int(lab[s, b])} of beam {b} is outside 1..{K} "
+            f"(classes {list(classes[1:])})"
+        )
+    return lab
+
+
+def check_probabilities(probabilities: ArrayLike, hit: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """Validate per-beam class distributions (S, B, K) and renormalise them to sum to 1.
+
+    Every beam with an endpoint (``hit``) needs finite, non-negative entries summing to 1 within
+    :data:`PROB_SUM_TOL`; other beams may hold anything (they get the uniform distribution).
+
+    Raises
+    ------
+    ValueError
+        Naming the first scan and beam whose vector is bad, and why.
+    """
+    prb = np.asarray(probabilities, dtype=np.float64)
+    if prb.shape[:2] != hit.shape or prb.ndim != 3:
+        raise ValueError(
+            f"probabilities have shape {prb.shape}, want (S, B, K) with ranges {hit.shape}"
+        )
+    K = prb.shape[2]
+    v = np.where(hit[..., None], prb, 1.0 / K)
+    finite = np.isfinite(v).all(axis=-1)
+    neg = (v < 0.0).any(axis=-1)
+    tot = v.sum(axis=-1)
+    off = np.abs(tot - 1.0) > PROB_SUM_TOL
+    for mask, what in (
+        (~finite, "is not finite"),
+        (neg & finite, "has negative entries"),
+        (off & finite & ~neg, f"does not sum to 1 (within {PROB_SUM_TOL:g})"),
+    ):
+        if mask.any():
+            s, b = (int(i) for i in np.argwhere(mask)[0])
+            raise ValueError(
+                f"scan {s}: probability vector of beam {b} {what}: "
+                f"{np.round(v[s, b], 6).tolist()} (sum {tot[s, b]:.6g})"
+            )
+    return np.asarray(v / tot[..., None], dtype=np.float64)

@@ -1,0 +1,444 @@
+"""A simulated floor plan with labelled objects and a labelling laser: ground truth for semantic maps.
+
+The building of :func:`probmap.grid.simworld.floor_plan` (outer and inner walls, a corridor,
+rooms with 1 m doorways) with objects of four classes: walls, open door leaves at every doorway,
+furniture (tables, shelves) and pillars, placed off the robot's route. The robot tours the
+building along the route of :mod:`probmap.grid.simworld`; every beam that returns is labelled
+with the class of the cell it hit, and a fraction of the labels are replaced by a wrong class
+(uniformly among the other object classes), as a noisy segmentation network would.
+
+Everything is generated from a seed (nothing to download). :func:`semantic_iou` and
+:func:`reliability` score a :class:`~probmap.grid.semantic.SemanticGrid` against the truth.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from probmap.grid.raycast import cast_rays
+from probmap.grid.semantic import LabelledInverseModel, SemanticGrid
+from probmap.grid.simworld import _route
+from probmap.grid.spec import GridSpec
+
+#: Classes of the simulated world; class 0 is free space.
+SEMANTIC_CLASSES: tuple[str, ...] = ("free", "wall", "door", "furniture", "pillar")
+
+
+@dataclass(frozen=True, eq=False)
+class SimulatedLabelledWorld:
+    """A true class map and the labelled scans a robot took in it.
+
+    Attributes
+    ----------
+    truth : ndarray of int8, shape (H, W)
+        True class of each cell (0 free, 1.. ``classes[k]``), indexed ``[iy, ix]``.
+    spec : GridSpec
+        Geometry of ``truth``.
+    classes : tuple of str
+        Class names, ``classes[0]`` free.
+    poses : ndarray, shape (S, 3)
+        True sensor poses ``(x, y, theta)`` (metres, radians).
+    ranges : ndarray, shape (S, B)
+        Measured ranges in metres (``max_range`` for no return, NaN for a dropped reading).
+    angles : ndarray, shape (B,)
+        Beam angles in the sensor frame, radians.
+    max_range : float
+        Sensor maximum range, metres.
+    labels : ndarray of int64, shape (S, B)
+        Reported class of each beam's endpoint (noisy); 0 for beams without a return.
+    true_labels : ndarray of int64, shape (S, B)
+        True class of the cell each beam hit; 0 for beams without a return.
+    probabilities : ndarray, shape (S, B, K) or None
+        Per-beam class distributions over classes 1..K (``soft=True`` only).
+    """
+
+    truth: NDArray[np.int8]
+    spec: GridSpec
+    classes: tuple[str, ...]
+    poses: NDArray[np.float64]
+    ranges: NDArray[np.float64]
+    angles: NDArray[np.float64]
+    max_range: float
+    labels: NDArray[np.int64]
+    true_labels: NDArray[np.int64]
+    probabilities: NDArray[np.float64] | None
+
+
+def labelled_floor_plan(
+    resolution: float = 0.05, size: tuple[float, float] = (20.0, 12.0)
+) -> tuple[NDArray[np.int8], GridSpec]:
+    """The building of :func:`~probmap.grid.simworld.floor_plan` with labelled objects.
+
+    Returns the true class map (H, W) with the classes of :data:`SEMANTIC_CLASSES` and its
+    GridSpec (origin (0, 0)). Rooms are 4 m wide; every doorway (1.5-2.5 m into its room) has an
+    open door leaf at its hinge; every room has two pieces of furniture and a pillar, all clear
+    of the robot's route.
+    """
+    w_m, h_m = size
+    r = resolution
+    spec = GridSpec(r, (0.0, 0.0), (round(h_m / r), round(w_m / r)))
+    lab = np.zeros(spec.shape, dtype=np.int8)
+    t = max(1, round(0.15 / r)) * r  # wall thickness in metres
+
+    def box(cls: int, x0: float, x1: float, y0: float, y1: float) -> None:
+        i0, i1 = round(x0 / r), round(x1 / r)
+        j0, j1 = round(y0 / r), round(y1 / r)
+        lab[max(j0, 0) : max(j1, j0 + 1), max(i0, 0) : max(i1, i0 + 1)] = cls
+
+    wall, door, furniture, pillar = 1, 2, 3, 4
+    box(wall, 0, w_m, 0, t)
+    box(wall, 0, w_m, h_m - t, h_m)
+    box(wall, 0, t, 0, h_m)
+    box(wall, w_m - t, w_m, 0, h_m)
+    x = 0.0
+    while x < w_m - 1e-9:
+        for y_wall in (5.0, 7.0):
+            box(wall, x, x + 1.5, y_wall, y_wall + t)
+            box(wall, x + 2.5, min(x + 4.0, w_m), y_wall, y_wall + t)
+        if x > 0:
+            box(wall, x, x + t, 0, 5.0)
+            box(wall, x, x + t, 7.0, h_m)
+        # open door leaves at the hinges, swung into the rooms
+        box(door, x + 1.5, x + 1.6, 4.1, 5.0)
+        box(door, x + 1.5, x + 1.6, 7.0 + t, 7.9 + t)
+        # furniture: a shelf and a table per room; a pillar per room
+        box(furniture, x + 2.8, x + 3.6, 3.2, 4.0)
+        box(furniture, x + 0.4, x + 1.0, 2.8, 3.6)
+        box(furniture, x + 2.8, x + 3.6, 8.0, 8.8)
+        box(furniture, x + 0.4, x + 1.0, 8.4, 9.2)
+        box(pillar, x + 3.1, x + 3.5, 0.5, 0.9)
+        box(pillar, x + 0.5, x + 0.9, 11.0, 11.4)
+        x += 4.0
+    return lab, spec
+
+
+def simulate_labelled_world(
+    *,
+    seed: int = 0,
+    resolution: float = 0.05,
+    size: tuple[float, float] = (20.0, 12.0),
+    step: float = 0.1,
+    n_beams: int = 181,
+    fov: float = np.pi,
+    max_range: float = 8.0,
+    range_noise: float = 0.01,
+    label_noise: float = 0.1,
+    dropout: float = 0.0,
+    soft: bool = False,
+) -> SimulatedLabelledWorld:
+    """Simulate a labelling laser robot touring :func:`labelled_floor_plan`.
+
+    Parameters
+    ----------
+    seed : int
+        Seed of the random generator; equal seeds give equal worlds.
+    resolution, size, n_beams, fov, max_range, range_noise, dropout
+        As :func:`probmap.grid.simworld.simulate_laser_world`.
+    step : float
+        Distance between scans along the route, metres (0.1: a 10 Hz laser at 1 m/s).
+    label_noise : float
+        Probability that a beam's label is wrong; a wrong label is uniform over the other
+        object classes.
+    soft : bool
+        Also give per-beam class distributions: the reported label gets a random confidence in
+        [0.6, 1) (mean 0.8) and the rest is spread over the other classes with random weights.
+
+    Returns
+    -------
+    SimulatedLabelledWorld
+    """
+    if not 0.0 <= label_noise < 1.0:
+        raise ValueError(f"label_noise must lie in [0, 1), got {label_noise}")
+    rng = np.random.default_rng(seed)
+    truth, spec = labelled_floor_plan(resolution, size)
+    K = len(SEMANTIC_CLASSES) - 1
+    way = _route(size)
+    pts = [way[0]]
+    for a, b in zip(way[:-1], way[1:], strict=True):
+        n = max(1, int(np.ceil(float(np.hypot(*(b - a))) / step)))
+        pts += [a + (b - a) * k / n for k in range(1, n + 1)]
+    xy = np.asarray(pts)
+    heading = np.arctan2(np.diff(xy[:, 1]), np.diff(xy[:, 0]))
+    heading = np.concatenate([heading, heading[-1:]])
+    poses = np.column_stack([xy, heading])
+    poses[:, 2] += rng.normal(0.0, 0.05, len(poses))
+    angles = np.linspace(-fov / 2, fov / 2, n_beams)
+    true_r = cast_rays(truth > 0, spec, poses, angles, max_range)
+    hit = true_r < max_range
+    true_labels = _hit_labels(truth, spec, poses, angles, true_r, hit)
+    ranges = np.where(hit, true_r + rng.normal(0.0, range_noise, true_r.shape), max_range)
+    ranges = np.where(hit, np.clip(ranges, 1e-3, max_range - 1e-6), ranges)
+    if dropout > 0:
+        ranges[rng.random(ranges.shape) < dropout] = np.nan
+    wrong = hit & (rng.random(hit.shape) < label_noise)
+    # a wrong label: one of the K - 1 other object classes, uniformly
+    shift = rng.integers(1, K, hit.shape)
+    labels = np.where(wrong, (true_labels - 1 + shift) % K + 1, true_labels)
+    labels = np.where(hit, labels, 0).astype(np.int64)
+    probs = None
+    if soft:
+        conf = rng.uniform(0.6, 1.0, hit.shape)
+        rest = rng.random((*hit.shape, K))
+        onehot = np.eye(K, dtype=bool)[np.clip(labels - 1, 0, K - 1)]
+        rest[onehot] = 0.0
+        rest *= ((1.0 - conf) / rest.sum(axis=-1))[..., None]
+        probs = np.where(onehot, conf[..., None], rest)
+    return SimulatedLabelledWorld(
+        truth,
+        spec,
+        SEMANTIC_CLASSES,
+        poses,
+        ranges,
+        angles,
+        float(max_range),
+        labels,
+        true_labels,
+        probs,
+    )
+
+
+def _hit_labels(
+    truth: NDArray[np.int8],
+    spec: GridSpec,
+    poses: NDArray[np.float64],
+    angles: NDArray[np.float64],
+    r: NDArray[np.float64],
+    hit: NDArray[np.bool_],
+) -> NDArray[np.int64]:
+    """True class of the cell where each beam enters its first occupied cell (0 for no hit)."""
+    a = poses[:, 2:3] + angles[None, :]
+    d = r + 1e-6 * spec.resolution
+    pts = np.stack([poses[:, 0:1] + d * np.cos(a), poses[:, 1:2] + d * np.sin(a)], axis=-1)
+    cells = spec.world_to_cell(pts.reshape(-1, 2))
+    out = np.zeros(len(cells), dtype=np.int64)
+    pad = np.pad(truth, 1)
+    ix = np.clip(cells[:, 0], -1, spec.width) + 1
+    iy = np.clip(cells[:, 1], -1, spec.height) + 1
+    out[:] = pad[iy, ix]
+    # rounding at a cell boundary: take the nearest occupied neighbour
+    for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1)):
+        miss = out == 0
+        if not miss.any():
+            break
+        yy = np.clip(iy[miss] + dy, 0, pad.shape[0] - 1)
+        xx = np.clip(ix[miss] + dx, 0, pad.shape[1] - 1)
+        out[miss] = pad[yy, xx]
+    return np.where(hit.ravel(), out, 0).reshape(hit.shape)
+
+
+# --------------------------------------------------------------------------- scoring
+def truth_on_grid(
+    grid_spec: GridSpec, truth: NDArray[np.integer], truth_spec: GridSpec
+) -> NDArray[np.int16]:
+    """The true class of each cell of ``grid_spec`` (its centre's truth cell; outside: 0)."""
+    h, w = grid_spec.shape
+    iy, ix = np.mgrid[0:h, 0:w]
+    centres = grid_spec.cell_to_world(np.column_stack([ix.ravel(), iy.ravel()]))
+    tc = truth_spec.world_to_cell(centres)
+    inside = truth_spec.contains(tc)
+    tx = np.clip(tc[:, 0], 0, truth_spec.width - 1)
+    ty = np.clip(tc[:, 1], 0, truth_spec.height - 1)
+    return np.where(inside, truth[ty, tx], 0).astype(np.int16).reshape(h, w)
+
+
+def _dilate(mask: NDArray[np.bool_], tolerance: int) -> NDArray[np.bool_]:
+    if tolerance <= 0:
+        return mask
+    from scipy.ndimage import maximum_filter
+
+    return np.asarray(maximum_filter(mask, size=2 * tolerance + 1, mode="constant"), dtype=bool)
+
+
+def semantic_iou(
+    classified: NDArray[np.integer],
+    truth: NDArray[np.integer],
+    n_classes: int,
+    *,
+    tolerance: int = 1,
+) -> NDArray[np.float64]:
+    """Per-class intersection over union on observed cells, with a boundary tolerance.
+
+    Parameters
+    ----------
+    classified : ndarray of int, shape (H, W)
+        Predicted class per cell, -1 for cells never observed (ignored).
+    truth : ndarray of int, shape (H, W)
+        True class per cell on the same grid (see :func:`truth_on_grid`).
+    n_classes : int
+        Number of classes including class 0.
+    tolerance : int
+        Cells. A cell predicted ``k`` is a true positive if a true ``k`` cell lies within
+        ``tolerance`` cells (Chebyshev distance), else a false positive; an observed true ``k``
+        cell predicted otherwise is a false negative unless an observed cell predicted ``k`` lies
+        within ``tolerance``. Ray endpoints on a surface fall on either side of its boundary (a
+        range error of a fraction of a cell), hence the default of one cell; 0 is the strict IoU.
+
+    Returns
+    -------
+    ndarray, shape (n_classes,)
+        ``TP / (TP + FP + FN)`` per class; NaN for a class absent from both.
+    """
+    c = np.asarray(classified)
+    t = np.asarray(truth)
+    if c.shape != t.shape:
+        raise ValueError(f"classified shape {c.shape} does not match truth shape {t.shape}")
+    seen = c >= 0
+    out = np.full(n_classes, np.nan)
+    for k in range(n_classes):
+        pred_k = seen & (c == k)
+        true_k = t == k
+        near_true = _dilate(true_k, tolerance)
+        near_pred = _dilate(pred_k, tolerance)
+        tp = int((pred_k & near_true).sum())
+        fp = int((pred_k & ~near_true).sum())
+        fn = int((seen & true_k & ~pred_k & ~near_pred).sum())
+        if tp + fp + fn:
+            out[k] = tp / (tp + fp + fn)
+    return out
+
+
+@dataclass(frozen=True)
+class Reliability:
+    """A reliability diagram: per bin of predicted confidence, how often the prediction was right.
+
+    Attributes
+    ----------
+    edges : ndarray, shape (n + 1,)
+        Bin edges of the confidence (the top class's probability).
+    confidence : ndarray, shape (n,)
+        Mean confidence of the cells in each bin (NaN for empty bins).
+    accuracy : ndarray, shape (n,)
+        Fraction of those cells whose top class is right (NaN for empty bins).
+    count : ndarray of int, shape (n,)
+        Cells per bin.
+    """
+
+    edges: NDArray[np.float64]
+    confidence: NDArray[np.float64]
+    accuracy: NDArray[np.float64]
+    count: NDArray[np.int64]
+
+    @property
+    def expected_calibration_error(self) -> float:
+        """Cell-weighted mean of ``|accuracy - confidence|`` over the bins (ECE)."""
+        ok = self.count > 0
+        w = self.count[ok] / self.count[ok].sum()
+        return float((w * np.abs(self.accuracy[ok] - self.confidence[ok])).sum())
+
+
+def reliability(
+    probabilities: NDArray[np.floating],
+    observed: NDArray[np.bool_],
+    truth: NDArray[np.integer],
+    *,
+    edges: NDArray[np.floating] | None = None,
+    tolerance: int = 1,
+) -> Reliability:
+    """Calibration of a class map: confidence of the top class against how often it is right.
+
+    ``probabilities`` (H, W, K + 1), ``observed`` (H, W), ``truth`` (H, W) on the same grid.
+    The top class of a cell is right if a true cell of that class lies within ``tolerance``
+    cells (see :func:`semantic_iou`). Default bins: ``0, 0.1, ..., 1``.
+    """
+    p = np.asarray(probabilities)
+    top = p.argmax(axis=-1)
+    conf = p.max(axis=-1)
+    right = np.zeros(top.shape, dtype=bool)
+    for k in range(p.shape[-1]):
+        right |= (top == k) & _dilate(np.asarray(truth) == k, tolerance)
+    e = np.linspace(0.0, 1.0, 11) if edges is None else np.asarray(edges, dtype=np.float64)
+    seen = np.asarray(observed, dtype=bool)
+    cs, rs = conf[seen], right[seen]
+    idx = np.clip(np.searchsorted(e, cs, side="right") - 1, 0, len(e) - 2)
+    n = len(e) - 1
+    count = np.bincount(idx, minlength=n).astype(np.int64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_c = np.bincount(idx, weights=cs, minlength=n) / count
+        acc = np.bincount(idx, weights=rs.astype(np.float64), minlength=n) / count
+    return Reliability(e, mean_c, acc, count)
+
+
+# --------------------------------------------------------------------------- demo
+def map_labelled_world(
+    world: SimulatedLabelledWorld,
+    *,
+    resolution: float = 0.05,
+    model: LabelledInverseModel | None = None,
+    clamp: tuple[float, float] = (0.01, 0.99),
+    soft: bool = False,
+) -> SemanticGrid:
+    """A :class:`SemanticGrid` built from the world's labelled scans (hard labels or ``soft``)."""
+    grid = SemanticGrid(world.classes, resolution=resolution, model=model, clamp=clamp)
+    if soft:
+        if world.probabilities is None:
+            raise ValueError("the world has no probability vectors (simulate with soft=True)")
+        grid.integrate_scans(
+            world.poses,
+            world.ranges,
+            world.angles,
+            probabilities=world.probabilities,
+            max_range=world.max_range,
+        )
+    else:
+        grid.integrate_scans(
+            world.poses, world.ranges, world.angles, labels=world.labels, max_range=world.max_range
+        )
+    return grid
+
+
+def run_semantic_demo(out_dir: str | os.PathLike[str], *, seed: int = 0) -> dict[str, Any]:
+    """Map the simulated labelled floor plan (10 % wrong labels), write the maps, score them.
+
+    Writes into ``out_dir``: ``semantic.npz`` (the lossless semantic map), ``semantic.png``
+    (colour map with legend) and ``occupancy.{yaml,pgm,npz,png}`` (the derived occupancy grid in
+    the map_server format).
+
+    Returns
+    -------
+    dict
+        Plain values for printing: scans, beams, cell updates, times, per-class IoU (with a
+        one-cell tolerance and strict), the calibration error, the files written.
+    """
+    from probmap.grid.semantic_io import write_semantic_maps
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    world = simulate_labelled_world(seed=seed, range_noise=0.01, label_noise=0.1, dropout=0.01)
+    t1 = time.perf_counter()
+    model = LabelledInverseModel(p_correct=0.9)
+    grid = SemanticGrid(world.classes, resolution=0.05, model=model)
+    stats = grid.integrate_scans(
+        world.poses, world.ranges, world.angles, labels=world.labels, max_range=world.max_range
+    )
+    t2 = time.perf_counter()
+    files = write_semantic_maps(out / "semantic", grid)
+    t3 = time.perf_counter()
+    truth = truth_on_grid(grid.spec, world.truth, world.spec)
+    wrong = world.labels != world.true_labels
+    cls = grid.classify()
+    iou = semantic_iou(cls, truth, len(world.classes), tolerance=1)
+    strict = semantic_iou(cls, truth, len(world.classes), tolerance=0)
+    rel = reliability(grid.probabilities(), grid.observed, truth)
+    return {
+        "scans": stats.scans,
+        "beams": stats.beams,
+        "hits": stats.hits,
+        "cell updates": stats.cell_updates,
+        "observed cells": int(grid.observed.sum()),
+        "wrong labels": f"{100 * float(wrong[world.true_labels > 0].mean()):.1f} % of hits",
+        "iou": {name: float(v) for name, v in zip(world.classes, iou, strict=True)},
+        "iou strict": {name: float(v) for name, v in zip(world.classes, strict, strict=True)},
+        "calibration error": rel.expected_calibration_error,
+        "simulate seconds": t1 - t0,
+        "map seconds": t2 - t1,
+        "write seconds": t3 - t2,
+        "files": [str(f) for f in files],
+    }

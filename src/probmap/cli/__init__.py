@@ -31,3 +31,6 @@ def register(app: typer.Typer) -> None:
     from probmap.cli import bag
 
     bag.register(app)
+    from probmap.cli import semantic
+
+    semantic.register(app)

@@ -1,0 +1,133 @@
+"""``probmap semantic``: multi-class (semantic) occupancy grid mapping from labelled scans."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from probmap.cli.common import cli_errors
+
+
+def _table(title: str, rows: list[tuple[str, str]]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=title, show_header=False, box=None)
+    table.add_column(style="bold")
+    table.add_column(justify="right")
+    for k, v in rows:
+        table.add_row(k, v)
+    Console().print(table)
+
+
+def print_semantic_demo(summary: dict[str, Any]) -> None:
+    """Print what :func:`probmap.grid.semantic_sim.run_semantic_demo` returned (for ``demo``)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    rows = [
+        ("scans", f"{summary['scans']:,}"),
+        ("beams", f"{summary['beams']:,} ({summary['hits']:,} hits)"),
+        ("wrong labels", str(summary["wrong labels"])),
+        ("cells updated", f"{summary['cell updates']:,}"),
+        ("observed cells", f"{summary['observed cells']:,}"),
+        ("calibration error", f"{summary['calibration error']:.3f} (ECE, 10 bins)"),
+        (
+            "time",
+            f"simulate {summary['simulate seconds']:.2f} s, map {summary['map seconds']:.2f} s, "
+            f"write {summary['write seconds']:.2f} s",
+        ),
+    ]
+    rows += [("wrote", f) for f in summary["files"]]
+    _table("probmap demo --semantic: labelled floor plan", rows)
+    iou = Table(title="per-class IoU on observed cells")
+    iou.add_column("class")
+    iou.add_column("IoU (1-cell tolerance)", justify="right")
+    iou.add_column("IoU (strict)", justify="right")
+    for name, v in summary["iou"].items():
+        iou.add_row(name, f"{v:.4f}", f"{summary['iou strict'][name]:.4f}")
+    Console().print(iou)
+
+
+def semantic_command(
+    scans: Path = typer.Argument(..., help="Labelled scans (.npz: poses, ranges, angles, ...)."),
+    output: Path = typer.Option(
+        ...,
+        "-o",
+        "--output",
+        help="Output prefix: PREFIX.{npz,png} and PREFIX.occupancy.{yaml,pgm,npz,png}.",
+    ),
+    resolution: float = typer.Option(0.05, "--resolution", "-r", help="Cell size in metres."),
+    p_hit: float = typer.Option(0.7, "--p-hit", help="p(not free) at a beam's endpoint."),
+    p_miss: float = typer.Option(0.4, "--p-miss", help="p(not free) along a beam."),
+    p_correct: float = typer.Option(
+        0.9, "--p-correct", help="Probability that a hard label is right (confusion model)."
+    ),
+    max_clear: float | None = typer.Option(
+        None, "--max-clear", help="Free space cleared by max-range readings, metres."
+    ),
+    chunk: int = typer.Option(500, "--chunk", help="Scans per kernel call (progress steps)."),
+) -> None:
+    """Build a semantic map from labelled scans and write it with its occupancy grid."""
+    with cli_errors():
+        import time
+
+        from rich.progress import Progress
+
+        from probmap.grid.semantic import LabelledInverseModel
+        from probmap.grid.semantic_io import read_labelled_scans, write_semantic_maps
+
+        if not scans.exists():
+            raise FileNotFoundError(f"{scans}: no such file")
+        if chunk < 1:
+            raise ValueError(f"--chunk must be >= 1, got {chunk}")
+        if output.name in ("", ".", "..") or not output.parent.is_dir():
+            raise ValueError(f"output prefix {output}: folder {output.parent} does not exist")
+        t0 = time.perf_counter()
+        data = read_labelled_scans(scans)
+        model = LabelledInverseModel(
+            p_hit=p_hit, p_miss=p_miss, p_correct=p_correct, max_clear_range=max_clear
+        )
+        grid = data.make_grid(resolution=resolution, model=model)
+        t1 = time.perf_counter()
+        stats = None
+        with Progress(transient=True) as bar:
+            task = bar.add_task(f"mapping {scans.name}", total=len(data))
+            for start in range(0, len(data), chunk):
+                s = data.integrate_into(grid, start, start + chunk)
+                stats = s if stats is None else stats + s
+                bar.update(task, completed=min(start + chunk, len(data)))
+        t2 = time.perf_counter()
+        files = write_semantic_maps(output, grid)
+        t3 = time.perf_counter()
+        cls = grid.classify()
+        rows = [("scans", f"{len(data):,}")]
+        if stats is not None:
+            rows += [
+                (
+                    "beams",
+                    f"{stats.beams:,} ({stats.hits:,} hits, {stats.max_range:,} max-range, "
+                    f"{stats.dropped:,} dropped)",
+                ),
+                ("cells updated", f"{stats.cell_updates:,}"),
+            ]
+        spec = grid.spec
+        rows.append(("map size", f"{spec.width} x {spec.height} cells at {spec.resolution:g} m"))
+        rows.append(("observed cells", f"{int((cls >= 0).sum()):,}"))
+        for k, name in enumerate(grid.classes):
+            rows.append((f"  {name}", f"{int((cls == k).sum()):,} cells"))
+        rows.append(
+            (
+                "time",
+                f"read {t1 - t0:.2f} s, map {t2 - t1:.2f} s, write {t3 - t2:.2f} s",
+            )
+        )
+        rows += [("wrote", str(f)) for f in files]
+        _table(f"probmap semantic {scans.name}", rows)
+
+
+def register(app: typer.Typer) -> None:
+    """Attach the semantic mapping command."""
+    app.command("semantic")(semantic_command)

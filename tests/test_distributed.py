@@ -75,7 +75,7 @@ def client():
     from distributed import Client, LocalCluster
 
     cluster = LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0"
     )
     c = Client(cluster)
     try:
@@ -302,3 +302,38 @@ def test_killed_worker_does_not_change_the_result(client, fleet) -> None:
     np.testing.assert_array_equal(total.hits, expected.hits)
     np.testing.assert_array_equal(total.frees, expected.frees)
     client.wait_for_workers(2, timeout=30)
+
+
+def test_cli_helper_writes_map_and_lists_inputs(client, fleet, tmp_path: Path, capsys) -> None:
+    from probmap.cli.common import CliError
+    from probmap.cli.distributed import run_map_distributed
+
+    address = client.scheduler.address
+    res = run_map_distributed(fleet, tmp_path / "fleet", NO_CLAMP, scheduler=address, chunks=2)
+    names = ["fleet.npz", "fleet.pgm", "fleet.png", "fleet.yaml"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == names
+    from probmap.grid.io import load_npz
+
+    back = load_npz(tmp_path / "fleet.npz")
+    np.testing.assert_allclose(back.log_odds, res.grid.log_odds, atol=1e-6)
+    out = capsys.readouterr().out
+    assert "robot2.log" in out and "mapped" in out and "distributed" in out
+    bad = tmp_path / "broken.log"
+    bad.write_text("FLASER 3 1.0 2.0\n")
+    with pytest.raises(CliError, match="broken.log"):
+        run_map_distributed([fleet[0], bad], tmp_path / "x", NO_CLAMP, scheduler=address)
+    assert not (tmp_path / "x.yaml").exists()
+    with pytest.raises(CliError, match="not both"):
+        run_map_distributed(fleet, tmp_path / "x", NO_CLAMP, workers=2, scheduler=address)
+
+
+def test_local_cluster_started_and_closed(fleet) -> None:
+    """``workers=1`` starts a LocalCluster for the run and closes it afterwards."""
+    import multiprocessing
+
+    before = {p.pid for p in multiprocessing.active_children()}
+    res = map_logs_distributed([fleet[1]], NO_CLAMP, workers=1, progress=False)
+    assert res.workers == 1 and res.mode == "sequential"
+    np.testing.assert_array_equal(res.grid.log_odds, map_log(fleet[1], NO_CLAMP).grid.log_odds)
+    after = {p.pid for p in multiprocessing.active_children() if p.is_alive()}
+    assert after <= before

@@ -5,9 +5,8 @@ sees it, so without clamping the map is ``l0`` plus a sum over scans, and sums s
 machines. Every task here reads a share of the scans (a log, or a chunk of one long log) and
 counts, per cell, how many scans hit it and how many crossed it, on a tile-aligned window of the
 common cell lattice (cell ``(i, j)`` covers ``[i r, (i+1) r) x [j r, (j+1) r)`` for every task).
-Counts are integers, so the tree reduction that sums them is exact and independent of how the
-scans were split or in which order the partial sums meet. The prior and the clamping are applied
-once, at the end:
+Counts are integers, so the tree reduction that sums them is exact and independent of the order
+in which the partial sums meet. The prior and the clamping are applied once, at the end:
 
     l_i = clip(l0 + n_hit,i (l_hit - l0) + n_free,i (l_miss - l0), l_min, l_max)
 
@@ -20,8 +19,12 @@ order, can leave ``[l_min, l_max]``: that holds when the cell received updates o
 ``l0 + n_hit (l_hit - l0) <= l_max`` and ``l0 + n_free (l_miss - l0) >= l_min`` (every partial
 sum lies between those two). Elsewhere both values lie in ``[l_min, l_max]`` and differ by at
 most ``l_max - l_min``; :func:`clamping_bound` gives this bound per cell (0 where the map is
-exact). Apart from clamping, the two differ only by float32 rounding: the sequential grid rounds
-to float32 after every update, the distributed one once.
+exact). Apart from clamping, the two differ only by float32 rounding (the sequential grid rounds
+to float32 after every update, the distributed one once) and, as any two grids with different
+origins do, in the cell of a point lying within rounding error (about 1e-15 cells) of a cell
+boundary: ``floor((x - origin) / r)`` is evaluated with each window's own origin, as it is with
+the sequential grid's origin after each growth. Recorded poses practically never fall there;
+simulated ones on round coordinates do.
 
 For a single log the default is the exact sequential semantics (one task runs
 :func:`probmap.pipelines.map_log`); ``mode="increments"`` splits it into chunks instead.
@@ -518,7 +521,7 @@ def map_logs_distributed(
                 n_workers=workers or os.cpu_count() or 1,
                 threads_per_worker=1,
                 processes=True,
-                dashboard_address=None,
+                dashboard_address=":0",
             )
             client = Client(cluster)
     try:

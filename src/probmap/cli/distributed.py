@@ -1,0 +1,86 @@
+"""``probmap map LOG... --workers N | --scheduler ADDRESS``: mapping a fleet's logs on Dask.
+
+``probmap map`` (in :mod:`probmap.cli.mapping`) delegates here when it is given several logs,
+``--workers`` or ``--scheduler``. This module only parses, delegates to
+:func:`probmap.distributed.map_logs_distributed`, and prints.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import typer
+
+if TYPE_CHECKING:
+    from probmap.distributed import DistributedMappingResult
+    from probmap.pipelines import MappingConfig
+
+
+def _inputs_table(result: DistributedMappingResult) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title="inputs")
+    table.add_column("log")
+    table.add_column("status")
+    for p in result.mapped:
+        table.add_row(str(p), "[green]mapped[/green]")
+    for p, msg in result.failed:
+        table.add_row(str(p), f"[red]failed:[/red] {msg}")
+    Console(stderr=bool(result.failed)).print(table)
+
+
+def run_map_distributed(
+    logs: Sequence[Path],
+    output: Path,
+    config: MappingConfig,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    chunks: int = 1,
+    allow_partial: bool = False,
+) -> DistributedMappingResult:
+    """Map ``logs`` on a local (``workers``) or existing (``scheduler``) Dask cluster and write
+    ``PREFIX.{yaml,pgm,npz,png}``; prints Dask's progress, the inputs and a summary.
+
+    Exits with status 1 (writing nothing) when an input fails, unless ``allow_partial``: then the
+    map of the other inputs is written, the failures listed, and the exit status is still 1.
+    """
+    from probmap.cli.common import CliError
+    from probmap.cli.mapping import _mapping_rows, _summary
+    from probmap.distributed import (
+        DistributedMappingError,
+        DistributedOptions,
+        map_logs_distributed,
+    )
+    from probmap.pipelines import check_output_prefix, write_map
+
+    if workers is not None and scheduler is not None:
+        raise CliError("give either --workers (a local cluster) or --scheduler, not both")
+    check_output_prefix(output)
+    try:
+        result = map_logs_distributed(
+            logs,
+            config,
+            workers=workers,
+            scheduler=scheduler,
+            progress=True,
+            options=DistributedOptions(chunks=chunks),
+            allow_partial=allow_partial,
+        )
+    except ImportError as exc:
+        raise CliError(str(exc)) from None
+    except DistributedMappingError as exc:
+        if exc.result is not None:
+            _inputs_table(exc.result)
+        raise CliError(f"{exc} (no map written; --allow-partial writes the others)") from None
+    mapping = write_map(output, result.as_mapping_result())
+    _inputs_table(result)
+    rows = _mapping_rows(mapping)
+    rows.append(("mode", f"{result.mode} ({result.tasks} tasks on {result.workers} workers)"))
+    _summary("probmap map (distributed)", rows)
+    if result.failed:
+        raise typer.Exit(1)
+    return result

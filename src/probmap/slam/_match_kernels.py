@@ -183,8 +183,6 @@ def integrate_window(
     are ignored.
     """
     h, w = lo.shape
-    c = math.cos(th)
-    s = math.sin(th)
     sx = (x - ox) / res
     sy = (y - oy) / res
     nb = ranges.shape[0]
@@ -227,3 +225,53 @@ def integrate_window(
                 stamp[iy, ix] = 2
                 v = lo[iy, ix] + l_miss
                 lo[iy, ix] = min(max(v, l_min), l_max)
+
+
+@njit(cache=True)
+def splat_field(lo, threshold, radius, inv_two_sigma2_cells, out):  # pragma: no cover
+    """Match field of a log-odds window: ``out = exp(-d^2 / (2 sigma^2))`` with ``d`` the
+    distance in cells to the nearest cell with ``lo > threshold``, 0 beyond ``radius`` cells.
+
+    Each occupied cell writes the maximum of its kernel into its neighbourhood, so the cost is
+    (occupied cells) x (2 radius + 1)^2 instead of a distance transform of the whole window.
+    """
+    h, w = lo.shape
+    for iy in range(h):
+        for ix in range(w):
+            out[iy, ix] = 0.0
+    r2 = radius * radius
+    for iy in range(h):
+        for ix in range(w):
+            if lo[iy, ix] > threshold:
+                for dy in range(-radius, radius + 1):
+                    y = iy + dy
+                    if y < 0 or y >= h:
+                        continue
+                    for dx in range(-radius, radius + 1):
+                        x = ix + dx
+                        d2 = dx * dx + dy * dy
+                        if x < 0 or x >= w or d2 > r2:
+                            continue
+                        v = math.exp(-d2 * inv_two_sigma2_cells)
+                        if v > out[y, x]:
+                            out[y, x] = v
+
+
+@njit(cache=True)
+def log_likelihoods(field, ox, oy, res, pts, poses, floor, out):  # pragma: no cover
+    """``out[k] = sum_i max(log M(q_i(poses[k])), floor)`` with bilinear ``M``."""
+    for k in range(poses.shape[0]):
+        x = poses[k, 0]
+        y = poses[k, 1]
+        c = math.cos(poses[k, 2])
+        s = math.sin(poses[k, 2])
+        total = 0.0
+        for i in range(pts.shape[0]):
+            qx = x + c * pts[i, 0] - s * pts[i, 1]
+            qy = y + s * pts[i, 0] + c * pts[i, 1]
+            val, gx, gy = bilinear(field, ox, oy, res, qx, qy)
+            if val > 0.0:
+                total += max(math.log(val), floor)
+            else:
+                total += floor
+        out[k] = total

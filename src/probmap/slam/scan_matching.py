@@ -244,12 +244,18 @@ def correlative_search(
 
 
 def refine(
-    field: MatchField, points: ArrayLike, initial: ArrayLike, iterations: int = 10
+    field: MatchField,
+    points: ArrayLike,
+    initial: ArrayLike,
+    iterations: int = 10,
+    max_step: tuple[float, float] = (0.05, 0.02),
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
     """Gauss-Newton refinement of ``initial`` on the bilinear field.
 
     Each step solves ``(J^T J + mu I) delta = -J^T r`` (a small ``mu`` keeps it solvable on
-    degenerate geometry, e.g. a corridor) and is kept only if it lowers ``sum r^2``.
+    degenerate geometry, e.g. a corridor), is shortened to at most ``max_step`` (metres,
+    radians) so that it stays in the basin the coarse search found, and is kept only if it
+    lowers ``sum r^2``.
 
     Returns the pose (3,), its covariance (3, 3) and the iterations taken.
     """
@@ -264,6 +270,9 @@ def refine(
     it = 0
     for it in range(1, iterations + 1):
         step = -np.linalg.solve(H + 1e-9 * np.eye(3) + 1e-6 * np.diag(np.diag(H)), g)
+        shrink = max(math.hypot(step[0], step[1]) / max_step[0], abs(step[2]) / max_step[1])
+        if shrink > 1.0:
+            step = step / shrink
         cand = p + step
         g2 = np.zeros(3)
         H2 = np.zeros((3, 3))
@@ -321,6 +330,6 @@ def match_scan(
     if pts.shape[0] < 3:
         raise ValueError(f"a scan needs at least 3 valid endpoints to match, got {pts.shape[0]}")
     best, _ = correlative_search(field, pts, p, cfg)
-    pose, cov, it = refine(field, pts, best, cfg.iterations)
+    pose, cov, it = refine(field, pts, best, cfg.iterations, (cfg.linear_step, cfg.angular_step))
     score, _, _ = normal_equations(field, pts, pose)
     return MatchResult(pose, cov, score / pts.shape[0], int(pts.shape[0]), it)

@@ -22,6 +22,9 @@ def register(app: typer.Typer) -> None:
     from probmap.cli import seif
 
     seif.register(app)
+    from probmap.cli import gridslam
+
+    gridslam.register(app)
     from probmap.cli import map_mapping
 
     map_mapping.register(app)

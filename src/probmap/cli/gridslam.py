@@ -1,0 +1,162 @@
+"""``probmap slam grid`` (grid SLAM from a raw log) and ``probmap match`` (one scan on a map)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from probmap.cli.common import cli_errors
+from probmap.cli.slam import slam_app
+
+
+def _table(title: str, rows: list[tuple[str, str]]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=title, show_header=False, box=None)
+    table.add_column(style="bold")
+    table.add_column(justify="right")
+    for k, v in rows:
+        table.add_row(k, v)
+    Console().print(table)
+
+
+@slam_app.command("grid")
+def grid_command(
+    log: Path = typer.Argument(..., help="A raw CARMEN log (plain, .gz or .bz2)."),
+    output: Path = typer.Option(..., "-o", "--output", help="Output prefix (PREFIX.yaml, ...)."),
+    particles: int = typer.Option(30, "--particles", "-n", help="Number of particles."),
+    linear_update: float = typer.Option(
+        0.5, "--linear-update", help="Process a scan after this many metres of travel."
+    ),
+    angular_update: float = typer.Option(
+        0.25, "--angular-update", help="... or after this many radians of rotation."
+    ),
+    end_time: float | None = typer.Option(
+        None, "--end-time", help="Use only the first this many seconds of the log."
+    ),
+    seed: int = typer.Option(0, "--seed", help="Random seed."),
+) -> None:
+    """Grid SLAM (RBPF with scan-matching proposal, Grisetti et al. 2007): writes the best
+    particle's map (PREFIX.yaml/.pgm/.npz/.png, as 'probmap map') and PREFIX.trajectory.csv."""
+    with cli_errors():
+        import warnings
+
+        from rich.progress import Progress
+
+        from probmap.grid.io import save_map
+        from probmap.pipelines import check_output_prefix
+        from probmap.slam.gridslam import GridSlamConfig, slam_log, write_trajectory
+
+        if not log.exists():
+            raise FileNotFoundError(f"{log}: no such file")
+        prefix = check_output_prefix(output)
+        cfg = GridSlamConfig(
+            particles=particles,
+            linear_update=linear_update,
+            angular_update=angular_update,
+            seed=seed,
+        )
+        caught: list[Any] = []
+        with Progress(transient=True) as bar, warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            task = bar.add_task(f"grid SLAM {log.name}", total=None)
+
+            def tick(done: int, total: int) -> None:
+                bar.update(task, completed=done, total=total)
+
+            result = slam_log(log, cfg, end_time=end_time, progress=tick)
+        for w in caught:
+            typer.echo(f"warning: {w.message}", err=True)
+        files = save_map(prefix, result.grid)
+        traj = write_trajectory(f"{prefix}.trajectory.csv", result.times, result.poses)
+        duration = float(result.times[-1] - result.times[0])
+        spec = result.grid.spec
+        rows = [
+            ("scans", f"{len(result.times):,} ({result.processed:,} processed)"),
+            ("particles", f"{particles} ({result.resamples} resamplings)"),
+            ("failed matches", f"{result.failed_matches:,}"),
+            (
+                "map",
+                f"{spec.width} x {spec.height} cells at {spec.resolution:g} m",
+            ),
+            ("map tiles", f"{result.map_bytes / 2**20:.1f} MiB (peak)"),
+            (
+                "time",
+                f"{result.seconds:.1f} s ({duration / max(result.seconds, 1e-9):.1f}x real time)",
+            ),
+        ]
+        rows += [("wrote", str(f)) for f in [*files, traj]]
+        _table("grid SLAM", rows)
+
+
+def match_command(
+    map_file: Path = typer.Argument(..., help="A map: PREFIX.npz or a map_server PREFIX.yaml."),
+    log: Path = typer.Argument(..., help="A CARMEN log holding the scan."),
+    scan: int = typer.Option(0, "--scan", help="Index of the front-laser scan in the log."),
+    x: float | None = typer.Option(None, "--x", help="Initial x (m); default the log's pose."),
+    y: float | None = typer.Option(None, "--y", help="Initial y (m)."),
+    theta: float | None = typer.Option(None, "--theta", help="Initial heading (rad)."),
+    sigma: float = typer.Option(0.05, "--sigma", help="Match field width (m)."),
+    window: float = typer.Option(0.3, "--window", help="Search half-width in x and y (m)."),
+    angular_window: float = typer.Option(
+        0.2, "--angular-window", help="Search half-width in heading (rad)."
+    ),
+) -> None:
+    """Match one scan of a log against a map: prints the pose, its standard deviations and
+    the match score (correlative search refined by Gauss-Newton)."""
+    with cli_errors():
+        import numpy as np
+
+        from probmap.datasets.carmen import load_scans
+        from probmap.slam.scan_matching import MatcherConfig, MatchField, match_scan, scan_points
+
+        for p in (map_file, log):
+            if not p.exists():
+                raise FileNotFoundError(f"{p}: no such file")
+        suffix = map_file.suffix.lower()
+        if suffix == ".npz":
+            from probmap.grid.io import load_npz
+
+            field = MatchField.from_grid(load_npz(map_file), sigma)
+        elif suffix in (".yaml", ".yml"):
+            from probmap.grid.io import read_map_server
+
+            m = read_map_server(map_file)
+            occ = np.nan_to_num(m.probability, nan=0.0) > m.occupied_thresh
+            field = MatchField.from_occupied(occ, m.spec, sigma)
+        else:
+            raise ValueError(f"{map_file}: expected a .npz or map_server .yaml map")
+        batch = load_scans(log, poses="corrected")
+        n = len(batch.times)
+        if not 0 <= scan < n:
+            raise ValueError(f"--scan must lie in 0..{n - 1} for {log}, got {scan}")
+        angles = np.asarray(batch.angles)
+        angles = angles if angles.ndim == 1 else angles[scan]
+        guess = np.asarray(batch.laser_poses[scan], dtype=np.float64).copy()
+        for i, v in enumerate((x, y, theta)):
+            if v is not None:
+                guess[i] = v
+        cfg = MatcherConfig(sigma=sigma, linear_window=window, angular_window=angular_window)
+        pts = scan_points(batch.ranges[scan], angles, float(batch.max_range), cfg.usable_range)
+        res = match_scan(field, pts, guess, cfg)
+        sd = np.sqrt(np.diag(res.covariance))
+        _table(
+            f"scan {scan} of {log.name} on {map_file.name}",
+            [
+                ("initial", f"x={guess[0]:.3f} y={guess[1]:.3f} theta={guess[2]:.4f}"),
+                (
+                    "matched",
+                    f"x={res.pose[0]:.3f} y={res.pose[1]:.3f} theta={res.pose[2]:.4f}",
+                ),
+                ("std dev", f"x={sd[0]:.4f} m y={sd[1]:.4f} m theta={sd[2]:.5f} rad"),
+                ("score", f"{res.score:.3f} ({res.points} endpoints)"),
+            ],
+        )
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``match`` to ``app`` (``slam grid`` is on :data:`slam_app`)."""
+    app.command("match")(match_command)

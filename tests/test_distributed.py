@@ -248,7 +248,7 @@ def test_cluster_chunks_of_one_log_equal_whole_log(client, fleet) -> None:
         options=opts,
     )  # fmt: skip
     np.testing.assert_array_equal(again.grid.log_odds, res.grid.log_odds)
-    assert progress[-1] == (1, 1)
+    assert progress[-1] == (5, 5)  # a read task and 4 chunk tasks
 
 
 def test_cluster_reports_unreadable_log(client, fleet, tmp_path: Path) -> None:
@@ -278,7 +278,7 @@ def _slow_chunk(path: str, delay: float) -> IncrementGrid:
     from probmap.distributed import _log_task
 
     time.sleep(delay)
-    return _log_task(path, NO_CLAMP, 64)[0]
+    return _log_task(path, NO_CLAMP, 64)
 
 
 def test_killed_worker_does_not_change_the_result(client, fleet) -> None:

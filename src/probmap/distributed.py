@@ -36,7 +36,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -125,6 +125,8 @@ class IncrementGrid:
         ``hits (l_hit - l0) + frees (l_miss - l0)``.
     stats : ScanStats
         Counts of the scans integrated.
+    skipped_lines : int
+        Malformed log lines skipped while reading them (``skip_bad_lines``).
     """
 
     resolution: float
@@ -132,6 +134,7 @@ class IncrementGrid:
     hits: NDArray[np.int32]
     frees: NDArray[np.int32]
     stats: ScanStats
+    skipped_lines: int = 0
 
     @property
     def spec(self) -> GridSpec:
@@ -154,7 +157,12 @@ class IncrementGrid:
         parts = [g for g in (self, other) if g.hits.size]
         if not parts:
             return IncrementGrid(
-                self.resolution, self.cell0, self.hits, self.frees, self.stats + other.stats
+                self.resolution,
+                self.cell0,
+                self.hits,
+                self.frees,
+                self.stats + other.stats,
+                self.skipped_lines + other.skipped_lines,
             )
         x0 = min(g.cell0[0] for g in parts)
         y0 = min(g.cell0[1] for g in parts)
@@ -167,7 +175,14 @@ class IncrementGrid:
             h, w = g.hits.shape
             hits[oy : oy + h, ox : ox + w] += g.hits
             frees[oy : oy + h, ox : ox + w] += g.frees
-        return IncrementGrid(self.resolution, (x0, y0), hits, frees, self.stats + other.stats)
+        return IncrementGrid(
+            self.resolution,
+            (x0, y0),
+            hits,
+            frees,
+            self.stats + other.stats,
+            self.skipped_lines + other.skipped_lines,
+        )
 
     def log_odds(self, config: MappingConfig) -> NDArray[np.float32]:
         """Final log odds: prior plus increments, clamped once (see the module notes), (H, W)."""
@@ -341,10 +356,13 @@ def _max_range(batch: ScanBatch, config: MappingConfig) -> float:
 
 
 def _chunk_task(
-    batch: ScanBatch, start: int, stop: int, config: MappingConfig, tile: int
+    batch: ScanBatch, k: int, n_chunks: int, config: MappingConfig, tile: int
 ) -> IncrementGrid:
+    """Chunk ``k`` of ``n_chunks`` contiguous, nearly equal chunks of the batch's scans."""
+    n = len(batch.times)
+    start, stop = (k * n) // n_chunks, ((k + 1) * n) // n_chunks
     angles = np.asarray(batch.angles)
-    return integrate_increments(
+    inc = integrate_increments(
         np.asarray(batch.laser_poses)[start:stop],
         np.asarray(batch.ranges)[start:stop],
         angles if angles.ndim == 1 else angles[start:stop],
@@ -352,16 +370,13 @@ def _chunk_task(
         config,
         tile=tile,
     )
+    if k == 0:  # the log's skipped lines are counted once, with its first chunk
+        inc = replace(inc, skipped_lines=int(batch.skipped_lines))
+    return inc
 
 
-def _log_task(path: str, config: MappingConfig, tile: int) -> tuple[IncrementGrid, int]:
-    batch = _load(path, config)
-    return _chunk_task(batch, 0, len(batch.times), config, tile), int(batch.skipped_lines)
-
-
-def _split_task(path: str, config: MappingConfig) -> tuple[ScanBatch, int]:
-    batch = _load(path, config)
-    return batch, len(batch.times)
+def _log_task(path: str, config: MappingConfig, tile: int) -> IncrementGrid:
+    return _chunk_task(_load(path, config), 0, 1, config, tile)
 
 
 def _merge_task(*parts: IncrementGrid) -> IncrementGrid:
@@ -369,18 +384,6 @@ def _merge_task(*parts: IncrementGrid) -> IncrementGrid:
     for p in parts[1:]:
         out = out.merge(p)
     return out
-
-
-def _first(pair: tuple[Any, Any]) -> Any:
-    return pair[0]
-
-
-def _second(pair: tuple[Any, Any]) -> Any:
-    return pair[1]
-
-
-def _skipped_lines(pair: tuple[ScanBatch, int]) -> int:
-    return int(pair[0].skipped_lines)
 
 
 def tree_sum(parts: Sequence[IncrementGrid], fan_in: int = 4) -> IncrementGrid:
@@ -566,45 +569,35 @@ def _run(
             seconds=time.perf_counter() - t0,
             skipped_lines=res.skipped_lines,
         )
-    # one task per log; with chunks > 1, a read task per log and one task per chunk
+    # the whole graph goes in at once: per log, one task, or a read task and one task per
+    # chunk (each cuts its own share of the scans, so nothing waits on the client)
     per_log: list[list[Any]] = []
-    loads = []
-    if opts.chunks == 1:
-        for f in files:
-            fut = client.submit(_log_task, str(f), cfg, opts.tile, retries=retries, pure=False)
-            loads.append(fut)
-            per_log.append([client.submit(_first, fut, retries=retries)])
-    else:
-        loads = [
-            client.submit(_split_task, str(f), cfg, retries=retries, pure=False) for f in files
-        ]
-    _wait(client, loads, progress)
+    for f in files:
+        if opts.chunks == 1:
+            per_log.append(
+                [client.submit(_log_task, str(f), cfg, opts.tile, retries=retries, pure=False)]
+            )
+            continue
+        batch = client.submit(_load, str(f), cfg, retries=retries, pure=False)
+        per_log.append(
+            [batch]
+            + [
+                client.submit(_chunk_task, batch, k, opts.chunks, cfg, opts.tile, retries=retries)
+                for k in range(opts.chunks)
+            ]
+        )
+    _wait(client, [fut for fs in per_log for fut in fs], progress)
     mapped: list[Path] = []
     failed: list[tuple[Path, str]] = []
-    skipped = 0
     parts: list[Any] = []
-    n_tasks = len(loads)
-    for i, (f, fut) in enumerate(zip(files, loads, strict=True)):
-        if fut.status != "finished":
-            failed.append((f, _error_text(fut.exception())))
+    n_tasks = sum(len(fs) for fs in per_log)
+    for f, fs in zip(files, per_log, strict=True):
+        bad = next((fut for fut in fs if fut.status != "finished"), None)
+        if bad is not None:
+            failed.append((f, _error_text(bad.exception())))
             continue
         mapped.append(f)
-        if opts.chunks == 1:
-            parts.extend(per_log[i])
-            skipped += int(client.submit(_second, fut).result())
-            continue
-        batch_future = client.submit(_first, fut)
-        n_scans = int(client.submit(_second, fut).result())
-        bounds = np.linspace(0, n_scans, opts.chunks + 1).round().astype(int)
-        for a, b in zip(bounds[:-1], bounds[1:], strict=True):
-            if b > a:
-                parts.append(
-                    client.submit(
-                        _chunk_task, batch_future, int(a), int(b), cfg, opts.tile, retries=retries
-                    )
-                )
-        skipped += int(client.submit(_skipped_lines, fut).result())
-    n_tasks += len(parts)
+        parts.extend(fs if opts.chunks == 1 else fs[1:])
     if not parts:
         msgs = "; ".join(f"{f}: {m}" for f, m in failed)
         raise DistributedMappingError(f"no input could be mapped ({msgs})", None)
@@ -627,7 +620,7 @@ def _run(
         tasks=n_tasks,
         workers=n_workers,
         seconds=time.perf_counter() - t0,
-        skipped_lines=skipped,
+        skipped_lines=total.skipped_lines,
         increments=total,
     )
     if failed and not allow_partial:

@@ -1,0 +1,152 @@
+"""Distributed mapping on a Dask LocalCluster beside sequential mapping in this process.
+
+Three workloads, each timed as: sequential (``map_log`` / one grid, in this process, the
+reference), then ``map_logs_distributed`` on a LocalCluster of 1 and of 2 single-threaded worker
+processes (cluster start-up timed apart, one warm-up run per cluster so the workers have loaded
+the compiled kernels):
+
+* the raw Intel log (13 631 scans) split into ``--chunks`` chunks (read once, then one task per
+  chunk and a tree sum);
+* ``--logs`` simulated logs of a fleet touring the same building (CARMEN files written here),
+  one task per log;
+* the overhead per task: the Intel log in 4 and in 64 chunks on 2 workers,
+  ``(t64 - t4) / (tasks64 - tasks4)``, and an empty Dask task's round trip.
+
+Prints a table of wall times and speed-ups over the sequential run of the same workload.
+
+Run:  python benchmarks/bench_distributed.py [--chunks 8] [--logs 8] [--no-intel]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+INTEL = Path(__file__).resolve().parents[1] / "shared" / "data" / "intel-research-lab"
+INTEL_ALT = Path("/work/shared/data/intel-research-lab")
+
+
+def write_carmen(path: Path, poses: np.ndarray, ranges: np.ndarray, max_range: float) -> Path:
+    """A minimal CARMEN log (format: /work/shared/data/README.md): PARAM + FLASER lines."""
+    lines = [f"PARAM robot_front_laser_max {max_range}"]
+    for i, (p, r) in enumerate(zip(poses, ranges, strict=True)):
+        rs = " ".join("nan" if not np.isfinite(v) else f"{v:.3f}" for v in r)
+        pose = f"{p[0]:.6f} {p[1]:.6f} {p[2]:.6f}"
+        lines.append(f"FLASER {len(r)} {rs} {pose} {pose} {i * 0.1:.3f} sim {i * 0.1:.3f}")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def fleet(folder: Path, n: int) -> list[Path]:
+    from probmap.grid.simworld import simulate_laser_world
+
+    out = []
+    for seed in range(n):
+        w = simulate_laser_world(seed=seed, size=(24.0, 12.0), range_noise=0.02, dropout=0.01)
+        poses = w.poses + np.array([0.0123, 0.0077, 0.0])
+        out.append(write_carmen(folder / f"robot{seed}.log", poses, w.ranges, w.max_range))
+    return out
+
+
+def sequential(paths: list[Path], cfg) -> float:  # type: ignore[no-untyped-def]
+    """All logs into one grid, in order, in this process (reading included)."""
+    from probmap.datasets.carmen import load_scans
+
+    t = time.perf_counter()
+    grid = cfg.make_grid()
+    for p in paths:
+        b = load_scans(p, poses=cfg.poses, max_range=cfg.max_range)
+        mr = cfg.max_range if cfg.max_range is not None else b.max_range
+        grid.integrate_scans(b.laser_poses, b.ranges, b.angles, max_range=mr)
+    grid.cropped()
+    return time.perf_counter() - t
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--chunks", type=int, default=8, help="chunks of the Intel log")
+    ap.add_argument("--logs", type=int, default=8, help="simulated logs")
+    ap.add_argument("--no-intel", action="store_true")
+    args = ap.parse_args()
+
+    from distributed import Client, LocalCluster
+    from rich.console import Console
+    from rich.table import Table
+
+    from probmap.distributed import DistributedOptions, map_logs_distributed
+    from probmap.pipelines import MappingConfig
+
+    intel = INTEL if INTEL.is_dir() else INTEL_ALT
+    intel_log = intel / "intel.clf.bz2"
+    cfg = MappingConfig(resolution=0.05)
+    sim_cfg = MappingConfig(resolution=0.05, max_range=8.0)
+    tmp = tempfile.TemporaryDirectory()
+    logs = fleet(Path(tmp.name), args.logs)
+    workloads = []
+    if not args.no_intel and intel_log.is_file():
+        workloads.append(("Intel raw, chunks", [intel_log], cfg, args.chunks))
+    workloads.append((f"{args.logs} simulated logs", logs, sim_cfg, 1))
+
+    sequential(logs[:1], sim_cfg)  # compile / load the kernels in this process
+    rows: list[tuple[str, str, str, str, str]] = []
+    ref = {name: sequential(paths, c) for name, paths, c, _ in workloads}
+    for name, _, _, _ in workloads:
+        rows.append((name, "sequential (this process)", "1", f"{ref[name]:.2f}", "1.00"))
+    overhead = None
+    for n_workers in (1, 2):
+        t = time.perf_counter()
+        cluster = LocalCluster(
+            n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=":0"
+        )
+        client = Client(cluster)
+        startup = time.perf_counter() - t
+        try:
+            warm = DistributedOptions(mode="increments", chunks=n_workers)
+            map_logs_distributed(logs[:1], sim_cfg, client=client, progress=False, options=warm)
+            for name, paths, c, chunks in workloads:
+                opts = DistributedOptions(mode="increments", chunks=chunks)
+                t = time.perf_counter()
+                res = map_logs_distributed(paths, c, client=client, progress=False, options=opts)
+                dt = time.perf_counter() - t
+                rows.append(
+                    (name, f"Dask, {res.tasks} tasks", str(n_workers), f"{dt:.2f}",
+                     f"{ref[name] / dt:.2f}")
+                )  # fmt: skip
+            if n_workers == 2 and workloads[0][0].startswith("Intel"):
+                times = {}
+                for chunks in (4, 64):
+                    opts = DistributedOptions(mode="increments", chunks=chunks)
+                    t = time.perf_counter()
+                    res = map_logs_distributed(
+                        [intel_log], cfg, client=client, progress=False, options=opts
+                    )
+                    times[chunks] = (time.perf_counter() - t, res.tasks)
+                overhead = (times[64][0] - times[4][0]) / (times[64][1] - times[4][1])
+            t = time.perf_counter()
+            client.gather(client.map(int, range(200), pure=False))
+            noop = (time.perf_counter() - t) / 200
+            rows.append(
+                ("empty task round trip", "Dask", str(n_workers), f"{noop * 1e3:.2f} ms", "")
+            )
+            rows.append(("cluster start-up", "LocalCluster", str(n_workers), f"{startup:.2f}", ""))
+        finally:
+            client.close()
+            cluster.close()
+    if overhead is not None:
+        rows.append(("overhead per mapping task", "Intel 4 vs 64 chunks", "2",
+                     f"{overhead * 1e3:.1f} ms", ""))  # fmt: skip
+    table = Table(title="distributed mapping (wall seconds; speed-up = sequential / Dask)")
+    for col in ("workload", "run", "workers", "time [s]", "speed-up"):
+        table.add_column(col)
+    for r in rows:
+        table.add_row(*r)
+    Console().print(table)
+    tmp.cleanup()
+
+
+if __name__ == "__main__":
+    main()

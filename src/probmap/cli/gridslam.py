@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
-
 import typer
 
 from probmap.cli.common import cli_errors
@@ -59,7 +57,6 @@ def grid_command(
             angular_update=angular_update,
             seed=seed,
         )
-        caught: list[Any] = []
         with Progress(transient=True) as bar, warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             task = bar.add_task(f"grid SLAM {log.name}", total=None)

@@ -259,7 +259,8 @@ def _legend_panel(
 
 
 def legend_swatch_centres(n_classes: int, map_width: int) -> list[tuple[int, int]]:
-    """Pixel ``(x, y)`` at the centre of each legend swatch (classes, then "unknown")."""
+    """Pixel ``(x, y)`` at the centre of each legend swatch: ``n_classes`` classes (class 0
+    included), then "unknown"; ``map_width`` is the map's width in pixels."""
     c = 6 + LEGEND_SWATCH // 2 + 1
     return [
         (map_width + c, 4 + i * LEGEND_ROW + 2 + LEGEND_SWATCH // 2 + 1)

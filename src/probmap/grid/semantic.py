@@ -89,8 +89,8 @@ def inverse_term(q: ArrayLike) -> NDArray[np.float64]:
     >>> from probmap.grid.logodds import logit
     >>> float(inverse_term([0.7])[0]) == logit(0.7)
     True
-    >>> inverse_term([0.25, 0.25]).round(6).tolist()
-    [0.0, 0.0]
+    >>> inverse_term([0.25, 0.5]).round(6).tolist()
+    [0.0, 0.693147]
     """
     qa = np.asarray(q, dtype=np.float64)
     return np.asarray(np.log(qa) - np.log1p(-qa.sum(axis=-1, keepdims=True)), dtype=np.float64)
@@ -384,7 +384,7 @@ class SemanticGrid:
     >>> ix, iy = grid.spec.world_to_cell([2.0 * np.cos(0.4), 2.0 * np.sin(0.4)])
     >>> grid.classes[grid.argmax()[iy, ix]]
     'door'
-    >>> grid.probabilities().sum(axis=-1).round(12).min()
+    >>> float(grid.probabilities().sum(axis=-1).round(12).min())
     1.0
     """
 

@@ -2,19 +2,18 @@
 
 Three workloads, each timed as: sequential (``map_log`` / one grid, in this process, the
 reference), then ``map_logs_distributed`` on a LocalCluster of 1 and of 2 single-threaded worker
-processes (cluster start-up timed apart, one warm-up run per cluster so the workers have loaded
-the compiled kernels):
+processes (cluster start-up timed apart; every worker loads the compiled kernels before timing):
 
 * the raw Intel log (13 631 scans) split into ``--chunks`` chunks (read once, then one task per
   chunk and a tree sum);
 * ``--logs`` simulated logs of a fleet touring the same building (CARMEN files written here),
   one task per log;
-* the overhead per task: the Intel log in 4 and in 64 chunks on 2 workers,
+* the overhead per task: the Intel log in 4 and in 64 chunks on the largest cluster,
   ``(t64 - t4) / (tasks64 - tasks4)``, and an empty Dask task's round trip.
 
 Prints a table of wall times and speed-ups over the sequential run of the same workload.
 
-Run:  python benchmarks/bench_distributed.py [--chunks 8] [--logs 8] [--no-intel]
+Run:  python benchmarks/bench_distributed.py [--chunks 8] [--logs 8] [--workers 1 2] [--no-intel]
 """
 
 from __future__ import annotations
@@ -66,10 +65,28 @@ def sequential(paths: list[Path], cfg) -> float:  # type: ignore[no-untyped-def]
     return time.perf_counter() - t
 
 
+def warm_worker() -> None:
+    """Import probmap and load the compiled kernels in a worker process."""
+    from probmap.distributed import integrate_increments
+    from probmap.pipelines import MappingConfig
+
+    angles = np.linspace(-1.5, 1.5, 5)
+    integrate_increments(np.zeros((2, 3)), np.ones((2, 5)), angles, 8.0, MappingConfig())
+
+
+def read_seconds(path: Path, cfg) -> float:  # type: ignore[no-untyped-def]
+    from probmap.datasets.carmen import load_scans
+
+    t = time.perf_counter()
+    load_scans(path, poses=cfg.poses, max_range=cfg.max_range)
+    return time.perf_counter() - t
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--chunks", type=int, default=8, help="chunks of the Intel log")
     ap.add_argument("--logs", type=int, default=8, help="simulated logs")
+    ap.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="cluster sizes")
     ap.add_argument("--no-intel", action="store_true")
     args = ap.parse_args()
 
@@ -94,10 +111,19 @@ def main() -> None:
     sequential(logs[:1], sim_cfg)  # compile / load the kernels in this process
     rows: list[tuple[str, str, str, str, str]] = []
     ref = {name: sequential(paths, c) for name, paths, c, _ in workloads}
-    for name, _, _, _ in workloads:
+    for name, paths, c, _ in workloads:
         rows.append((name, "sequential (this process)", "1", f"{ref[name]:.2f}", "1.00"))
+        rows.append(
+            (
+                name,
+                "  of which reading the logs",
+                "1",
+                f"{read_seconds(paths[0], c) * len(paths):.2f}",
+                "",
+            )
+        )
     overhead = None
-    for n_workers in (1, 2):
+    for n_workers in args.workers:
         t = time.perf_counter()
         cluster = LocalCluster(
             n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=":0"
@@ -105,8 +131,7 @@ def main() -> None:
         client = Client(cluster)
         startup = time.perf_counter() - t
         try:
-            warm = DistributedOptions(mode="increments", chunks=n_workers)
-            map_logs_distributed(logs[:1], sim_cfg, client=client, progress=False, options=warm)
+            client.run(warm_worker)
             for name, paths, c, chunks in workloads:
                 opts = DistributedOptions(mode="increments", chunks=chunks)
                 t = time.perf_counter()
@@ -116,7 +141,7 @@ def main() -> None:
                     (name, f"Dask, {res.tasks} tasks", str(n_workers), f"{dt:.2f}",
                      f"{ref[name] / dt:.2f}")
                 )  # fmt: skip
-            if n_workers == 2 and workloads[0][0].startswith("Intel"):
+            if n_workers == max(args.workers) and workloads[0][0].startswith("Intel"):
                 times = {}
                 for chunks in (4, 64):
                     opts = DistributedOptions(mode="increments", chunks=chunks)
@@ -137,7 +162,7 @@ def main() -> None:
             client.close()
             cluster.close()
     if overhead is not None:
-        rows.append(("overhead per mapping task", "Intel 4 vs 64 chunks", "2",
+        rows.append(("overhead per mapping task", "Intel 4 vs 64 chunks", str(max(args.workers)),
                      f"{overhead * 1e3:.1f} ms", ""))  # fmt: skip
     table = Table(title="distributed mapping (wall seconds; speed-up = sequential / Dask)")
     for col in ("workload", "run", "workers", "time [s]", "speed-up"):

@@ -355,28 +355,54 @@ def _max_range(batch: ScanBatch, config: MappingConfig) -> float:
     return float(config.max_range if config.max_range is not None else batch.max_range)
 
 
-def _chunk_task(
-    batch: ScanBatch, k: int, n_chunks: int, config: MappingConfig, tile: int
-) -> IncrementGrid:
-    """Chunk ``k`` of ``n_chunks`` contiguous, nearly equal chunks of the batch's scans."""
+@dataclass(frozen=True)
+class _Chunk:
+    """A contiguous share of one log's scans, as a task's input."""
+
+    poses: NDArray[np.float64]
+    ranges: NDArray[np.float64]
+    angles: NDArray[np.float64]
+    max_range: float
+    skipped_lines: int
+
+
+def _split(batch: ScanBatch, n_chunks: int, config: MappingConfig) -> list[_Chunk]:
+    """``n_chunks`` contiguous, nearly equal chunks of the batch's scans (copies, so that a
+    chunk sent to another worker carries its own scans only)."""
     n = len(batch.times)
-    start, stop = (k * n) // n_chunks, ((k + 1) * n) // n_chunks
     angles = np.asarray(batch.angles)
+    out = []
+    for k in range(n_chunks):
+        a, b = (k * n) // n_chunks, ((k + 1) * n) // n_chunks
+        out.append(
+            _Chunk(
+                np.asarray(batch.laser_poses)[a:b].copy(),
+                np.asarray(batch.ranges)[a:b].copy(),
+                angles if angles.ndim == 1 else angles[a:b].copy(),
+                _max_range(batch, config),
+                int(batch.skipped_lines) if k == 0 else 0,  # counted once per log
+            )
+        )
+    return out
+
+
+def _read_task(path: str, config: MappingConfig, n_chunks: int) -> list[_Chunk]:
+    return _split(_load(path, config), n_chunks, config)
+
+
+def _pick(chunks: list[_Chunk], k: int) -> _Chunk:
+    return chunks[k]
+
+
+def _chunk_task(chunk: _Chunk, config: MappingConfig, tile: int) -> IncrementGrid:
     inc = integrate_increments(
-        np.asarray(batch.laser_poses)[start:stop],
-        np.asarray(batch.ranges)[start:stop],
-        angles if angles.ndim == 1 else angles[start:stop],
-        _max_range(batch, config),
-        config,
-        tile=tile,
+        chunk.poses, chunk.ranges, chunk.angles, chunk.max_range, config, tile=tile
     )
-    if k == 0:  # the log's skipped lines are counted once, with its first chunk
-        inc = replace(inc, skipped_lines=int(batch.skipped_lines))
-    return inc
+    return replace(inc, skipped_lines=chunk.skipped_lines)
 
 
 def _log_task(path: str, config: MappingConfig, tile: int) -> IncrementGrid:
-    return _chunk_task(_load(path, config), 0, 1, config, tile)
+    return _chunk_task(_read_task(path, config, 1)[0], config, tile)
 
 
 def _merge_task(*parts: IncrementGrid) -> IncrementGrid:
@@ -569,8 +595,8 @@ def _run(
             seconds=time.perf_counter() - t0,
             skipped_lines=res.skipped_lines,
         )
-    # the whole graph goes in at once: per log, one task, or a read task and one task per
-    # chunk (each cuts its own share of the scans, so nothing waits on the client)
+    # the whole graph goes in at once (nothing waits on the client): per log, one task, or a
+    # read task that splits the scans and one task per chunk
     per_log: list[list[Any]] = []
     for f in files:
         if opts.chunks == 1:
@@ -578,19 +604,17 @@ def _run(
                 [client.submit(_log_task, str(f), cfg, opts.tile, retries=retries, pure=False)]
             )
             continue
-        batch = client.submit(_load, str(f), cfg, retries=retries, pure=False)
+        read = client.submit(_read_task, str(f), cfg, opts.chunks, retries=retries, pure=False)
+        # picking a chunk runs where the log was read; only the chunk travels to its worker
+        picks = [client.submit(_pick, read, k, retries=retries) for k in range(opts.chunks)]
         per_log.append(
-            [batch]
-            + [
-                client.submit(_chunk_task, batch, k, opts.chunks, cfg, opts.tile, retries=retries)
-                for k in range(opts.chunks)
-            ]
+            [read] + [client.submit(_chunk_task, c, cfg, opts.tile, retries=retries) for c in picks]
         )
     _wait(client, [fut for fs in per_log for fut in fs], progress)
     mapped: list[Path] = []
     failed: list[tuple[Path, str]] = []
     parts: list[Any] = []
-    n_tasks = sum(len(fs) for fs in per_log)
+    n_tasks = sum(len(fs) for fs in per_log) + (len(files) * opts.chunks if opts.chunks > 1 else 0)
     for f, fs in zip(files, per_log, strict=True):
         bad = next((fut for fut in fs if fut.status != "finished"), None)
         if bad is not None:

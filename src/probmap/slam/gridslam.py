@@ -47,7 +47,7 @@ def _default_matcher() -> MatcherConfig:
         angular_window=0.05,
         angular_step=0.0125,
         iterations=8,
-        usable_range=15.0,
+        usable_range=30.0,
         beam_skip=1,
     )
 

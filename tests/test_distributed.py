@@ -337,3 +337,102 @@ def test_local_cluster_started_and_closed(fleet) -> None:
     np.testing.assert_array_equal(res.grid.log_odds, map_log(fleet[1], NO_CLAMP).grid.log_odds)
     after = {p.pid for p in multiprocessing.active_children() if p.is_alive()}
     assert after <= before
+
+
+# ------------------------------------------------------------------ semantic grids
+from probmap.grid.semantic import LabelledInverseModel  # noqa: E402
+
+
+def _labelled(seed: int, soft: bool = False):
+    from dataclasses import replace
+
+    from probmap.grid.semantic_io import LabelledScans
+    from probmap.grid.semantic_sim import simulate_labelled_world
+
+    w = simulate_labelled_world(seed=seed, size=(8.0, 12.0), step=0.5, n_beams=61, soft=soft)
+    w = replace(w, poses=w.poses + np.array([0.0123, 0.0077, 0.0]))
+    k = slice(seed * 4, seed * 4 + 12)  # a short stretch: sums stay below the widest clamps
+    return LabelledScans(
+        w.poses[k], w.ranges[k], w.angles, w.max_range, w.classes,
+        labels=None if soft else w.labels[k],
+        probabilities=None if w.probabilities is None else w.probabilities[k],
+    )  # fmt: skip
+
+
+def _semantic_reference(scans_list, clamp, **kw):  # type: ignore[no-untyped-def]
+    from probmap.grid.semantic import SemanticGrid
+
+    grid = SemanticGrid(scans_list[0].classes, resolution=0.1, clamp=clamp, **kw)
+    for s in scans_list:
+        s.integrate_into(grid)
+    return grid
+
+
+def _on(grid, spec):  # type: ignore[no-untyped-def]
+    """``grid``'s log odds and observed mask on the window ``spec`` (same lattice); cells of
+    ``grid`` outside ``spec`` must be unobserved."""
+    r = spec.resolution
+    dx = round((grid.spec.origin[0] - spec.origin[0]) / r)
+    dy = round((grid.spec.origin[1] - spec.origin[1]) / r)
+    h, w = grid.spec.shape
+    lo = np.broadcast_to(grid.l_prior, (*spec.shape, grid.n_classes)).astype(np.float32)
+    seen = np.zeros(spec.shape, dtype=bool)
+    y0, y1 = max(dy, 0), min(dy + h, spec.height)
+    x0, x1 = max(dx, 0), min(dx + w, spec.width)
+    inside = np.zeros(grid.spec.shape, dtype=bool)
+    inside[y0 - dy : y1 - dy, x0 - dx : x1 - dx] = True
+    assert not (grid.observed & ~inside).any()
+    lo[y0:y1, x0:x1] = grid.log_odds[y0 - dy : y1 - dy, x0 - dx : x1 - dx]
+    seen[y0:y1, x0:x1] = grid.observed[y0 - dy : y1 - dy, x0 - dx : x1 - dx]
+    return lo, seen
+
+
+@pytest.mark.parametrize("soft", [False, True])
+def test_semantic_increments_match_sequential(soft: bool) -> None:
+    from probmap.distributed import integrate_semantic_increments
+
+    scans = [_labelled(1, soft), _labelled(2, soft)]
+    wide = (1e-15, 1 - 1e-15)
+    # weak free-space evidence so that no cell reaches even the wide clamps
+    kw = {"model": LabelledInverseModel(p_miss=0.7, p_correct=0.9, label_floor=0.05)}
+    parts = [
+        integrate_semantic_increments(s, resolution=0.1, tile=16, start=a, stop=b, **kw)
+        for s in scans
+        for a, b in ((0, 5), (5, None))
+    ]
+    total = tree_sum(parts, fan_in=3)  # type: ignore[arg-type]
+    ref = _semantic_reference(scans, wide, **kw)
+    assert total.stats.cell_updates == sum(
+        integrate_semantic_increments(s, resolution=0.1, **kw).stats.cell_updates for s in scans
+    )
+    got = total.to_grid(scans[0].classes, clamp=wide, **kw)
+    lo, seen = _on(got, ref.spec)
+    np.testing.assert_array_equal(ref.observed, seen)
+    assert np.abs(ref.log_odds - lo).max() < 1e-3
+    # tight clamps (0.2, 0.8): within l_max - l_min per class, and clamping matters
+    ref = _semantic_reference(scans, (0.2, 0.8), **kw)
+    got = total.to_grid(scans[0].classes, clamp=(0.2, 0.8), **kw)
+    lo, _ = _on(got, ref.spec)
+    diff = np.abs(ref.log_odds - lo)
+    assert diff.max() <= 2 * logit(0.8) + 1e-4
+    assert diff.max() > 0.1  # the clamping order matters somewhere
+
+
+def test_semantic_on_cluster(client, tmp_path: Path) -> None:
+    from probmap.distributed import map_labelled_distributed
+    from probmap.grid.semantic_io import write_labelled_scans
+
+    scans = [_labelled(3), _labelled(4)]
+    paths = [write_labelled_scans(tmp_path / f"r{i}.npz", s) for i, s in enumerate(scans)]
+    wide = (1e-15, 1 - 1e-15)
+    kw = {"model": LabelledInverseModel(p_miss=0.7, p_correct=0.9, label_floor=0.05), "clamp": wide}
+    res = map_labelled_distributed(paths, resolution=0.1, client=client, chunks=2, **kw)
+    assert res.mapped == tuple(paths) and res.tasks >= 5
+    ref = _semantic_reference(scans, **kw)
+    lo, seen = _on(res.grid, ref.spec)
+    np.testing.assert_array_equal(ref.observed, seen)
+    assert np.abs(ref.log_odds - lo).max() < 1e-3
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not a zip")
+    with pytest.raises(DistributedMappingError, match="bad.npz"):
+        map_labelled_distributed([paths[0], bad], resolution=0.1, client=client, clamp=wide)

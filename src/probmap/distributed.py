@@ -672,3 +672,293 @@ def _wait(client: Any, futures: list[Any], progress: bool | Callable[[int, int],
             progress(done, len(futures))
     else:
         wait(futures)
+
+
+# ------------------------------------------------------------------ semantic grids
+@dataclass(frozen=True)
+class SemanticIncrements:
+    """Summed log-odds increments of a semantic grid's updates on a window of the lattice.
+
+    Parameters
+    ----------
+    resolution : float
+        Cell side in metres.
+    cell0 : tuple of int
+        Lattice index ``(ix0, iy0)`` of the window's cell ``[0, 0]``.
+    delta : ndarray of float64, shape (H, W, K)
+        Sum over the scans of each update ``inverse term - prior term`` (no clamping).
+    observed : ndarray of bool, shape (H, W)
+        Cells updated at least once.
+    stats : ScanStats
+        Counts of the scans integrated.
+
+    Notes
+    -----
+    The evidence of a semantic update is a real number (class distributions, pooled endpoints),
+    so the increments are float64 sums rather than counts: the tree sum is exact up to float64
+    rounding (about 1e-13 of the magnitude), far below the final float32 storage. Clamping is
+    per class: the result lies within ``l_max[k] - l_min[k]`` of the sequential grid in every
+    cell and class and equals it (to rounding) wherever no partial sum reaches a clamp.
+    """
+
+    resolution: float
+    cell0: tuple[int, int]
+    delta: NDArray[np.float64]
+    observed: NDArray[np.bool_]
+    stats: ScanStats
+
+    @property
+    def spec(self) -> GridSpec:
+        """Geometry of the window (origin on the common lattice)."""
+        r = self.resolution
+        return GridSpec(r, (self.cell0[0] * r, self.cell0[1] * r), self.observed.shape)
+
+    def merge(self, other: SemanticIncrements) -> SemanticIncrements:
+        """The sum of two increment grids on the union of their windows."""
+        if self.resolution != other.resolution or self.delta.shape[2] != other.delta.shape[2]:
+            raise ValueError("cannot merge semantic increments of different resolution or classes")
+        parts = [g for g in (self, other) if g.observed.size]
+        if not parts:
+            return replace(self, stats=self.stats + other.stats)
+        x0 = min(g.cell0[0] for g in parts)
+        y0 = min(g.cell0[1] for g in parts)
+        x1 = max(g.cell0[0] + g.observed.shape[1] for g in parts)
+        y1 = max(g.cell0[1] + g.observed.shape[0] for g in parts)
+        delta = np.zeros((y1 - y0, x1 - x0, self.delta.shape[2]))
+        seen = np.zeros((y1 - y0, x1 - x0), dtype=bool)
+        for g in parts:
+            oy, ox = g.cell0[1] - y0, g.cell0[0] - x0
+            h, w = g.observed.shape
+            delta[oy : oy + h, ox : ox + w] += g.delta
+            seen[oy : oy + h, ox : ox + w] |= g.observed
+        return SemanticIncrements(self.resolution, (x0, y0), delta, seen, self.stats + other.stats)
+
+    def to_grid(self, classes: Sequence[str], **grid_kwargs: Any) -> Any:
+        """The :class:`~probmap.grid.semantic.SemanticGrid` (``grid_kwargs``: its prior, clamp,
+        model, colors): prior plus increments, clamped once per class."""
+        from probmap.grid.semantic import SemanticGrid
+
+        ref = SemanticGrid(classes, resolution=self.resolution, **grid_kwargs)
+        lo = np.clip(ref.l_prior + self.delta, ref.l_min, ref.l_max)
+        return SemanticGrid.from_log_odds(
+            classes,
+            self.spec,
+            lo.astype(np.float32),
+            observed=self.observed,
+            scans=self.stats.scans,
+            **grid_kwargs,
+        )
+
+
+def integrate_semantic_increments(
+    scans: Any,
+    *,
+    resolution: float,
+    tile: int = 64,
+    start: int = 0,
+    stop: int | None = None,
+    **grid_kwargs: Any,
+) -> SemanticIncrements:
+    """Sum the updates of labelled scans ``start:stop`` without prior or clamping.
+
+    Parameters
+    ----------
+    scans : probmap.grid.semantic_io.LabelledScans
+        Poses (S, 3), ranges (S, B), angles, labels (S, B) or probabilities (S, B, K).
+    resolution : float
+        Cell side in metres.
+    tile : int
+        The window is aligned to multiples of ``tile`` cells of the common lattice.
+    grid_kwargs
+        :class:`~probmap.grid.semantic.SemanticGrid` arguments (prior, model; a clamp is
+        accepted and ignored here).
+
+    Returns
+    -------
+    SemanticIncrements
+        The updates :meth:`SemanticGrid.integrate_scans` applies (same kernel, same
+        once-per-scan rule and endpoint pooling), accumulated in float64 without clamping.
+    """
+    from probmap.grid import _kernels
+    from probmap.grid.semantic import SemanticGrid
+
+    sl = slice(start, stop)
+    poses = np.ascontiguousarray(scans.poses[sl], dtype=np.float64)
+    ranges = np.ascontiguousarray(scans.ranges[sl], dtype=np.float64)
+    angles = np.asarray(scans.angles, dtype=np.float64)
+    angles = angles if angles.ndim == 1 else angles[sl]
+    kwargs = {k: v for k, v in grid_kwargs.items() if k != "clamp"}
+    K = len(scans.classes) - 1
+    if poses.shape[0] == 0:
+        z = np.zeros((0, 0), dtype=bool)
+        return SemanticIncrements(
+            float(resolution), (0, 0), np.zeros((0, 0, K)), z, ScanStats(0, 0, 0, 0, 0, 0)
+        )
+    probe = SemanticGrid(scans.classes, resolution=resolution, **kwargs)
+    model = probe.model
+    clear = model.max_clear_range
+    mr = float(scans.max_range)
+    clear_range = (mr if math.isfinite(mr) else 0.0) if clear is None else clear
+    A = np.ascontiguousarray(angles[None, :] if angles.ndim == 1 else angles)
+    if not np.isfinite(poses).all():
+        raise ValueError("poses must be finite numbers")
+    if ranges.ndim != 2 or A.shape[-1] != ranges.shape[1]:
+        raise ValueError(f"angles shape {angles.shape} does not match ranges {ranges.shape}")
+    box = np.empty(4)
+    _kernels.scan_bounds(poses, ranges, A, angles.ndim == 1, mr, clear_range, model.thickness, box)
+    res = float(resolution)
+    ix0 = (math.floor(box[0] / res) - 1) // tile * tile
+    iy0 = (math.floor(box[2] / res) - 1) // tile * tile
+    ix1 = -((-(math.floor(box[1] / res) + 2)) // tile) * tile
+    iy1 = -((-(math.floor(box[3] / res) + 2)) // tile) * tile
+    spec = GridSpec(res, (ix0 * res, iy0 * res), (iy1 - iy0, ix1 - ix0))
+    grid = SemanticGrid(scans.classes, resolution=res, spec=spec, fixed=True, **kwargs)
+    # the grid's own validation, evidence and kernel, on float64 zeros with no clamping: the
+    # cells then hold the sums of the increments
+    grid._lo = np.zeros((*spec.shape, K), dtype=np.float64)
+    grid.l_min = np.full(K, -math.inf)
+    grid.l_max = np.full(K, math.inf)
+    stats = grid.integrate_scans(
+        poses,
+        ranges,
+        angles,
+        labels=None if scans.labels is None else scans.labels[sl],
+        probabilities=None if scans.probabilities is None else scans.probabilities[sl],
+        max_range=mr,
+    )
+    delta = np.asarray(grid._lo, dtype=np.float64)
+    return SemanticIncrements(res, (int(ix0), int(iy0)), delta, grid.observed, stats)
+
+
+def _semantic_task(
+    path: str, k: int, n_chunks: int, resolution: float, tile: int, grid_kwargs: dict[str, Any]
+) -> SemanticIncrements:
+    from probmap.grid.semantic_io import read_labelled_scans
+
+    scans = read_labelled_scans(path)
+    n = len(scans)
+    return integrate_semantic_increments(
+        scans,
+        resolution=resolution,
+        tile=tile,
+        start=(k * n) // n_chunks,
+        stop=((k + 1) * n) // n_chunks,
+        **grid_kwargs,
+    )
+
+
+def _merge_semantic(*parts: SemanticIncrements) -> SemanticIncrements:
+    out = parts[0]
+    for p in parts[1:]:
+        out = out.merge(p)
+    return out
+
+
+@dataclass(frozen=True)
+class SemanticMappingResult:
+    """A semantic map built on a cluster, and which inputs went into it."""
+
+    grid: Any
+    stats: ScanStats
+    mapped: tuple[Path, ...]
+    failed: tuple[tuple[Path, str], ...]
+    tasks: int
+    seconds: float
+    increments: SemanticIncrements
+
+
+def map_labelled_distributed(
+    paths: Sequence[str | os.PathLike[str]],
+    *,
+    resolution: float = 0.05,
+    client: Any,
+    chunks: int = 1,
+    tile: int = 64,
+    fan_in: int = 4,
+    retries: int = 2,
+    progress: bool | Callable[[int, int], None] = False,
+    allow_partial: bool = False,
+    **grid_kwargs: Any,
+) -> SemanticMappingResult:
+    """Map labelled-scan files (:func:`probmap.grid.semantic_io.write_labelled_scans`) on a
+    Dask cluster into one :class:`~probmap.grid.semantic.SemanticGrid`.
+
+    Every file is read by ``chunks`` tasks, each integrating its share of the scans; the
+    increments are summed by a tree reduction and the prior and per-class clamps applied at the
+    end (see :class:`SemanticIncrements`). The files must share their class names.
+    ``grid_kwargs`` are the grid's prior, clamp, model and colors. Failures are reported as by
+    :func:`map_logs_distributed` (:class:`DistributedMappingError` unless ``allow_partial``).
+    """
+    from probmap.grid.semantic_io import read_labelled_scans
+
+    files = [Path(p) for p in paths]
+    if not files:
+        raise ValueError("no input files given")
+    for f in files:
+        if not f.is_file():
+            raise FileNotFoundError(f"{f}: no such labelled-scan file")
+    if chunks < 1:
+        raise ValueError(f"chunks must be >= 1, got {chunks}")
+    t0 = time.perf_counter()
+    classes: tuple[str, ...] | None = None
+    per_file = []
+    for f in files:
+        per_file.append(
+            [
+                client.submit(
+                    _semantic_task,
+                    str(f),
+                    k,
+                    chunks,
+                    resolution,
+                    tile,
+                    grid_kwargs,
+                    retries=retries,
+                    pure=False,
+                )  # fmt: skip
+                for k in range(chunks)
+            ]
+        )
+    _wait(client, [fut for fs in per_file for fut in fs], progress)
+    mapped: list[Path] = []
+    failed: list[tuple[Path, str]] = []
+    parts: list[Any] = []
+    for f, fs in zip(files, per_file, strict=True):
+        bad = next((fut for fut in fs if fut.status != "finished"), None)
+        if bad is not None:
+            failed.append((f, _error_text(bad.exception())))
+            continue
+        names = read_labelled_scans(f).classes
+        if classes is not None and names != classes:
+            failed.append((f, f"classes {list(names)} differ from {list(classes)}"))
+            continue
+        classes = names
+        mapped.append(f)
+        parts.extend(fs)
+    n_tasks = len(files) * chunks
+    if not parts or classes is None:
+        msgs = "; ".join(f"{f}: {m}" for f, m in failed)
+        raise DistributedMappingError(f"no input could be mapped ({msgs})", None)
+    level = parts
+    while len(level) > 1:
+        level = [
+            client.submit(_merge_semantic, *level[i : i + fan_in], retries=retries)
+            for i in range(0, len(level), fan_in)
+        ]
+        n_tasks += len(level)
+    total: SemanticIncrements = level[0].result()
+    result = SemanticMappingResult(
+        grid=total.to_grid(classes, **grid_kwargs),
+        stats=total.stats,
+        mapped=tuple(mapped),
+        failed=tuple(failed),
+        tasks=n_tasks,
+        seconds=time.perf_counter() - t0,
+        increments=total,
+    )
+    if failed and not allow_partial:
+        lines = "; ".join(f"{f}: {m}" for f, m in failed)
+        raise DistributedMappingError(
+            f"{len(failed)} of {len(files)} inputs could not be mapped ({lines})", None
+        )
+    return result

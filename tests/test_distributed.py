@@ -6,6 +6,7 @@ import math
 import os
 import signal
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -394,13 +395,15 @@ def test_semantic_increments_match_sequential(soft: bool) -> None:
     scans = [_labelled(1, soft), _labelled(2, soft)]
     wide = (1e-15, 1 - 1e-15)
     # weak free-space evidence so that no cell reaches even the wide clamps
-    kw = {"model": LabelledInverseModel(p_miss=0.7, p_correct=0.9, label_floor=0.05)}
+    kw: dict[str, Any] = {
+        "model": LabelledInverseModel(p_miss=0.7, p_correct=0.9, label_floor=0.05)
+    }
     parts = [
         integrate_semantic_increments(s, resolution=0.1, tile=16, start=a, stop=b, **kw)
         for s in scans
         for a, b in ((0, 5), (5, None))
     ]
-    total = tree_sum(parts, fan_in=3)  # type: ignore[arg-type]
+    total: Any = tree_sum(parts, fan_in=3)  # type: ignore[arg-type]
     ref = _semantic_reference(scans, wide, **kw)
     assert total.stats.cell_updates == sum(
         integrate_semantic_increments(s, resolution=0.1, **kw).stats.cell_updates for s in scans
@@ -425,7 +428,10 @@ def test_semantic_on_cluster(client, tmp_path: Path) -> None:
     scans = [_labelled(3), _labelled(4)]
     paths = [write_labelled_scans(tmp_path / f"r{i}.npz", s) for i, s in enumerate(scans)]
     wide = (1e-15, 1 - 1e-15)
-    kw = {"model": LabelledInverseModel(p_miss=0.7, p_correct=0.9, label_floor=0.05), "clamp": wide}
+    kw: dict[str, Any] = {
+        "model": LabelledInverseModel(p_miss=0.7, p_correct=0.9, label_floor=0.05),
+        "clamp": wide,
+    }
     res = map_labelled_distributed(paths, resolution=0.1, client=client, chunks=2, **kw)
     assert res.mapped == tuple(paths) and res.tasks >= 5
     ref = _semantic_reference(scans, **kw)

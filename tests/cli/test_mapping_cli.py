@@ -148,3 +148,24 @@ def test_map_method_map(tmp_path):
     _assert_one_line_error(
         run("map", str(log), "-o", str(tmp_path / "x"), "--method", "nope"), "--method"
     )
+
+
+def test_map_several_logs_on_a_local_dask_cluster(tmp_path):
+    pytest.importorskip("distributed")
+    a, b = tmp_path / "a.clf", tmp_path / "b.clf"
+    _write_log(a)
+    _write_log(b, n_scans=10)
+    res = run(
+        "map", str(a), str(b), "-o", str(tmp_path / "m"), "--resolution", "0.1", "--workers", "1"
+    )
+    assert res.exit_code == 0, res.output
+    from probmap.grid.io import load_npz
+
+    grid = load_npz(tmp_path / "m.npz")
+    wall = grid.spec.world_to_cell([5.02, 0.0])
+    assert grid.classify()[wall[1], wall[0]] == 1
+    bad = tmp_path / "bad.clf"
+    bad.write_text("FLASER 180 1.0 oops\n")
+    res = run("map", str(a), str(bad), "-o", str(tmp_path / "n"), "--workers", "1")
+    assert res.exit_code == 1 and "bad.clf" in res.output
+    assert not list(tmp_path.glob("n.*"))

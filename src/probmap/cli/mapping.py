@@ -59,7 +59,11 @@ def _mapping_rows(result: Any) -> list[tuple[str, str]]:
 
 
 def map_command(
-    log: Path = typer.Argument(..., help="Laser log: CARMEN .clf/.log, plain, .gz or .bz2."),
+    logs: list[Path] = typer.Argument(
+        ...,
+        help="Laser log(s): CARMEN .clf/.log (plain, .gz, .bz2) or ROS bag. Several logs are "
+        "mapped together on a Dask cluster.",
+    ),
     output: Path = typer.Option(
         ..., "-o", "--output", help="Output prefix: writes PREFIX.{yaml,pgm,npz,png}."
     ),
@@ -110,6 +114,16 @@ def map_command(
         "--to-bag",
         help="ROS bag: also write the map as nav_msgs/OccupancyGrid into this new bag (.bag: ROS 1, else a ROS 2 folder).",
     ),
+    workers: int | None = typer.Option(
+        None, "--workers", help="Map on a local Dask cluster with N worker processes."
+    ),
+    scheduler: str | None = typer.Option(
+        None, "--scheduler", help="Map on an existing Dask cluster (scheduler address)."
+    ),
+    chunks: int = typer.Option(1, "--chunks", help="Dask: split each log into N chunks of scans."),
+    allow_partial: bool = typer.Option(
+        False, "--allow-partial", help="Dask: write the map of the readable logs when some fail."
+    ),
 ) -> None:
     """Build an occupancy grid map from a laser log with known poses."""
     with cli_errors():
@@ -120,8 +134,10 @@ def map_command(
         from probmap.datasets.carmen import BadLinesWarning
         from probmap.pipelines import MappingConfig, check_output_prefix, map_log, write_map
 
-        if not log.exists():
-            raise FileNotFoundError(f"{log}: no such file")
+        for path in logs:
+            if not path.exists() and not allow_partial:
+                raise FileNotFoundError(f"{path}: no such file")
+        log = logs[0]
         check_output_prefix(output)
         cfg = MappingConfig(
             resolution=resolution,
@@ -132,6 +148,21 @@ def map_command(
             max_clear_range=max_clear,
             skip_bad_lines=skip_bad_lines,
         )
+        if workers is not None or scheduler is not None or len(logs) > 1 or chunks > 1:
+            if method != "log-odds":
+                raise ValueError("--method map runs on one log, not on a Dask cluster")
+            from probmap.cli.distributed import run_map_distributed
+
+            run_map_distributed(
+                logs,
+                output,
+                cfg,
+                workers=workers,
+                scheduler=scheduler,
+                chunks=chunks,
+                allow_partial=allow_partial,
+            )
+            return
         if method not in ("log-odds", "map"):
             raise ValueError(f"--method must be 'log-odds' or 'map', got {method!r}")
         if method == "map":

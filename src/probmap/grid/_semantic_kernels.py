@@ -19,8 +19,12 @@ from probmap.grid._kernels import walk_next, walk_start
 
 @njit(cache=True, inline="always")
 def _add_clamped(lo, iy, ix, delta, lmin, lmax):  # pragma: no cover - compiled
-    """``lo[iy, ix, :] = clamp(lo[iy, ix, :] + delta)``, per class, in float64 then stored."""
-    for k in range(lo.shape[2]):
+    """``lo[iy, ix, :] = clamp(lo[iy, ix, :] + delta)``, per class, in float64 then stored.
+
+    ``lmin`` and ``lmax`` are tuples (up to 8 classes) or arrays: a tuple's length, the number of
+    classes, is part of the compiled type, so the class loop is unrolled and the bounds stay in
+    registers."""
+    for k in range(len(lmin)):
         v = lo[iy, ix, k] + delta[k]
         if v < lmin[k]:
             v = lmin[k]
@@ -71,12 +75,12 @@ def integrate_labelled_scans(
         ``p(m = k | z)`` for classes 1..K at an endpoint (class 0 gets the rest).
     d_hit : float64 (R, K)
         Increment of a cell hit by endpoints of that one row only: inverse term plus prior term.
-    d_free : float64 (K,)
+    d_free : tuple of K floats (K <= 8) or float64 (K,)
         Increment of a cell crossed by a beam.
     l_prior : float64 (K,)
         Prior log odds ``log p(k) / p(0)`` (subtracted from pooled inverse terms).
-    lmin, lmax : float64 (K,)
-        Clamping bounds per class.
+    lmin, lmax : tuples of K floats (K <= 8) or float64 (K,)
+        Clamping bounds per class (tuples: the kernel is compiled once per K).
     counts : int64 (4,)
         Accumulates hits, max-range readings, dropped readings and cell updates.
 
@@ -103,6 +107,7 @@ def integrate_labelled_scans(
     mixed = np.empty(cap, np.bool_)
     acc = np.empty((cap, n_cls))
     delta = np.empty(n_cls)
+    n_updates = 0  # a local counter: a store to counts[] per cell would stay in the loop
     for s in range(n_scans):
         sid = sid0 + s
         px = poses[s, 0]
@@ -204,7 +209,7 @@ def integrate_labelled_scans(
                 _add_clamped(lo, cell_y[j], cell_x[j], delta, lmin, lmax)
             else:
                 _add_clamped(lo, cell_y[j], cell_x[j], d_hit[row[j]], lmin, lmax)
-        counts[3] += n_cells
+        n_updates += n_cells
         # pass 3: free space along every beam up to (not including) its last cell
         for b in range(n_beams):
             if kind[b] == 0:
@@ -217,8 +222,9 @@ def integrate_labelled_scans(
                     if stamp[iy, ix] != sid:
                         stamp[iy, ix] = sid
                         _add_clamped(lo, iy, ix, d_free, lmin, lmax)
-                        counts[3] += 1
+                        n_updates += 1
                 ix, iy, tmx, tmy = walk_next(ix, iy, lx, ly, sx, sy, tmx, tmy, tdx, tdy)
+    counts[3] += n_updates
 
 
 @njit(cache=True)

@@ -336,6 +336,15 @@ def _per_scan(name: str, value: Any, n_scans: int, beams: int, tail: tuple[int, 
     return np.stack(out) if out else np.empty((0, beams, *tail))
 
 
+def _small(v: NDArray[np.float64]) -> Any:
+    """Per-class constants for the kernel: a tuple up to 8 classes (its length is part of the
+    compiled type, so the class loop is unrolled and the values stay in registers), an array
+    beyond (long tuples are indexed through memory, slower than an array)."""
+    if v.shape[0] <= 8:
+        return tuple(float(x) for x in v)
+    return np.ascontiguousarray(v, dtype=np.float64)
+
+
 class SemanticGrid:
     """A 2-D multi-class occupancy grid: per cell, float32 log odds of K classes against class 0.
 
@@ -739,10 +748,10 @@ class SemanticGrid:
             qrow,
             np.ascontiguousarray(q_hit),
             np.ascontiguousarray(d_hit),
-            np.ascontiguousarray(d_free),
+            _small(d_free),
             np.ascontiguousarray(self.l_prior),
-            self.l_min,
-            self.l_max,
+            _small(self.l_min),
+            _small(self.l_max),
             counts,
         )
         self._scans += S

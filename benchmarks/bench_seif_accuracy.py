@@ -1,0 +1,147 @@
+"""SEIF accuracy and consistency against EKF as a function of ``max_active``.
+
+Runs EKF and SEIF (max_active = 2, 4, 7, 10, 20, unbounded) on the same data in one process:
+simulation (3 seeds), MRCLAM Dataset 7 robots 1-3 (known ids) and Victoria Park (unknown ids).
+Prints one markdown table (robot RMSE against ground truth or GPS, landmark RMSE, pose ANEES,
+ms per step) and writes ``docs/seif_max_active.png`` (RMSE / EKF's and ANEES vs max_active).
+
+Run: ``PROBMAP_DATA=../shared/data python benchmarks/bench_seif_accuracy.py
+[--end-time S] [--vp-end-time S]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from probmap.datasets import registry  # noqa: E402
+from probmap.datasets.simulation import simulate_landmarks  # noqa: E402
+from probmap.slam.ekf import EKFSLAM  # noqa: E402
+from probmap.slam.pipeline import default_ekf_config, evaluate, run_landmark_slam  # noqa: E402
+from probmap.slam.seif import SeifConfig, build_seif  # noqa: E402
+
+SETTINGS: list[int | None] = [2, 4, 7, 10, 20, None]
+
+
+def _get(m: dict[str, Any], *keys: str) -> float:
+    v: Any = m
+    for k in keys:
+        if not isinstance(v, dict) or k not in v:
+            return float("nan")
+        v = v[k]
+    return float(v)
+
+
+def _run(ds: Any, max_active: int | None | str) -> dict[str, float]:
+    if max_active == "ekf":
+        est: Any = EKFSLAM(
+            ds.motion_model,
+            ds.measurement_model,
+            ds.initial_pose,
+            ds.initial_covariance,
+            default_ekf_config(ds),
+        )
+    else:
+        est = build_seif(ds, SeifConfig(max_active=max_active))  # type: ignore[arg-type]
+    m = evaluate(run_landmark_slam(est, ds), ds, with_dead_reckoning=False)
+    robot = _get(m, "ate", "translation_m", "rmse")
+    if np.isnan(robot):
+        robot = _get(m, "gps", "rmse_m")
+    return {
+        "robot": robot,
+        "landmark": _get(m, "landmarks", "error_m", "rmse"),
+        "anees": _get(m, "pose_nees", "mean"),
+        "ms": _get(m, "step_ms", "mean"),
+        "mapped": float(m["landmarks_mapped"]),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--end-time", type=float, default=300.0, help="MRCLAM seconds per robot")
+    ap.add_argument("--vp-end-time", type=float, default=150.0, help="Victoria Park seconds")
+    ap.add_argument("--plot", default="docs/seif_max_active.png")
+    args = ap.parse_args()
+    datasets: list[tuple[str, Any]] = [
+        (f"simulation seed {s}", simulate_landmarks(150, 600, seed=s, density=0.05))
+        for s in range(3)
+    ]
+    for r in (1, 2, 3):
+        datasets.append(
+            (f"MRCLAM robot {r}", registry.load("mrclam7", robot=r, end_time=args.end_time))
+        )
+    datasets.append(("Victoria Park", registry.load("victoria-park", end_time=args.vp_end_time)))
+    results: dict[str, dict[Any, dict[str, float]]] = {}
+
+    def label(k: Any) -> str:
+        return "EKF" if k == "ekf" else f"SEIF {k or 'unbounded'}"
+
+    for name, ds in datasets:
+        results[name] = {"ekf": _run(ds, "ekf")}
+        for k in SETTINGS:
+            results[name][k] = _run(ds, k)
+        print(
+            f"done {name}: "
+            + ", ".join(
+                f"{label(k)} {r['robot']:.3f}/{r['landmark']:.3f}/{r['anees']:.1f}"
+                for k, r in results[name].items()
+            ),
+            flush=True,
+        )
+
+    print()
+    print(
+        "| dataset | estimator | robot RMSE m | landmark RMSE m | pose ANEES | ms/step | mapped |"
+    )
+    print("|---|---|---:|---:|---:|---:|---:|")
+    for name, rows in results.items():
+        for k, r in rows.items():
+            print(
+                f"| {name} | {label(k)} | {r['robot']:.3f} | {r['landmark']:.3f} "
+                f"| {r['anees']:.2f} | {r['ms']:.3f} | {r['mapped']:.0f} |"
+            )
+    print("\nratio to EKF at max_active = 10 (robot RMSE, landmark RMSE):")
+    for name, rows in results.items():
+        e, s = rows["ekf"], rows[10]
+        print(f"  {name}: {s['robot'] / e['robot']:.2f}, {s['landmark'] / e['landmark']:.2f}")
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    xs = np.arange(len(SETTINGS))
+    for name, rows in results.items():
+        ratio = [rows[k]["robot"] / rows["ekf"]["robot"] for k in SETTINGS]
+        axes[0].plot(xs, ratio, marker="o", label=name)
+        anees = [rows[k]["anees"] for k in SETTINGS]
+        if not np.all(np.isnan(anees)):
+            axes[1].plot(xs, anees, marker="o", label=name)
+    for ax in axes:
+        ax.set_xticks(xs, [str(k) if k else "unbounded" for k in SETTINGS])
+        ax.set_xlabel("max_active")
+    axes[0].axhline(1.0, color="k", lw=0.8)
+    axes[0].axhline(1.3, color="r", lw=0.8, ls="--")
+    axes[0].set_ylabel("SEIF robot RMSE / EKF robot RMSE")
+    axes[1].axhline(3.0, color="k", lw=0.8)
+    axes[1].set_yscale("log")
+    axes[1].set_ylabel("pose ANEES (3 = consistent)")
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    out = Path(args.plot)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()

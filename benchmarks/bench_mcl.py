@@ -9,9 +9,13 @@ All figures are measured in one run on the simulated world of ``probmap demo --l
    beam endpoints rotated once per particle, float32 log-likelihood table) + ``resample``.
    numpy: the same three steps on (N, B) arrays with the float32 distance field.
 2. Likelihood-field weighting alone (particle-beam evaluations per second).
-3. Beam model (Table 6.1) with ray casting. Both implementations use the same method: sphere
-   tracing on the Euclidean distance transform (step = clearance - one cell diagonal, at least
-   half a cell, stop in the first occupied cell). numpy advances all unfinished rays together.
+3. Beam model (Table 6.1) with ray casting. probmap ``ray_casting="table"``: a lookup table of
+   expected ranges per cell x 360 heading bins, each entry cast exactly (Amanatides-Woo) from the
+   cell centre when first needed, then one lookup, one exp and one log per particle and beam.
+   numpy peers: (a) sphere tracing on the Euclidean distance transform (step = clearance - one
+   cell diagonal, at least half a cell, stop in the first occupied cell) over all unfinished rays
+   at once, (b) plain half-cell marching, (c) lookups in the same, already filled table. The
+   last row is probmap's sphere tracing (``ray_casting="sphere"``) against (a).
 
 Run:  python benchmarks/bench_mcl.py [--particles 10000] [--beam-particles 1000]
 """
@@ -139,6 +143,31 @@ def numpy_fixed_step_beam_model(parts, ranges, angles, occ, frame, zmax, params)
     return np.log(p)
 
 
+def numpy_table_beam_model(parts, ranges, angles, table, quantum, frame, zmax, params):
+    """Expected ranges read from the same (already filled) lookup table, then Table 6.1."""
+    from scipy.special import erf
+
+    z_hit, z_short, z_max, z_rand, sigma, lam = params
+    h, w, nk = table.shape
+    fx = (parts[:, 0] - frame.x0) / frame.resolution
+    fy = (parts[:, 1] - frame.y0) / frame.resolution
+    inside = (fx >= 0) & (fy >= 0) & (fx < w) & (fy < h)
+    ix = np.where(inside, fx, 0).astype(np.int64)[:, None]
+    iy = np.where(inside, fy, 0).astype(np.int64)[:, None]
+    k = np.floor((parts[:, 2:3] + angles[None, :]) / (2 * np.pi / nk) + 0.5).astype(np.int64) % nk
+    zs = np.where(inside[:, None], (table[iy, ix, k].astype(np.float64) - 1) * quantum, zmax)
+    z = np.minimum(np.broadcast_to(ranges, zs.shape), zmax)
+    eta = 0.5 * (erf((zmax - zs) / (sigma * math.sqrt(2))) + erf(zs / (sigma * math.sqrt(2))))
+    p_hit = np.exp(-0.5 * ((z - zs) / sigma) ** 2) / (math.sqrt(2 * math.pi) * sigma * eta)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        p_short = np.where(
+            (z <= zs) & (zs > 0), lam * np.exp(-lam * z) / (1 - np.exp(-lam * zs)), 0.0
+        )
+    below = z < zmax
+    p = np.where(below, z_hit * p_hit + z_short * p_short + z_rand / zmax, z_max)
+    return np.log(p)
+
+
 def timed(fn, repeats: int) -> float:
     """Seconds per call (best of three batches of ``repeats``)."""
     best = math.inf
@@ -249,21 +278,40 @@ def main() -> None:
     t_np_b = timed(np_b, 2)
     t_np_f = timed(np_f, 1)
 
+    # the lookup table of exact casts (filled for this particle cloud by the first call)
+    bt = BeamModel(world.spec, world.occupied, max_range=zmax, ray_casting="table")
+
+    def pm_t():
+        return bt.log_likelihood(bparts, ranges, angles)
+
+    def np_t():
+        return numpy_table_beam_model(
+            bparts, ranges, angles, bt.range_table, bt.range_quantum, bt.frame, zmax, bt.params
+        )
+
+    pm_t()
+    assert np.allclose(pm_t(), np_t(), atol=1e-6)
+    t_pm_t = timed(pm_t, 20)
+    t_np_t = timed(np_t, 5)
+
+    nba = nb * angles.size
     rows = [
         (f"whole update, likelihood field ({n} x {b})", n * b, t_pm, t_np),
         (f"likelihood-field weights only ({n} x {b})", n * b, t_pm_w, t_np_w),
+        (f"beam model ({nb} x {angles.size}), table vs numpy sphere tracing", nba, t_pm_t, t_np_b),
         (
-            f"beam model ({nb} x {angles.size}) vs numpy sphere tracing",
-            nb * angles.size,
-            t_pm_b,
-            t_np_b,
-        ),
-        (
-            f"beam model ({nb} x {angles.size}) vs numpy half-cell marching",
-            nb * angles.size,
-            t_pm_b,
+            f"beam model ({nb} x {angles.size}), table vs numpy half-cell marching",
+            nba,
+            t_pm_t,
             t_np_f,
         ),
+        (
+            f"beam model ({nb} x {angles.size}), table vs numpy on the same table",
+            nba,
+            t_pm_t,
+            t_np_t,
+        ),
+        (f"beam model ({nb} x {angles.size}), sphere vs numpy sphere tracing", nba, t_pm_b, t_np_b),
     ]
     print(
         "| measurement | probmap updates/s | numpy updates/s | probmap evals/s | numpy evals/s "

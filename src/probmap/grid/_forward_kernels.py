@@ -196,9 +196,229 @@ def beam_log_likelihood(z, zs, max_range, z_hit, z_short, z_max, z_rand, sigma, 
     return math.log(p)
 
 
+@njit(cache=True, inline="always")
+def cast_exact(occ, gx, gy, dx, dy, limit):
+    """Exact grid traversal (Amanatides-Woo) of one ray on a boolean map.
+
+    From grid point ``(gx, gy)`` (cell units: cell ``[iy, ix]`` spans ``[ix, ix + 1) x
+    [iy, iy + 1)``) along the unit direction ``(dx, dy)``, visit every cell the ray crosses in
+    order; return the ray parameter (cells) where it enters the first occupied cell (0 when it
+    starts in one), or ``limit`` when it leaves the map or passes ``limit`` first.
+    """
+    h, w = occ.shape
+    ix = int(math.floor(gx))
+    iy = int(math.floor(gy))
+    if dx > 0.0:
+        sx = 1
+        tdx = 1.0 / dx
+        tmx = (ix + 1.0 - gx) * tdx
+    elif dx < 0.0:
+        sx = -1
+        tdx = -1.0 / dx
+        tmx = (gx - ix) * tdx
+    else:
+        sx = 0
+        tdx = math.inf
+        tmx = math.inf
+    if dy > 0.0:
+        sy = 1
+        tdy = 1.0 / dy
+        tmy = (iy + 1.0 - gy) * tdy
+    elif dy < 0.0:
+        sy = -1
+        tdy = -1.0 / dy
+        tmy = (gy - iy) * tdy
+    else:
+        sy = 0
+        tdy = math.inf
+        tmy = math.inf
+    t = 0.0
+    while t < limit:
+        if ix < 0 or iy < 0 or ix >= w or iy >= h:
+            return limit
+        if occ[iy, ix]:
+            return t
+        if tmx < tmy:
+            t = tmx
+            ix += sx
+            tmx += tdx
+        else:
+            t = tmy
+            iy += sy
+            tmy += tdy
+    return limit
+
+
 @njit(cache=True)
-def beam_model_per_beam(poses, ranges, angles, offset, dist, x0, y0, res, max_range, params, out):
-    """Per-beam log-likelihoods of the beam model with ray casting (non-finite readings: 0)."""
+def exact_ranges(poses, angles, offset, occ, x0, y0, res, max_range, out):
+    """Expected ranges ``out[n, b]`` (m) by exact traversal from the sensor position."""
+    inv = 1.0 / res
+    limit = max_range * inv
+    for n in range(poses.shape[0]):
+        c = math.cos(poses[n, 2])
+        s = math.sin(poses[n, 2])
+        gx = (poses[n, 0] + c * offset[0] - s * offset[1] - x0) * inv
+        gy = (poses[n, 1] + s * offset[0] + c * offset[1] - y0) * inv
+        for b in range(angles.shape[0]):
+            a = poses[n, 2] + offset[2] + angles[b]
+            t = cast_exact(occ, gx, gy, math.cos(a), math.sin(a), limit)
+            out[n, b] = min(t * res, max_range)
+
+
+@njit(cache=True)
+def fill_entry(occ, table, ix, iy, k, width, res, max_range, quantum):
+    """Cast ``table[iy, ix, k]`` exactly from the cell centre at heading ``k * width``, store
+    ``1 + round(range / quantum)`` and return it (kept out of line: the lookups stay tight)."""
+    a = k * width
+    t = cast_exact(occ, ix + 0.5, iy + 0.5, math.cos(a), math.sin(a), max_range / res)
+    v = np.uint16(int(min(t * res, max_range) / quantum + 0.5) + 1)
+    table[iy, ix, k] = v
+    return v
+
+
+@njit(cache=True, inline="always")
+def heading_bin(angle, inv_width, nk):
+    """Index in ``[0, nk)`` of the heading bin nearest to ``angle`` (rad)."""
+    k = int(math.floor(angle * inv_width + 0.5))
+    if k < 0 or k >= nk:
+        k = k % nk  # Python semantics: in [0, nk) for negative k too
+    return k
+
+
+@njit(cache=True)
+def table_ranges(poses, angles, offset, occ, table, x0, y0, res, max_range, quantum, out):
+    """Expected ranges ``out[n, b]`` (m) from a ray-casting lookup table, filled on first use.
+
+    ``table[iy, ix, k]`` (uint16) holds ``1 + round(r / quantum)`` where ``r`` is the exact
+    range (:func:`cast_exact`) from the centre of cell ``[iy, ix]`` at heading
+    ``k * 2 pi / K``; 0 marks an entry not computed yet, which is cast and stored when first
+    asked for. A query takes the cell of the sensor position and the nearest heading bin. A
+    sensor outside the map reads ``max_range`` (as a ray that leaves the map does).
+    """
+    h, w, nk = table.shape
+    width = 2.0 * math.pi / nk
+    inv_width = nk / (2.0 * math.pi)
+    inv = 1.0 / res
+    nb = angles.shape[0]
+    for n in range(poses.shape[0]):
+        c = math.cos(poses[n, 2])
+        s = math.sin(poses[n, 2])
+        fx = (poses[n, 0] + c * offset[0] - s * offset[1] - x0) * inv
+        fy = (poses[n, 1] + s * offset[0] + c * offset[1] - y0) * inv
+        if not (fx >= 0.0 and fy >= 0.0 and fx < w and fy < h):
+            for b in range(nb):
+                out[n, b] = max_range
+            continue
+        ix = int(fx)
+        iy = int(fy)
+        heading = poses[n, 2] + offset[2]
+        for b in range(nb):
+            k = heading_bin(heading + angles[b], inv_width, nk)
+            v = table[iy, ix, k]
+            if v == 0:
+                v = fill_entry(occ, table, ix, iy, k, width, res, max_range, quantum)
+            out[n, b] = (v - 1) * quantum
+
+
+@njit(cache=True)
+def table_normalisers(quantum, max_range, params, scales):
+    """Per table value ``v`` (expected range ``zs = (v - 1) * quantum``) the factors of Table 6.1
+    that depend on ``zs`` alone, side by side (one cache line per lookup):
+    ``scales[v, 0] = z_hit / (sqrt(2 pi) sigma eta(zs))`` (0 where ``eta`` underflows) and
+    ``scales[v, 1] = z_short lambda / (1 - exp(-lambda zs))`` (0 at ``zs = 0``); the same
+    arithmetic as :func:`beam_log_likelihood`."""
+    z_hit, z_short, sigma, lam = params[0], params[1], params[4], params[5]
+    k = sigma * math.sqrt(2.0)
+    scales[0, 0] = 0.0
+    scales[0, 1] = 0.0
+    for v in range(1, scales.shape[0]):
+        zs = (v - 1) * quantum
+        if zs > 8.0 * sigma and max_range - zs > 8.0 * sigma:
+            norm = 1.0
+        else:
+            norm = 0.5 * (math.erf((max_range - zs) / k) + math.erf(zs / k))
+        scales[v, 0] = z_hit / (sigma * math.sqrt(2.0 * math.pi) * norm) if norm > 1e-300 else 0.0
+        scales[v, 1] = z_short * lam / (1.0 - math.exp(-lam * zs)) if zs > 0.0 else 0.0
+
+
+@njit(cache=True)
+def table_beam_model(
+    poses,
+    ranges,
+    angles,
+    offset,
+    occ,
+    table,
+    scales,
+    x0,
+    y0,
+    res,
+    max_range,
+    quantum,
+    params,
+    out,
+):
+    """Per-beam log-likelihoods of the beam model (Table 6.1) with expected ranges from the
+    lookup table (see :func:`table_ranges`) and the ``zs``-only factors from
+    :func:`table_normalisers`: one exponential and one logarithm per particle and beam."""
+    z_max, z_rand, sigma, lam = params[2], params[3], params[4], params[5]
+    h, w, nk = table.shape
+    width = 2.0 * math.pi / nk
+    inv = 1.0 / res
+    nb = angles.shape[0]
+    # per-beam constants: clipped reading, exp(-lambda z), the constant terms
+    zc = np.empty(nb)
+    decay = np.empty(nb)
+    kind = np.empty(nb, dtype=np.int64)  # 0 ordinary, 1 max range, 2 non-finite
+    log_max = math.log(z_max) if z_max > 0.0 else -math.inf
+    for b in range(nb):
+        r = ranges[b]
+        kind[b] = 2 if not math.isfinite(r) else (1 if r >= max_range else 0)
+        zc[b] = min(r, max_range) if kind[b] != 2 else 0.0
+        decay[b] = math.exp(-lam * zc[b])
+    floor = z_rand / max_range
+    inv2s2 = 0.5 / (sigma * sigma)
+    zs_of = np.empty(nb, dtype=np.int64)
+    outside = int(max_range / quantum + 0.5) + 1
+    inv_width = nk / (2.0 * math.pi)
+    for n in range(poses.shape[0]):
+        c = math.cos(poses[n, 2])
+        s = math.sin(poses[n, 2])
+        fx = (poses[n, 0] + c * offset[0] - s * offset[1] - x0) * inv
+        fy = (poses[n, 1] + s * offset[0] + c * offset[1] - y0) * inv
+        inside = fx >= 0.0 and fy >= 0.0 and fx < w and fy < h
+        heading = poses[n, 2] + offset[2]
+        ix = int(fx) if inside else 0
+        iy = int(fy) if inside else 0
+        for b in range(nb):
+            if inside:
+                k = heading_bin(heading + angles[b], inv_width, nk)
+                v = table[iy, ix, k]
+                if v == 0:
+                    v = fill_entry(occ, table, ix, iy, k, width, res, max_range, quantum)
+                zs_of[b] = v
+            else:
+                zs_of[b] = outside
+        for b in range(nb):
+            if kind[b] == 2:
+                out[n, b] = 0.0
+                continue
+            if kind[b] == 1:
+                out[n, b] = log_max
+                continue
+            v = zs_of[b]
+            zs = (v - 1) * quantum
+            d = zc[b] - zs
+            p = scales[v, 0] * math.exp(-inv2s2 * d * d) + floor
+            if zc[b] <= zs:
+                p += scales[v, 1] * decay[b]
+            out[n, b] = math.log(p) if p > 0.0 else -math.inf
+
+
+@njit(cache=True)
+def beam_mixture(zs, ranges, max_range, params, out):
+    """Per-beam log-likelihoods ``out[n, b]`` of readings ``ranges[b]`` given expected ranges
+    ``zs[n, b]`` (Table 6.1; readings clipped to ``max_range``; non-finite readings: 0)."""
     z_hit, z_short, z_max, z_rand, sigma, lam = (
         params[0],
         params[1],
@@ -207,40 +427,13 @@ def beam_model_per_beam(poses, ranges, angles, offset, dist, x0, y0, res, max_ra
         params[4],
         params[5],
     )
-    nb = angles.shape[0]
-    cb = np.empty(nb)
-    sb = np.empty(nb)
-    ok = np.empty(nb, dtype=np.bool_)
-    for b in range(nb):
-        cb[b] = math.cos(angles[b] + offset[2])
-        sb[b] = math.sin(angles[b] + offset[2])
-        ok[b] = math.isfinite(ranges[b])
-    dirx = np.empty(nb)
-    diry = np.empty(nb)
-    t = np.empty(nb)
-    live = np.empty(nb, dtype=np.int64)
-    zs = np.empty(nb)
-    for n in range(poses.shape[0]):
-        c = math.cos(poses[n, 2])
-        s = math.sin(poses[n, 2])
-        sx = poses[n, 0] + c * offset[0] - s * offset[1]
-        sy = poses[n, 1] + s * offset[0] + c * offset[1]
+    nb = ranges.shape[0]
+    for n in range(zs.shape[0]):
         for b in range(nb):
-            dirx[b] = c * cb[b] - s * sb[b]
-            diry[b] = s * cb[b] + c * sb[b]
-        cast_fan(dist, x0, y0, res, sx, sy, dirx, diry, max_range, t, live, zs)
-        for b in range(nb):
-            if not ok[b]:
+            r = ranges[b]
+            if not math.isfinite(r):
                 out[n, b] = 0.0
                 continue
             out[n, b] = beam_log_likelihood(
-                min(ranges[b], max_range),
-                zs[b],
-                max_range,
-                z_hit,
-                z_short,
-                z_max,
-                z_rand,
-                sigma,
-                lam,
+                min(r, max_range), zs[n, b], max_range, z_hit, z_short, z_max, z_rand, sigma, lam
             )

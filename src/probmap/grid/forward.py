@@ -6,9 +6,20 @@
   log-likelihood ``log(z_hit * N(d; 0, sigma_hit^2) + z_rand / z_max)`` is tabulated from it,
   so weighting a particle costs one rotation and one table lookup per beam.
 - :class:`BeamModel`: the beam model (Table 6.1) with the expected range found by ray
-  casting. Method: sphere tracing on the same Euclidean distance transform (the ray advances
-  by the clearance to the nearest occupied cell minus one cell diagonal, at least half a
-  cell, and stops in the first occupied cell).
+  casting, by one of three methods (``ray_casting``):
+
+  * ``"sphere"`` (default): sphere tracing on the same Euclidean distance transform (the ray
+    advances by the clearance to the nearest occupied cell minus one cell diagonal, at least
+    half a cell, and stops in the first occupied cell); overshoots a face by under half a cell.
+  * ``"exact"``: exact grid traversal (Amanatides-Woo) on the boolean map, the range to where
+    the ray enters the first occupied cell.
+  * ``"table"``: a ray-casting lookup table, expected range per cell x heading bin (``K``
+    bins over 360 degrees, uint16, ``H * W * K * 2`` bytes of address space), each entry cast
+    exactly from the cell centre at the bin's heading when first needed (memory pages are only
+    touched for the cells particles visit). A query snaps the sensor to its cell centre (at most
+    ``res / sqrt(2)`` away) and its beam heading to the nearest bin (at most ``pi / K`` off), so
+    the range error grows with range and incidence: see ``tests/grid/test_forward.py`` for the
+    measured error against exact casting.
 
 Both work on a plain ``(spec, occupancy)`` pair, where ``spec`` is anything with
 ``resolution`` (m), ``origin`` (x0, y0 of the lower-left corner of cell ``[0, 0]``, m) and
@@ -30,6 +41,8 @@ from numpy.typing import ArrayLike, NDArray
 from probmap.grid import _forward_kernels as _k
 
 __all__ = ["BeamModel", "GridGeometry", "LikelihoodField", "occupied_mask"]
+
+_RAY_CASTING = ("sphere", "exact", "table")
 
 
 class GridGeometry(Protocol):
@@ -301,6 +314,12 @@ class BeamModel:
         Rate (1/m) of the exponential short-reading component.
     occupied_threshold : float
         Probability above which a cell is an obstacle.
+    ray_casting : {"sphere", "exact", "table"}
+        How expected ranges are found (see the module docstring): sphere tracing on the
+        distance transform, exact grid traversal, or the lookup table of exact casts.
+    heading_bins : int
+        Heading bins ``K`` of the lookup table (``"table"`` only); the bin width is
+        ``2 pi / K``.
     """
 
     def __init__(
@@ -316,6 +335,8 @@ class BeamModel:
         sigma_hit: float = 0.2,
         lambda_short: float = 0.1,
         occupied_threshold: float = 0.65,
+        ray_casting: str = "sphere",
+        heading_bins: int = 360,
     ) -> None:
         frame = _frame(spec)
         occupied = occupied_mask(occupancy, occupied_threshold)
@@ -323,6 +344,10 @@ class BeamModel:
             raise ValueError(
                 f"occupancy shape {occupied.shape} does not match spec shape {frame.shape}"
             )
+        if ray_casting not in _RAY_CASTING:
+            raise ValueError(f"ray_casting must be one of {_RAY_CASTING}, got {ray_casting!r}")
+        if not (isinstance(heading_bins, int) and 4 <= heading_bins <= 65536):
+            raise ValueError(f"heading_bins must be an integer in [4, 65536], got {heading_bins!r}")
         weights = (z_hit, z_short, z_max, z_rand)
         if any(w < 0 for w in weights) or sum(weights) <= 0:
             raise ValueError(f"mixture weights must be non-negative, not all 0: {weights}")
@@ -341,17 +366,67 @@ class BeamModel:
         self.params = np.array(
             [z_hit, z_short, z_max, z_rand, sigma_hit, lambda_short], dtype=np.float64
         )
+        self.ray_casting = ray_casting
+        self.heading_bins = heading_bins
+        # table entries store 1 + round(range / quantum) in uint16 (0 = not cast yet)
+        self.range_quantum = self.max_range / 65534.0
+        self._table: NDArray[np.uint16] | None = None
+        self._normalisers: NDArray[np.float64] | None = None
+
+    @property
+    def range_table(self) -> NDArray[np.uint16]:
+        """The ``(H, W, K)`` lookup table of ``ray_casting="table"`` (0 = not cast yet).
+
+        Allocated zeroed on first use; the operating system maps its pages only when written,
+        so memory grows with the cells visited, up to ``H * W * K * 2`` bytes.
+        """
+        if self._table is None:
+            h, w = self.frame.shape
+            self._table = np.zeros((h, w, self.heading_bins), dtype=np.uint16)
+        return self._table
 
     def expected_ranges(
         self, poses: ArrayLike, angles: ArrayLike, sensor_offset: ArrayLike = (0.0, 0.0, 0.0)
     ) -> NDArray[np.float64]:
-        """Ray-cast ranges ``z*`` (m) for every pose and beam, shape ``(N, B)``."""
+        """Ray-cast ranges ``z*`` (m) for every pose and beam, shape ``(N, B)``.
+
+        Parameters
+        ----------
+        poses : (N, 3) array_like
+            Robot poses (x, y, theta) in the map frame (m, rad).
+        angles : (B,) array_like
+            Beam angles (rad) in the sensor frame.
+        sensor_offset : (3,) array_like
+            Sensor pose in the robot frame.
+        """
         p = _poses_array(poses)
         a = np.ascontiguousarray(angles, dtype=np.float64)
         _, a, o = _scan_arrays(np.zeros_like(a), a, sensor_offset)
+        return self._expected_ranges(p, a, o)
+
+    def _expected_ranges(
+        self, p: NDArray[np.float64], a: NDArray[np.float64], o: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
         out = np.empty((p.shape[0], a.shape[0]))
         f = self.frame
-        _k.cast_rays(p, a, o, self.distance, f.x0, f.y0, f.resolution, self.max_range, out)
+        if self.ray_casting == "sphere":
+            _k.cast_rays(p, a, o, self.distance, f.x0, f.y0, f.resolution, self.max_range, out)
+        elif self.ray_casting == "exact":
+            _k.exact_ranges(p, a, o, self.occupied, f.x0, f.y0, f.resolution, self.max_range, out)
+        else:
+            _k.table_ranges(
+                p,
+                a,
+                o,
+                self.occupied,
+                self.range_table,
+                f.x0,
+                f.y0,
+                f.resolution,
+                self.max_range,
+                self.range_quantum,
+                out,
+            )
         return out
 
     def log_likelihood(
@@ -367,22 +442,39 @@ class BeamModel:
         """
         p = _poses_array(poses)
         r, a, o = _scan_arrays(ranges, angles, sensor_offset)
-        out = np.empty((p.shape[0], r.shape[0]))
-        f = self.frame
-        _k.beam_model_per_beam(
-            p,
-            r,
-            a,
-            o,
-            self.distance,
-            f.x0,
-            f.y0,
-            f.resolution,
-            self.max_range,
-            self.params,
-            out,
-        )
+        if self.ray_casting == "table":
+            scales = self._table_normalisers()
+            out = np.empty((p.shape[0], r.shape[0]))
+            f = self.frame
+            _k.table_beam_model(
+                p,
+                r,
+                a,
+                o,
+                self.occupied,
+                self.range_table,
+                scales,
+                f.x0,
+                f.y0,
+                f.resolution,
+                self.max_range,
+                self.range_quantum,
+                self.params,
+                out,
+            )
+            return out
+        zs = self._expected_ranges(p, a, o)
+        out = np.empty_like(zs)
+        _k.beam_mixture(zs, r, self.max_range, self.params, out)
         return out
+
+    def _table_normalisers(self) -> NDArray[np.float64]:
+        """Factors of Table 6.1 that depend on the expected range alone, per table value."""
+        if self._normalisers is None:
+            scales = np.empty((65536, 2))
+            _k.table_normalisers(self.range_quantum, self.max_range, self.params, scales)
+            self._normalisers = scales
+        return self._normalisers
 
     def log_likelihood_sum(
         self,

@@ -169,3 +169,11 @@ def test_map_several_logs_on_a_local_dask_cluster(tmp_path):
     res = run("map", str(a), str(bad), "-o", str(tmp_path / "n"), "--workers", "1")
     assert res.exit_code == 1 and "bad.clf" in res.output
     assert not list(tmp_path.glob("n.*"))
+
+
+def test_demo_semantic_and_localize_flags(tmp_path):
+    res = run("demo", "--semantic", "-o", str(tmp_path / "s"))
+    assert res.exit_code == 0, res.output
+    assert "IoU" in res.output and (tmp_path / "s" / "semantic.png").exists()
+    res = run("demo", "--semantic", "--localize", "-o", str(tmp_path / "x"))
+    assert res.exit_code == 1 and "choose one" in res.output

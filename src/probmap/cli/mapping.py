@@ -203,10 +203,21 @@ def demo_command(
     localize: bool = typer.Option(
         False, "--localize", help="Run Monte Carlo localization on the simulated world instead."
     ),
+    semantic: bool = typer.Option(
+        False, "--semantic", help="Map a labelled simulated world into a semantic grid instead."
+    ),
 ) -> None:
     """Map a simulated floor plan (no download) and report its accuracy against the truth."""
     with cli_errors():
         output.mkdir(parents=True, exist_ok=True)
+        if localize and semantic:
+            raise ValueError("choose one of --localize and --semantic")
+        if semantic:
+            from probmap.cli.semantic import print_semantic_demo
+            from probmap.grid.semantic_sim import run_semantic_demo
+
+            print_semantic_demo(run_semantic_demo(output))
+            return
         if localize:
             from probmap.filters.demo import run_localize_demo
 

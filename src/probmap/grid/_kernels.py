@@ -20,6 +20,21 @@ _INF = np.inf
 
 
 @njit(cache=True, inline="always")
+def _axis_setup(g0, d):  # pragma: no cover - compiled
+    """Per-axis set-up of the grid walk for a ray from ``g0`` (cell units) with extent ``d``
+    along the axis: ``(step, t_delta, t_max)``, the step direction, the ray parameter between two
+    boundaries and the parameter of the first boundary crossed."""
+    i = math.floor(g0)
+    if d > 0.0:
+        td = 1.0 / d
+        return 1, td, (i + 1.0 - g0) * td
+    if d < 0.0:
+        td = -1.0 / d
+        return -1, td, (g0 - i) * td
+    return 0, _INF, _INF
+
+
+@njit(cache=True, inline="always")
 def _walk_update(
     lo, stamp, sid, gx0, gy0, gx1, gy1, include_last, delta, lmin, lmax
 ):  # pragma: no cover - compiled
@@ -27,39 +42,7 @@ def _walk_update(
     to each cell not yet stamped with ``sid``; the last cell only if ``include_last``.
     Returns the number of cells updated."""
     h, w = lo.shape
-    ix = int(math.floor(gx0))
-    iy = int(math.floor(gy0))
-    ex = int(math.floor(gx1))
-    ey = int(math.floor(gy1))
-    dx = gx1 - gx0
-    dy = gy1 - gy0
-    if dx > 0.0:
-        sx = 1
-        tdx = 1.0 / dx
-        tmx = (ix + 1.0 - gx0) * tdx
-    elif dx < 0.0:
-        sx = -1
-        tdx = -1.0 / dx
-        tmx = (gx0 - ix) * tdx
-    else:
-        sx = 0
-        tdx = _INF
-        tmx = _INF
-    if dy > 0.0:
-        sy = 1
-        tdy = 1.0 / dy
-        tmy = (iy + 1.0 - gy0) * tdy
-    elif dy < 0.0:
-        sy = -1
-        tdy = -1.0 / dy
-        tmy = (gy0 - iy) * tdy
-    else:
-        sy = 0
-        tdy = _INF
-        tmy = _INF
-    n = abs(ex - ix) + abs(ey - iy)
-    if include_last:
-        n += 1
+    ix, iy, ex, ey, sx, sy, tmx, tmy, tdx, tdy, n = walk_start(gx0, gy0, gx1, gy1, include_last)
     count = 0
     for _ in range(n):
         if 0 <= ix < w and 0 <= iy < h:
@@ -72,19 +55,7 @@ def _walk_update(
                     v = lmax
                 lo[iy, ix] = v
                 count += 1
-        # step to the next cell; never past the last cell on either axis
-        if ix == ex:
-            iy += sy
-            tmy += tdy
-        elif iy == ey:
-            ix += sx
-            tmx += tdx
-        elif tmx < tmy:
-            ix += sx
-            tmx += tdx
-        else:
-            iy += sy
-            tmy += tdy
+        ix, iy, tmx, tmy = walk_next(ix, iy, ex, ey, sx, sy, tmx, tmy, tdx, tdy)
     return count
 
 
@@ -228,30 +199,8 @@ def cast_rays(occ, ox, oy, res, poses, angles, max_range, out):  # pragma: no co
             dy = math.sin(a)
             ix = int(math.floor(px))
             iy = int(math.floor(py))
-            if dx > 0.0:
-                sx = 1
-                tdx = 1.0 / dx
-                tmx = (ix + 1.0 - px) * tdx
-            elif dx < 0.0:
-                sx = -1
-                tdx = -1.0 / dx
-                tmx = (px - ix) * tdx
-            else:
-                sx = 0
-                tdx = _INF
-                tmx = _INF
-            if dy > 0.0:
-                sy = 1
-                tdy = 1.0 / dy
-                tmy = (iy + 1.0 - py) * tdy
-            elif dy < 0.0:
-                sy = -1
-                tdy = -1.0 / dy
-                tmy = (py - iy) * tdy
-            else:
-                sy = 0
-                tdy = _INF
-                tmy = _INF
+            sx, tdx, tmx = _axis_setup(px, dx)
+            sy, tdy, tmy = _axis_setup(py, dy)
             limit = max_range / res
             t = 0.0
             hit = max_range
@@ -287,32 +236,8 @@ def walk_start(gx0, gy0, gx1, gy1, include_last):  # pragma: no cover - compiled
     iy = int(math.floor(gy0))
     ex = int(math.floor(gx1))
     ey = int(math.floor(gy1))
-    dx = gx1 - gx0
-    dy = gy1 - gy0
-    if dx > 0.0:
-        sx = 1
-        tdx = 1.0 / dx
-        tmx = (ix + 1.0 - gx0) * tdx
-    elif dx < 0.0:
-        sx = -1
-        tdx = -1.0 / dx
-        tmx = (gx0 - ix) * tdx
-    else:
-        sx = 0
-        tdx = _INF
-        tmx = _INF
-    if dy > 0.0:
-        sy = 1
-        tdy = 1.0 / dy
-        tmy = (iy + 1.0 - gy0) * tdy
-    elif dy < 0.0:
-        sy = -1
-        tdy = -1.0 / dy
-        tmy = (gy0 - iy) * tdy
-    else:
-        sy = 0
-        tdy = _INF
-        tmy = _INF
+    sx, tdx, tmx = _axis_setup(gx0, gx1 - gx0)
+    sy, tdy, tmy = _axis_setup(gy0, gy1 - gy0)
     n = abs(ex - ix) + abs(ey - iy)
     if include_last:
         n += 1

@@ -101,7 +101,7 @@ class GridSlamConfig:
     field_radius: int = 3
     likelihood_sigma: float = 0.075
     likelihood_skip: int = 2
-    weight_gain: float = 3.0
+    weight_gain: float = 10.0
     proposal_delta: tuple[float, float] = (0.01, 0.005)
     odometry_noise: tuple[float, float, float, float] = (0.1, 0.2, 0.1, 0.2)
     min_score: float = 0.25

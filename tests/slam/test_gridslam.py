@@ -175,7 +175,7 @@ def world():
 
 
 def _drift(world, poses):
-    """Error of the final pose relative to the first, metres (loop length ~90 m)."""
+    """Error of the final pose relative to the first, metres (a 139 m tour)."""
     est = between(poses[0], poses[-1])
     true = between(world.poses[0], world.poses[-1])
     return float(np.hypot(*(est[:2] - true[:2])))

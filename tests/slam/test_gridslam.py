@@ -149,12 +149,15 @@ def test_integrate_window_matches_reference():
     out = lo.copy()
     stamp = np.zeros(lo.shape, np.uint8)
     p = args[3]
+    touched = np.zeros((6, 7), np.uint8)  # 10-cell tiles
     K.integrate_window(
         out, stamp, -1.0, -0.5, 0.05, p[0], p[1], p[2], ranges, angles, 8.0, 1.0, 0.85, -0.4,
-        -2.0, 3.5,
+        -2.0, 3.5, 10, touched,
     )  # fmt: skip
     np.testing.assert_allclose(out, ref, atol=1e-6)
     assert (stamp > 0).sum() == np.count_nonzero(out != lo)
+    changed = (out != lo).reshape(6, 10, 7, 10).any(axis=(1, 3))
+    np.testing.assert_array_equal(touched.astype(bool), changed)
 
 
 def test_interpolate_trajectory_composes_odometry_increments():

@@ -117,6 +117,10 @@ def correlative_search(
 
     ``out`` receives the best ``(x, y, theta, score)``; of equal scores the first visited wins
     (loops: angle, then x, then y, each from the most negative offset).
+
+    Per heading the cell columns of every point at every x offset (and the rows at every y
+    offset) are computed once, so the innermost loop is a table look-up per point (Olson 2009's
+    decomposition of the search into rotations and translations).
     """
     nl = int(round(lin_window / lin_step))
     na = int(round(ang_window / ang_step))
@@ -126,34 +130,125 @@ def correlative_search(
     by = y0
     bt = th0
     n = pts.shape[0]
-    rx = np.empty(n)
-    ry = np.empty(n)
+    m = 2 * nl + 1
+    cols = np.empty((m, n), dtype=np.int64)
+    rows = np.empty((m, n), dtype=np.int64)
     for ka in range(-na, na + 1):
         th = th0 + ka * ang_step
         c = math.cos(th)
         s = math.sin(th)
         for i in range(n):
-            rx[i] = c * pts[i, 0] - s * pts[i, 1]
-            ry[i] = s * pts[i, 0] + c * pts[i, 1]
-        for kx in range(-nl, nl + 1):
-            x = x0 + kx * lin_step
-            for ky in range(-nl, nl + 1):
-                y = y0 + ky * lin_step
+            rx = c * pts[i, 0] - s * pts[i, 1]
+            ry = s * pts[i, 0] + c * pts[i, 1]
+            for k in range(m):
+                # the same expressions as a direct evaluation, so scores are identical
+                ix = math.floor((x0 + (k - nl) * lin_step + rx - ox) / res)
+                iy = math.floor((y0 + (k - nl) * lin_step + ry - oy) / res)
+                cols[k, i] = ix if 0 <= ix < w else -1
+                rows[k, i] = iy if 0 <= iy < h else -1
+        for kx in range(m):
+            cx = cols[kx]
+            for ky in range(m):
+                ry_ = rows[ky]
                 total = 0.0
                 for i in range(n):
-                    ix = math.floor((x + rx[i] - ox) / res)
-                    iy = math.floor((y + ry[i] - oy) / res)
-                    if 0 <= ix < w and 0 <= iy < h:
+                    ix = cx[i]
+                    iy = ry_[i]
+                    if ix >= 0 and iy >= 0:
                         total += field[iy, ix]
                 if total > best:  # strictly better: the first of equals wins
                     best = total
-                    bx = x
-                    by = y
+                    bx = x0 + (kx - nl) * lin_step
+                    by = y0 + (ky - nl) * lin_step
                     bt = th
     out[0] = bx
     out[1] = by
     out[2] = bt
     out[3] = best
+
+
+@njit(cache=True)
+def solve3(A, b, out):  # pragma: no cover - compiled
+    """Solve the 3 x 3 system ``A out = b`` by Gaussian elimination with partial pivoting;
+    returns False when ``A`` is singular."""
+    M = np.empty((3, 4))
+    for i in range(3):
+        for j in range(3):
+            M[i, j] = A[i, j]
+        M[i, 3] = b[i]
+    for col in range(3):
+        piv = col
+        for r in range(col + 1, 3):
+            if abs(M[r, col]) > abs(M[piv, col]):
+                piv = r
+        if M[piv, col] == 0.0:
+            return False
+        if piv != col:
+            for j in range(4):
+                t = M[col, j]
+                M[col, j] = M[piv, j]
+                M[piv, j] = t
+        for r in range(col + 1, 3):
+            f = M[r, col] / M[col, col]
+            for j in range(col, 4):
+                M[r, j] -= f * M[col, j]
+    for i in range(2, -1, -1):
+        acc = M[i, 3]
+        for j in range(i + 1, 3):
+            acc -= M[i, j] * out[j]
+        out[i] = acc / M[i, i]
+    return True
+
+
+@njit(cache=True)
+def refine_pose(
+    field, ox, oy, res, pts, x, y, th, iterations, max_lin, max_ang, pose, H
+):  # pragma: no cover - compiled
+    """Gauss-Newton refinement (see :func:`probmap.slam.scan_matching.refine`) in one call.
+
+    Writes the final pose into ``pose`` (3,) and its ``J^T J`` into ``H`` (3, 3); returns the
+    iterations taken and the final ``sum r^2``.
+    """
+    g = np.empty(3)
+    g2 = np.empty(3)
+    H2 = np.empty((3, 3))
+    A = np.empty((3, 3))
+    step = np.empty(3)
+    px = x
+    py = y
+    pt = th
+    _, sq = gauss_newton_terms(field, ox, oy, res, pts, px, py, pt, g, H)
+    taken = 0
+    for it in range(1, iterations + 1):
+        for a in range(3):
+            for b in range(3):
+                A[a, b] = H[a, b] + (1e-9 if a == b else 0.0)
+            A[a, a] += 1e-6 * H[a, a]
+            g2[a] = -g[a]
+        if not solve3(A, g2, step):
+            break
+        shrink = max(math.hypot(step[0], step[1]) / max_lin, abs(step[2]) / max_ang)
+        if shrink > 1.0:
+            for a in range(3):
+                step[a] /= shrink
+        cx = px + step[0]
+        cy = py + step[1]
+        ct = pt + step[2]
+        _, sq2 = gauss_newton_terms(field, ox, oy, res, pts, cx, cy, ct, g2, H2)
+        if not sq2 < sq:
+            break
+        taken = it
+        px, py, pt, sq = cx, cy, ct, sq2
+        for a in range(3):
+            g[a] = g2[a]
+            for b in range(3):
+                H[a, b] = H2[a, b]
+        if abs(step[0]) + abs(step[1]) < 1e-5 and abs(step[2]) < 1e-5:
+            break
+    pose[0] = px
+    pose[1] = py
+    pose[2] = pt
+    return taken, sq
 
 
 @njit(cache=True)
@@ -174,13 +269,16 @@ def integrate_window(
     l_miss,
     l_min,
     l_max,
+    tile,
+    touched,
 ):  # pragma: no cover - compiled
     """Integrate one scan into a dense log-odds window (Table 9.1), each cell once.
 
     Endpoints (``r < max_range``) get ``l_hit`` first, then cells crossed by any beam and not
     hit get ``l_miss`` (hit wins). Max-range beams clear up to ``clear_range``. ``stamp`` (same
-    shape, zero on entry) marks the cells updated (1 = hit, 2 = miss). Cells outside the window
-    are ignored.
+    shape, zero on entry) marks the cells updated (1 = hit, 2 = miss); ``touched[iy // tile,
+    ix // tile]`` is set to 1 for every updated cell (zero it on entry). Cells outside the
+    window are ignored.
     """
     h, w = lo.shape
     sx = (x - ox) / res
@@ -195,6 +293,7 @@ def integrate_window(
         iy = math.floor(sy + r * math.sin(a) / res)
         if 0 <= ix < w and 0 <= iy < h and stamp[iy, ix] == 0:
             stamp[iy, ix] = 1
+            touched[iy // tile, ix // tile] = 1
             v = lo[iy, ix] + l_hit
             lo[iy, ix] = min(max(v, l_min), l_max)
     for b in range(nb):
@@ -223,6 +322,7 @@ def integrate_window(
                 break
             if 0 <= ix < w and 0 <= iy < h and stamp[iy, ix] == 0:
                 stamp[iy, ix] = 2
+                touched[iy // tile, ix // tile] = 1
                 v = lo[iy, ix] + l_miss
                 lo[iy, ix] = min(max(v, l_min), l_max)
 
@@ -234,25 +334,31 @@ def splat_field(lo, threshold, radius, inv_two_sigma2_cells, out):  # pragma: no
 
     Each occupied cell writes the maximum of its kernel into its neighbourhood, so the cost is
     (occupied cells) x (2 radius + 1)^2 instead of a distance transform of the whole window.
+    The kernel is tabulated once (0 marks offsets beyond ``radius``).
     """
     h, w = lo.shape
     for iy in range(h):
         for ix in range(w):
             out[iy, ix] = 0.0
     r2 = radius * radius
+    side = 2 * radius + 1
+    kern = np.zeros((side, side))
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            d2 = dx * dx + dy * dy
+            if d2 <= r2:
+                kern[dy + radius, dx + radius] = math.exp(-d2 * inv_two_sigma2_cells)
     for iy in range(h):
         for ix in range(w):
             if lo[iy, ix] > threshold:
-                for dy in range(-radius, radius + 1):
-                    y = iy + dy
-                    if y < 0 or y >= h:
-                        continue
-                    for dx in range(-radius, radius + 1):
-                        x = ix + dx
-                        d2 = dx * dx + dy * dy
-                        if x < 0 or x >= w or d2 > r2:
-                            continue
-                        v = math.exp(-d2 * inv_two_sigma2_cells)
+                y_lo = max(iy - radius, 0)
+                y_hi = min(iy + radius, h - 1)
+                x_lo = max(ix - radius, 0)
+                x_hi = min(ix + radius, w - 1)
+                for y in range(y_lo, y_hi + 1):
+                    krow = y - iy + radius
+                    for x in range(x_lo, x_hi + 1):
+                        v = kern[krow, x - ix + radius]
                         if v > out[y, x]:
                             out[y, x] = v
 

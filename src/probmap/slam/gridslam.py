@@ -263,14 +263,13 @@ class GridSlam:
         cfg = self.config
         stamp = np.zeros(lo.shape, dtype=np.uint8)
         ox, oy = self.maps.window_origin(tr[0], tr[1])
+        T = cfg.tile
+        touched = np.zeros((lo.shape[0] // T, lo.shape[1] // T), dtype=np.uint8)
         K.integrate_window(
             lo, stamp, ox, oy, cfg.resolution, pose[0], pose[1], pose[2], ranges, self.angles,
             self.max_range, cfg.max_clear_range, self._l_hit, self._l_miss, self._l_min,
-            self._l_max,
+            self._l_max, T, touched,
         )  # fmt: skip
-        T = cfg.tile
-        ny, nx = lo.shape[0] // T, lo.shape[1] // T
-        touched = np.asarray(stamp.reshape(ny, T, nx, T).any(axis=(1, 3)))
         self.maps.scatter(k, tr, lo, touched)
 
     def _motion_log_prior(self, predicted: NDArray, poses: NDArray, u: NDArray) -> NDArray:

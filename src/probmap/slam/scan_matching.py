@@ -263,28 +263,13 @@ def refine(
 
     pts, p = _check(field, points, initial)
     ox, oy = field.origin
-    res = field.resolution
-    g = np.zeros(3)
+    pose = np.empty(3)
     H = np.zeros((3, 3))
-    _, sq = K.gauss_newton_terms(field.values, ox, oy, res, pts, p[0], p[1], p[2], g, H)
-    it = 0
-    for it in range(1, iterations + 1):
-        step = -np.linalg.solve(H + 1e-9 * np.eye(3) + 1e-6 * np.diag(np.diag(H)), g)
-        shrink = max(math.hypot(step[0], step[1]) / max_step[0], abs(step[2]) / max_step[1])
-        if shrink > 1.0:
-            step = step / shrink
-        cand = p + step
-        g2 = np.zeros(3)
-        H2 = np.zeros((3, 3))
-        _, sq2 = K.gauss_newton_terms(
-            field.values, ox, oy, res, pts, cand[0], cand[1], cand[2], g2, H2
-        )
-        if not sq2 < sq:
-            it -= 1
-            break
-        p, g, H, sq = cand, g2, H2, sq2
-        if abs(step[0]) + abs(step[1]) < 1e-5 and abs(step[2]) < 1e-5:
-            break
+    it, sq = K.refine_pose(
+        field.values, ox, oy, field.resolution, pts, p[0], p[1], p[2], int(iterations),
+        float(max_step[0]), float(max_step[1]), pose, H,
+    )  # fmt: skip
+    p = pose
     n = max(pts.shape[0] - 3, 1)
     var_r = max(sq / n, 1e-6)
     info = H + 1e-9 * np.eye(3)

@@ -287,3 +287,10 @@ def test_cropped_keeps_world_positions():
     world = grid.spec.cell_to_world(np.column_stack([ix, iy]))
     c = small.spec.world_to_cell(world)
     np.testing.assert_array_equal(small.log_odds[c[:, 1], c[:, 0]], grid.log_odds[iy, ix])
+
+
+def test_max_range_clearing_never_passes_the_sensor_range():
+    model = InverseSensorModel(max_clear_range=10.0)
+    grid = OccupancyGrid(0.1, model=model)
+    grid.integrate_scan([0.0, 0.0, 0.0], [4.0], [0.0], max_range=4.0)
+    assert grid.observed.sum() == 40  # 4 m of free cells, not 10

@@ -39,8 +39,8 @@ class InverseSensorModel:
         0 marks the endpoint cell only.
     max_clear_range : float or None
         A reading at or beyond the sensor's maximum range has no endpoint; it marks free the cells
-        up to this distance in metres. ``None`` clears up to the maximum range itself; 0 ignores
-        such readings.
+        up to this distance in metres (never beyond the maximum range). ``None`` clears up to the
+        maximum range itself; 0 ignores such readings.
     """
 
     p_hit: float = 0.7
@@ -69,6 +69,18 @@ class InverseSensorModel:
     def l_miss(self) -> float:
         """Log odds of a traversed cell, ``logit(p_miss)``."""
         return float(logit(self.p_miss))
+
+
+def effective_clear_range(max_clear_range: float | None, max_range: float) -> float:
+    """Distance in metres that a no-return (max-range) reading clears.
+
+    ``None`` means up to the maximum range; a finite setting never reaches past it, since a reading
+    that did not return says nothing beyond the sensor's range. An infinite maximum range with no
+    setting clears nothing.
+    """
+    if max_clear_range is None:
+        return max_range if math.isfinite(max_range) else 0.0
+    return min(max_clear_range, max_range)
 
 
 @dataclass(frozen=True)
@@ -413,7 +425,7 @@ class OccupancyGrid:
         if not max_range > 0.0:
             raise ValueError(f"max_range must be > 0 m, got {max_range}")
         clear = self.model.max_clear_range
-        clear_range = (max_range if math.isfinite(max_range) else 0.0) if clear is None else clear
+        clear_range = effective_clear_range(clear, max_range)
         if P.shape[0] == 0:
             return ScanStats(0, 0, 0, 0, 0, 0)
         box = np.empty(4)

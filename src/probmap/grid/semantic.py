@@ -28,7 +28,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from probmap.grid.logodds import logit
-from probmap.grid.occupancy import GridBoundsError, OccupancyGrid, ScanStats
+from probmap.grid.occupancy import (
+    GridBoundsError,
+    OccupancyGrid,
+    ScanStats,
+    effective_clear_range,
+)
 from probmap.grid.spec import GridSpec
 
 __all__ = [
@@ -720,7 +725,7 @@ class SemanticGrid:
         d_hit = inverse_term(q_hit) - self.l_prior
         d_free = inverse_term(self.model.free_probabilities(K)) - self.l_prior
         clear = self.model.max_clear_range
-        clear_range = (max_range if math.isfinite(max_range) else 0.0) if clear is None else clear
+        clear_range = effective_clear_range(clear, max_range)
         if S == 0:
             return ScanStats(0, 0, 0, 0, 0, 0)
         box = np.empty(4)

@@ -145,10 +145,13 @@ def test_intel_kidnapped_robot_recovers_with_augmented_mcl(intel):
     assert np.all(after[-10:] < 0.3)  # and recovered from
 
 
-# MCL median position error must beat this per robot over the first 200 s. The issue asks
-# 0.15 m; robot 1 gets 0.154 m here (its ranges run up to 0.4 m short for stretches and it
-# goes up to 39 s without a landmark on bad odometry), so its bound is 0.20 m.
-MRCLAM_BOUND = {1: 0.20, 2: 0.15, 3: 0.15}
+# MCL median position error over the first 200 s must stay under 0.15 m for every robot.
+# 2,000 particles: with 500 the median was dominated by Monte Carlo error (robot 1: 0.106 to
+# 0.154 m over seeds 0-3, robot 2: 0.074 to 0.150 m). A 10 % uniform outlier component: the
+# camera's range residuals have a heavy short tail (5th percentile -0.28 m for robot 1, -0.41 m
+# for robot 3, against a MAD of 0.05-0.12 m). Measured with these settings: robot 1 0.075-0.126 m
+# over seeds 0-5, robots 2 and 3 0.079-0.106 and 0.111-0.120 m over seeds 0-3.
+MRCLAM_BOUND = {1: 0.15, 2: 0.15, 3: 0.15}
 
 
 @pytest.mark.parametrize("robot", [1, 2, 3])
@@ -166,12 +169,14 @@ def test_mrclam_landmark_mcl_against_vicon(shared_data, robot):
         ds = MRCLAM(folder, robot, end_time=200.0)
     truth = ds.landmark_truth
     ids = np.array(sorted(truth))
-    lm = RangeBearingLandmarks(ids, np.array([truth[i] for i in ids]), 0.3, 0.03)
+    lm = RangeBearingLandmarks(
+        ids, np.array([truth[i] for i in ids]), 0.3, 0.03, outlier_probability=0.1
+    )
     mcl = MonteCarloLocalization(
         lm,
         VelocityMotionModel(2, 1, 2, 2, 0.1, 0.1),
         np.random.default_rng(0),
-        MCLConfig(n_particles=500),
+        MCLConfig(n_particles=2000),
     )
     mcl.initialize_pose(ds.initial_pose, np.diag([0.01, 0.01, 0.01]))
     exact = VelocityMotionModel(0, 0, 0, 0, 0, 0)

@@ -18,6 +18,7 @@ from probmap.slam.scan_matching import (
     match_scan,
     normal_equations,
     point_terms,
+    refine,
     scan_points,
     score_scan,
 )
@@ -157,6 +158,63 @@ def test_nearest_score_and_correlative_search_match_references(world, field):
     rpose, rs = ref_search(field, pts, p0, cfg)
     assert s == pytest.approx(rs, abs=1e-9)
     np.testing.assert_allclose(pose, rpose, atol=1e-12)
+
+
+def ref_refine(f, pts, p0, iterations, max_step):
+    """Gauss-Newton on sum (1 - M)^2 in plain numpy: damped normal equations, shortened
+    steps, a step kept only if it lowers the cost."""
+
+    def terms(p):
+        t = point_terms(f, pts, p)
+        r = 1.0 - t[:, 0]
+        J = -t[:, 1:]
+        return J.T @ r, J.T @ J, float(r @ r)
+
+    p = np.asarray(p0, dtype=float)
+    g, H, sq = terms(p)
+    taken = 0
+    for it in range(1, iterations + 1):
+        step = -np.linalg.solve(H + 1e-9 * np.eye(3) + 1e-6 * np.diag(np.diag(H)), g)
+        shrink = max(math.hypot(step[0], step[1]) / max_step[0], abs(step[2]) / max_step[1])
+        if shrink > 1:
+            step = step / shrink
+        g2, H2, sq2 = terms(p + step)
+        if not sq2 < sq:
+            break
+        taken, p, g, H, sq = it, p + step, g2, H2, sq2
+        if abs(step[0]) + abs(step[1]) < 1e-5 and abs(step[2]) < 1e-5:
+            break
+    return p, H, taken
+
+
+def test_solve3_matches_numpy():
+    from probmap.slam import _match_kernels as K
+
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        A = rng.normal(size=(3, 3))
+        b = rng.normal(size=3)
+        x = np.empty(3)
+        assert K.solve3(A, b, x)
+        np.testing.assert_allclose(x, np.linalg.solve(A, b), rtol=1e-9, atol=1e-12)
+    assert not K.solve3(np.zeros((3, 3)), b, x)
+
+
+@pytest.mark.parametrize("k", [15, 60])
+def test_refine_kernel_matches_reference(world, field, k):
+    pts = _points(world, k)
+    p0 = world.poses[k] + np.array([0.03, -0.02, 0.01])
+    pose, cov, it = refine(field, pts, p0, 8, (0.025, 0.0125))
+    rpose, rH, rit = ref_refine(field, pts, p0, 8, (0.025, 0.0125))
+    assert it == rit and it >= 1
+    np.testing.assert_allclose(pose[:2], rpose[:2], atol=1e-9)
+    assert pose[2] == pytest.approx(math.remainder(rpose[2], 2 * math.pi), abs=1e-9)
+    # covariance = residual variance x (J^T J)^-1 at the final pose
+    _, _, H = normal_equations(field, pts, pose)
+    np.testing.assert_allclose(H, rH, rtol=1e-9, atol=1e-9)
+    r = 1.0 - point_terms(field, pts, pose)[:, 0]
+    var_r = max(float(r @ r) / (len(pts) - 3), 1e-6)
+    np.testing.assert_allclose(cov @ (H + 1e-9 * np.eye(3)), var_r * np.eye(3), atol=1e-9)
 
 
 @pytest.mark.parametrize("k", [15, 60, 120])

@@ -492,7 +492,9 @@ def run_grid_slam(
     """
     cfg = config or GridSlamConfig()
     t = np.asarray(times, dtype=np.float64)
-    R = np.asarray(ranges, dtype=np.float64)
+    R = np.asarray(ranges)
+    if R.dtype != np.float32:  # float32 logs stay float32 (half the memory); scans are widened
+        R = np.asarray(R, dtype=np.float64)  # one at a time in update()
     if R.ndim != 2 or t.shape != (R.shape[0],):
         raise ValueError(f"times (S,) and ranges (S, B) disagree: {t.shape}, {R.shape}")
     if R.shape[0] == 0:
@@ -566,9 +568,9 @@ def slam_log(
     """
     from probmap.datasets.carmen import load_scans
 
-    batch = load_scans(path, poses="odometry")
+    batch = load_scans(path, poses="odometry", dtype=np.float32)
     times = np.asarray(batch.times, dtype=np.float64)
-    ranges = np.asarray(batch.ranges, dtype=np.float64)
+    ranges = np.asarray(batch.ranges)
     angles = np.asarray(batch.angles, dtype=np.float64)
     if angles.ndim != 1:
         raise ValueError(f"{path}: scans with different beam geometries are not supported")

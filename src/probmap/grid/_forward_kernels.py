@@ -14,6 +14,8 @@ import math
 import numpy as np
 from numba import njit
 
+from probmap.grid._kernels import axis_setup
+
 
 @njit(cache=True)
 def endpoints_in_robot_frame(ranges, angles, offset, max_range, lx, ly, valid):
@@ -208,30 +210,8 @@ def cast_exact(occ, gx, gy, dx, dy, limit):
     h, w = occ.shape
     ix = int(math.floor(gx))
     iy = int(math.floor(gy))
-    if dx > 0.0:
-        sx = 1
-        tdx = 1.0 / dx
-        tmx = (ix + 1.0 - gx) * tdx
-    elif dx < 0.0:
-        sx = -1
-        tdx = -1.0 / dx
-        tmx = (gx - ix) * tdx
-    else:
-        sx = 0
-        tdx = math.inf
-        tmx = math.inf
-    if dy > 0.0:
-        sy = 1
-        tdy = 1.0 / dy
-        tmy = (iy + 1.0 - gy) * tdy
-    elif dy < 0.0:
-        sy = -1
-        tdy = -1.0 / dy
-        tmy = (gy - iy) * tdy
-    else:
-        sy = 0
-        tdy = math.inf
-        tmy = math.inf
+    sx, tdx, tmx = axis_setup(gx, dx)
+    sy, tdy, tmy = axis_setup(gy, dy)
     t = 0.0
     while t < limit:
         if ix < 0 or iy < 0 or ix >= w or iy >= h:

@@ -20,7 +20,7 @@ _INF = np.inf
 
 
 @njit(cache=True, inline="always")
-def _axis_setup(g0, d):  # pragma: no cover - compiled
+def axis_setup(g0, d):  # pragma: no cover - compiled
     """Per-axis set-up of the grid walk for a ray from ``g0`` (cell units) with extent ``d``
     along the axis: ``(step, t_delta, t_max)``, the step direction, the ray parameter between two
     boundaries and the parameter of the first boundary crossed."""
@@ -199,8 +199,8 @@ def cast_rays(occ, ox, oy, res, poses, angles, max_range, out):  # pragma: no co
             dy = math.sin(a)
             ix = int(math.floor(px))
             iy = int(math.floor(py))
-            sx, tdx, tmx = _axis_setup(px, dx)
-            sy, tdy, tmy = _axis_setup(py, dy)
+            sx, tdx, tmx = axis_setup(px, dx)
+            sy, tdy, tmy = axis_setup(py, dy)
             limit = max_range / res
             t = 0.0
             hit = max_range
@@ -236,8 +236,8 @@ def walk_start(gx0, gy0, gx1, gy1, include_last):  # pragma: no cover - compiled
     iy = int(math.floor(gy0))
     ex = int(math.floor(gx1))
     ey = int(math.floor(gy1))
-    sx, tdx, tmx = _axis_setup(gx0, gx1 - gx0)
-    sy, tdy, tmy = _axis_setup(gy0, gy1 - gy0)
+    sx, tdx, tmx = axis_setup(gx0, gx1 - gx0)
+    sy, tdy, tmy = axis_setup(gy0, gy1 - gy0)
     n = abs(ex - ix) + abs(ey - iy)
     if include_last:
         n += 1

@@ -22,6 +22,8 @@ import math
 import numpy as np
 from numba import njit
 
+from probmap.grid._kernels import axis_setup
+
 _SQRT2 = math.sqrt(2.0)
 _SQRT2PI = math.sqrt(2.0 * math.pi)
 
@@ -59,30 +61,8 @@ def _walk(gx, gy, dx, dy, length, w, h, cells, dists, n):
     """
     ix = int(math.floor(gx))
     iy = int(math.floor(gy))
-    if dx > 0.0:
-        sx = 1
-        tdx = 1.0 / dx
-        tmx = (ix + 1.0 - gx) * tdx
-    elif dx < 0.0:
-        sx = -1
-        tdx = -1.0 / dx
-        tmx = (gx - ix) * tdx
-    else:
-        sx = 0
-        tdx = np.inf
-        tmx = np.inf
-    if dy > 0.0:
-        sy = 1
-        tdy = 1.0 / dy
-        tmy = (iy + 1.0 - gy) * tdy
-    elif dy < 0.0:
-        sy = -1
-        tdy = -1.0 / dy
-        tmy = (gy - iy) * tdy
-    else:
-        sy = 0
-        tdy = np.inf
-        tmy = np.inf
+    sx, tdx, tmx = axis_setup(gx, dx)
+    sy, tdy, tmy = axis_setup(gy, dy)
     t = 0.0
     while t < length:
         if 0 <= ix < w and 0 <= iy < h:

@@ -14,6 +14,7 @@ from probmap.grid.spec import GridSpec
 from probmap.slam.scan_matching import (
     MatcherConfig,
     MatchField,
+    correlative_distribution,
     correlative_search,
     match_scan,
     normal_equations,
@@ -158,6 +159,48 @@ def test_nearest_score_and_correlative_search_match_references(world, field):
     rpose, rs = ref_search(field, pts, p0, cfg)
     assert s == pytest.approx(rs, abs=1e-9)
     np.testing.assert_allclose(pose, rpose, atol=1e-12)
+
+
+@pytest.mark.parametrize("temperature", [0.5, 3.0])
+def test_correlative_distribution_matches_reference(world, field, temperature):
+    pts = _points(world, 30)[::5]
+    p0 = world.poses[30] + np.array([0.04, -0.03, 0.02])
+    cfg = MatcherConfig(linear_window=0.1, linear_step=0.05, angular_window=0.02)
+    mean, cov, arg, best = correlative_distribution(field, pts, p0, cfg, temperature)
+    offs, scores = [], []
+    for ka in range(-2, 3):
+        for kx in range(-2, 3):
+            for ky in range(-2, 3):
+                d = (kx * 0.05, ky * 0.05, ka * 0.01)
+                offs.append(d)
+                scores.append(ref_nearest(field, pts, p0 + np.array(d)))
+    offs, scores = np.array(offs), np.array(scores)
+    w = np.exp((scores - scores.max()) / temperature)
+    mu = w @ offs / w.sum()
+    e = offs - mu
+    assert best == pytest.approx(scores.max(), abs=1e-9)
+    np.testing.assert_allclose(arg, correlative_search(field, pts, p0, cfg)[0], atol=1e-12)
+    np.testing.assert_allclose(mean, p0 + mu, atol=1e-12)
+    np.testing.assert_allclose(cov, (w[:, None] * e).T @ e / w.sum(), atol=1e-12)
+
+
+def test_correlative_distribution_is_wide_along_a_featureless_corridor():
+    # two long parallel walls: the score is flat along x, sharp across
+    spec = GridSpec(0.05, (0.0, 0.0), (60, 400))
+    occ = np.zeros(spec.shape, bool)
+    occ[10, :] = occ[50, :] = True
+    fld = MatchField.from_occupied(occ, spec, 0.05)
+    xs = np.linspace(-4, 4, 120)
+    pts = np.concatenate(
+        [np.column_stack([xs, np.full(120, -0.975)]), np.column_stack([xs, np.full(120, 1.025)])]
+    )
+    cfg = MatcherConfig(linear_window=0.1, linear_step=0.025, angular_window=0.0)
+    mean, cov, arg, _ = correlative_distribution(fld, pts, (10.0, 1.5, 0.0), cfg)
+    assert abs(mean[0] - 10.0) < 1e-9  # flat along x: the mean stays put
+    assert abs(mean[1] - 1.5) < 0.0125  # sharp across: the walls' position
+    assert np.sqrt(cov[0, 0]) > 0.06 and np.sqrt(cov[1, 1]) < 0.025  # ties within one cell
+    # the best pose of the plain search is the first of the ties, 0.1 m off
+    assert arg[0] == pytest.approx(9.9)
 
 
 def ref_refine(f, pts, p0, iterations, max_step):

@@ -168,6 +168,99 @@ def correlative_search(
 
 
 @njit(cache=True)
+def correlative_moments(
+    field,
+    ox,
+    oy,
+    res,
+    pts,
+    x0,
+    y0,
+    th0,
+    lin_window,
+    lin_step,
+    ang_window,
+    ang_step,
+    temperature,
+    out,
+):  # pragma: no cover - compiled
+    """Moments of the search box's poses weighted by ``exp((S - S_max) / temperature)``, with
+    ``S`` the nearest-cell score (Olson 2009: the correlative search as a distribution).
+
+    ``out[0]`` receives ``S_max``; ``out[1:4]`` the weighted mean offset ``(dx, dy, dtheta)``
+    from ``(x0, y0, th0)``; ``out[4:10]`` the weighted covariance ``(xx, xy, xt, yy, yt, tt)``;
+    ``out[10:13]`` the best pose, the first of equals as in :func:`correlative_search`.
+    The running sums are rescaled whenever a larger score appears (one pass).
+    """
+    nl = int(round(lin_window / lin_step))
+    na = int(round(ang_window / ang_step))
+    h, w = field.shape
+    n = pts.shape[0]
+    m = 2 * nl + 1
+    cols = np.empty((m, n), dtype=np.int64)
+    rows = np.empty((m, n), dtype=np.int64)
+    best = -1.0
+    acc = np.zeros(10)  # weight, 3 first moments, 6 second moments
+    for ka in range(-na, na + 1):
+        th = th0 + ka * ang_step
+        c = math.cos(th)
+        s = math.sin(th)
+        for i in range(n):
+            rx = c * pts[i, 0] - s * pts[i, 1]
+            ry = s * pts[i, 0] + c * pts[i, 1]
+            for k in range(m):
+                ix = math.floor((x0 + (k - nl) * lin_step + rx - ox) / res)
+                iy = math.floor((y0 + (k - nl) * lin_step + ry - oy) / res)
+                cols[k, i] = ix if 0 <= ix < w else -1
+                rows[k, i] = iy if 0 <= iy < h else -1
+        dt = ka * ang_step
+        for kx in range(m):
+            cx = cols[kx]
+            dx = (kx - nl) * lin_step
+            for ky in range(m):
+                ry_ = rows[ky]
+                total = 0.0
+                for i in range(n):
+                    ix = cx[i]
+                    iy = ry_[i]
+                    if ix >= 0 and iy >= 0:
+                        total += field[iy, ix]
+                if total > best:
+                    scale = math.exp((best - total) / temperature) if best >= 0.0 else 0.0
+                    for j in range(10):
+                        acc[j] *= scale
+                    best = total
+                    out[10] = x0 + dx
+                    out[11] = y0 + (ky - nl) * lin_step
+                    out[12] = th
+                dy = (ky - nl) * lin_step
+                wgt = math.exp((total - best) / temperature)
+                acc[0] += wgt
+                acc[1] += wgt * dx
+                acc[2] += wgt * dy
+                acc[3] += wgt * dt
+                acc[4] += wgt * dx * dx
+                acc[5] += wgt * dx * dy
+                acc[6] += wgt * dx * dt
+                acc[7] += wgt * dy * dy
+                acc[8] += wgt * dy * dt
+                acc[9] += wgt * dt * dt
+    out[0] = best
+    mx = acc[1] / acc[0]
+    my = acc[2] / acc[0]
+    mt = acc[3] / acc[0]
+    out[1] = mx
+    out[2] = my
+    out[3] = mt
+    out[4] = acc[4] / acc[0] - mx * mx
+    out[5] = acc[5] / acc[0] - mx * my
+    out[6] = acc[6] / acc[0] - mx * mt
+    out[7] = acc[7] / acc[0] - my * my
+    out[8] = acc[8] / acc[0] - my * mt
+    out[9] = acc[9] / acc[0] - mt * mt
+
+
+@njit(cache=True)
 def solve3(A, b, out):  # pragma: no cover - compiled
     """Solve the 3 x 3 system ``A out = b`` by Gaussian elimination with partial pivoting;
     returns False when ``A`` is singular."""

@@ -91,6 +91,19 @@ class GridSlamConfig:
         Map tile side in cells (copy-on-write granularity).
     seed : int
         Seed of the random generator.
+    degeneracy_guard : bool
+        Let the match correct the odometry only along the directions the scan constrains:
+        endpoints on never-observed cells are left out of the match, and along a featureless
+        corridor the odometry is kept (see :meth:`GridSlam._match_guarded`). Off when the log
+        has no odometry (there is nothing else to keep).
+    match_temperature : float
+        Score difference (in matched endpoints) that lowers a pose's weight in the correlative
+        distribution by ``e`` (used by the guard).
+    degenerate_sd : float
+        Standard deviation (metres) of the correlative distribution along a direction beyond
+        which the match is taken as unconstrained there (a flat score over the search window of
+        half-width ``w`` gives ``w / sqrt(3)``; ties between neighbouring steps about half
+        that).
     """
 
     particles: int = 30
@@ -111,11 +124,15 @@ class GridSlamConfig:
     max_clear_range: float = 0.0
     tile: int = 32
     seed: int = 0
+    degeneracy_guard: bool = True
+    match_temperature: float = 1.0
+    degenerate_sd: float = 0.04
 
     def __post_init__(self) -> None:
         if self.particles < 1:
             raise ValueError(f"particles must be >= 1, got {self.particles}")
-        positive = ("resolution", "likelihood_sigma", "weight_gain")
+        positive = ("resolution", "likelihood_sigma", "weight_gain", "match_temperature",
+                    "degenerate_sd")  # fmt: skip
         for name in positive:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
@@ -222,6 +239,7 @@ class GridSlam:
         self.processed = 0
         self.resamples = 0
         self.failed = 0
+        self.degenerate = 0
         self.neff: list[float] = []
         self.map_bytes = 0
         self._l_hit = _logit(config.p_hit)
@@ -272,14 +290,18 @@ class GridSlam:
         )  # fmt: skip
         self.maps.scatter(k, tr, lo, touched)
 
-    def _motion_log_prior(self, predicted: NDArray, poses: NDArray, u: NDArray) -> NDArray:
-        """Log of a Gaussian ``p(x | x_{t-1}, u)`` around the odometry prediction, with standard
-        deviations growing with the distance and rotation travelled (GMapping's model)."""
+    def _motion_sigmas(self, u: NDArray) -> tuple[float, float]:
+        """Standard deviations (metres, radians) of the odometry prediction for the increment
+        ``u``, growing with the distance and rotation travelled (GMapping's model)."""
         srr, srt, s_r, stt = self.config.odometry_noise
         dist = math.hypot(u[0], u[1])
         rot = abs(float(wrap_angle(u[2])))
-        sxy = srr * dist + srt * rot + 0.01
-        sth = s_r * dist + stt * rot + 0.01
+        return srr * dist + srt * rot + 0.01, s_r * dist + stt * rot + 0.01
+
+    def _motion_log_prior(self, predicted: NDArray, poses: NDArray, u: NDArray) -> NDArray:
+        """Log of a Gaussian ``p(x | x_{t-1}, u)`` around the odometry prediction (robot
+        frame of the prediction), standard deviations from :meth:`_motion_sigmas`."""
+        sxy, sth = self._motion_sigmas(u)
         d = between(predicted, poses)
         return -0.5 * ((d[:, 0] ** 2 + d[:, 1] ** 2) / sxy**2 + wrap_angle(d[:, 2]) ** 2 / sth**2)
 
@@ -345,7 +367,8 @@ class GridSlam:
             tr = self._window(predicted, r)
             lo = self.maps.gather(k, tr)
             fld = self._field(lo, tr)
-            new, dlw = self._propose(fld, pts, predicted, u)
+            use = self._known_points(lo, fld, pts, predicted) if cfg.degeneracy_guard else pts
+            new, dlw = self._propose(fld, use, predicted, u)
             self.poses[k] = new
             self.log_w[k] += dlw / cfg.weight_gain
             self._integrate(k, tr, lo, new, r)
@@ -375,6 +398,63 @@ class GridSlam:
         K.splat_field(lo, 0.0, cfg.field_radius, inv, values)
         return MatchField(values, self.maps.window_origin(tr[0], tr[1]), cfg.resolution)
 
+    def _known_points(
+        self, lo: NDArray[np.float32], fld: MatchField, pts: NDArray, predicted: NDArray
+    ) -> NDArray[np.float64]:
+        """The endpoints that land, seen from the predicted pose, on cells observed before.
+
+        Endpoints on never-observed cells carry no information about the pose (the likelihood
+        field is uniform there, Table 6.3), yet on the map's field they pull the match back
+        onto the known map: the new stretch of a corridor wall ahead would drag every match
+        backwards along the corridor.
+        """
+        c, s = math.cos(predicted[2]), math.sin(predicted[2])
+        qx = predicted[0] + c * pts[:, 0] - s * pts[:, 1]
+        qy = predicted[1] + s * pts[:, 0] + c * pts[:, 1]
+        ix = np.floor((qx - fld.origin[0]) / fld.resolution).astype(np.int64)
+        iy = np.floor((qy - fld.origin[1]) / fld.resolution).astype(np.int64)
+        h, w = lo.shape
+        inside = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h)
+        known = np.zeros(len(pts), dtype=bool)
+        known[inside] = lo[iy[inside], ix[inside]] != 0.0
+        return np.ascontiguousarray(pts[known])
+
+    def _match_guarded(
+        self, fld: MatchField, pts: NDArray, predicted: NDArray, u: NDArray
+    ) -> NDArray[np.float64] | None:
+        """Scan matching that corrects the odometry only along the directions the scan
+        constrains (degeneracy-aware, after Zhang, Kaess and Singh, ICRA 2016).
+
+        The correlative search is read as a distribution over the search box (weights
+        ``exp((S - S_max) / match_temperature)``, Olson 2009,
+        :func:`~probmap.slam.scan_matching.correlative_distribution`). Along a principal axis of
+        its translational covariance wider than ``degenerate_sd`` the score is flat (a
+        featureless corridor): there the best pose is only the first of many equals, so the
+        correction from the prediction is dropped along that axis and the odometry is kept.
+        The other directions take the Gauss-Newton refined match. Returns None when the match
+        is not trustworthy (mean score below ``min_score``).
+        """
+        from probmap.slam.scan_matching import correlative_distribution, normal_equations, refine
+
+        cfg = self.config
+        m = cfg.matcher
+        _, cov, best, _ = correlative_distribution(fld, pts, predicted, m, cfg.match_temperature)
+        pose, _, _ = refine(fld, pts, best, m.iterations, (m.linear_step, m.angular_step))
+        score, _, _ = normal_equations(fld, pts, pose)
+        if score / pts.shape[0] < cfg.min_score:
+            return None
+        d = pose - predicted
+        d[2] = float(wrap_angle(d[2]))
+        vals, vecs = np.linalg.eigh(cov[:2, :2])  # ascending
+        if vals[1] > cfg.degenerate_sd**2 and vals[1] > 9.0 * max(vals[0], 0.0):
+            # a ridge: flat along vecs[:, 1], sharp across (a broad bowl is not a ridge)
+            v = vecs[:, 1]
+            d[:2] -= float(v @ d[:2]) * v
+            self.degenerate += 1
+        out = predicted + d
+        out[2] = float(wrap_angle(out[2]))
+        return out
+
     def _propose(
         self, fld: MatchField, pts: NDArray, predicted: NDArray, u: NDArray
     ) -> tuple[NDArray[np.float64], float]:
@@ -385,9 +465,12 @@ class GridSlam:
         cfg = self.config
         matched = None
         if pts.shape[0] >= 10:
-            res = match_scan(fld, pts, predicted, cfg.matcher)
-            if res.score >= cfg.min_score:
-                matched = res.pose
+            if cfg.degeneracy_guard:
+                matched = self._match_guarded(fld, pts, predicted, u)
+            else:
+                res = match_scan(fld, pts, predicted, cfg.matcher)
+                if res.score >= cfg.min_score:
+                    matched = res.pose
         if matched is None:
             # no trustworthy match: the odometry motion model (Table 5.6) and the plain weight
             self.failed += 1
@@ -519,6 +602,7 @@ def run_grid_slam(
         cfg = replace(
             cfg,
             linear_update=0.0,
+            degeneracy_guard=False,
             matcher=replace(cfg_m, linear_window=max(cfg_m.linear_window, 0.3),
                             angular_window=max(cfg_m.angular_window, 0.2)),
         )  # fmt: skip

@@ -243,6 +243,41 @@ def correlative_search(
     return out[:3].copy(), float(out[3])
 
 
+def correlative_distribution(
+    field: MatchField,
+    points: ArrayLike,
+    initial: ArrayLike,
+    config: MatcherConfig,
+    temperature: float = 1.0,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float]:
+    """The search box of ``config`` around ``initial`` as a distribution over poses.
+
+    Each pose of the box gets the weight ``exp((S - S_max) / temperature)`` (``S`` the
+    nearest-cell score); returns the weighted mean pose (3,), the weighted covariance (3, 3) of
+    the poses (m^2, m rad, rad^2), the best pose (3,) as :func:`correlative_search` finds it,
+    and ``S_max`` (Olson 2009, "Real-time correlative scan
+    matching", sec. IV). Unlike the best pose, the mean does not depend on the order of the
+    search when the score is flat (a featureless corridor), and the covariance is large along
+    such directions.
+    """
+    from probmap.slam import _match_kernels as K
+
+    pts, p = _check(field, points, initial)
+    if not (math.isfinite(temperature) and temperature > 0):
+        raise ValueError(f"temperature must be > 0, got {temperature}")
+    out = np.empty(13)
+    ox, oy = field.origin
+    K.correlative_moments(
+        field.values, ox, oy, field.resolution, pts, p[0], p[1], p[2], config.linear_window,
+        config.linear_step, config.angular_window, config.angular_step, float(temperature), out,
+    )  # fmt: skip
+    mean = p + out[1:4]
+    mean[2] = float(wrap_angle(mean[2]))
+    xx, xy, xt, yy, yt, tt = out[4:10]
+    cov = np.array([[xx, xy, xt], [xy, yy, yt], [xt, yt, tt]])
+    return mean, cov, out[10:13].copy(), float(out[0])
+
+
 def refine(
     field: MatchField,
     points: ArrayLike,

@@ -5,6 +5,10 @@ this run, with GMapping's figures from the issue (measured on the project machin
 Usage::
 
     python benchmarks/bench_grid_slam.py [--particles 30] [--end-time SECONDS] [--data DIR]
+        [--skip-peer] [--skip-guard-off]
+
+Rows: the defaults (degeneracy guard on) and the same without the guard, for the RBPF and for
+one particle (scan-to-map odometry).
 
 Run it rarely: the full log at 30 particles takes minutes.
 """
@@ -17,6 +21,7 @@ import resource
 import sys
 import time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +38,10 @@ def main() -> None:
         type=Path,
         default=Path(os.environ.get("PROBMAP_SHARED", "/work/shared")) / "data",
     )
-    ap.add_argument("--skip-peer", action="store_true", help="Skip the 1-particle peer run.")
+    ap.add_argument("--skip-peer", action="store_true", help="Skip the 1-particle peer runs.")
+    ap.add_argument(
+        "--skip-guard-off", action="store_true", help="Skip the RBPF run without the guard."
+    )
     args = ap.parse_args()
 
     from rich.console import Console
@@ -68,9 +76,14 @@ def main() -> None:
     run_grid_slam(times[:40], ranges[:40], angles, robot[:40], batch.max_range,
                   GridSlamConfig(particles=2))  # fmt: skip
     rows = []
-    runs = [("RBPF", GridSlamConfig(particles=args.particles), True)]
+    rbpf = GridSlamConfig(particles=args.particles)
+    runs = [("RBPF", rbpf, True)]
+    if not args.skip_guard_off:
+        runs.append(("RBPF, guard off", replace(rbpf, degeneracy_guard=False), True))
     if not args.skip_peer:
-        runs.append(("scan-to-map odometry", GridSlamConfig(particles=1), False))
+        one = GridSlamConfig(particles=1)
+        runs.append(("scan-to-map odometry", one, False))
+        runs.append(("scan-to-map, guard off", replace(one, degeneracy_guard=False), False))
     for name, cfg, sample in runs:
         t0 = time.perf_counter()
         res = run_grid_slam(times, ranges, angles, robot, batch.max_range, cfg, sample=sample)

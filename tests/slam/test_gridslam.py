@@ -313,6 +313,11 @@ def test_cli_slam_grid_and_match_on_a_simulated_log(tmp_path):
     t, p = read_trajectory(tmp_path / "m.trajectory.csv")
     np.testing.assert_allclose(t, 1000.0 + world.times[:150], atol=1e-6)
     assert _step_error(world.poses[:150], p) < 0.05
+    args = ["slam", "grid", str(log), "-o", str(tmp_path / "g"), "-n", "1", "--no-guard"]
+    res = runner.invoke(app, [*args, "--end-time", "10"])
+    assert res.exit_code == 0, res.output
+    t, p = read_trajectory(tmp_path / "g.trajectory.csv")
+    assert len(t) == 51 and _step_error(world.poses[:51], p) < 0.05
     res = runner.invoke(app, ["match", str(tmp_path / "m.npz"), str(log), "--scan", "40"])
     assert res.exit_code == 0, res.output
     assert "matched" in res.output and "score" in res.output

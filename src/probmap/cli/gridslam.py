@@ -37,6 +37,9 @@ def grid_command(
         None, "--end-time", help="Use only the first this many seconds of the log."
     ),
     seed: int = typer.Option(0, "--seed", help="Random seed."),
+    guard: bool = typer.Option(
+        True, "--guard/--no-guard", help="Keep the odometry along featureless corridors."
+    ),
 ) -> None:
     """Grid SLAM (RBPF with scan-matching proposal, Grisetti et al. 2007): writes the best
     particle's map (PREFIX.yaml/.pgm/.npz/.png, as 'probmap map') and PREFIX.trajectory.csv."""
@@ -57,6 +60,7 @@ def grid_command(
             linear_update=linear_update,
             angular_update=angular_update,
             seed=seed,
+            degeneracy_guard=guard,
         )
         with Progress(transient=True) as bar, warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")

@@ -62,6 +62,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=600)
     ap.add_argument("--max-active", type=int, default=10)
+    ap.add_argument("--deactivation", choices=["oldest", "weakest"], default="oldest")
     ap.add_argument("--ekf-max", type=int, default=3000, help="largest n for the EKF")
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
@@ -75,11 +76,14 @@ def main() -> None:
     for n in sorted(set(sizes) | {s for s in ekf_sizes if s <= args.ekf_max}):
         ds = simulate_landmarks(n, steps_n, seed=1, density=0.03, loop_radius=15.0)
         lm = ds.landmarks_xy
+        assert lm is not None  # a simulation carries its true landmarks
         steps = list(ds)
         obs = np.mean([s.z.shape[0] for s in steps])
         row = {"n": n, "obs": obs}
         if n in sizes:
-            seif = build_seif(ds, SeifConfig(max_active=args.max_active))
+            seif = build_seif(
+                ds, SeifConfig(max_active=args.max_active, deactivation=args.deactivation)
+            )
             seif.add_landmarks(
                 np.arange(n), lm, np.broadcast_to(PRIOR_SD**2 * np.eye(2), (n, 2, 2))
             )

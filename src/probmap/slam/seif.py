@@ -59,6 +59,7 @@ __all__ = [
     "build_seif",
     "measurement_update_information",
     "motion_update_information",
+    "robot_link_information",
     "sparsify_information",
     "update_mean_information",
 ]
@@ -274,6 +275,45 @@ def update_mean_information(
     return mu
 
 
+def robot_link_information(Omega: FloatArray, rows: Sequence[int]) -> FloatArray:
+    """Conditional mutual information (nats) between the robot and each landmark, given the rest.
+
+    For a Gaussian in information form, the robot ``x`` and a landmark ``m`` conditioned on all
+    other variables have joint information ``Omega_[x,m]`` (the 5x5 block), so::
+
+        I(x; m | rest) = 1/2 (log det Omega_xx + log det Omega_mm - log det Omega_[x,m])
+
+    It is zero exactly when the robot-landmark link ``Omega_xm`` is zero, and it measures what
+    sparsification (Table 12.4) discards when it cuts that link: the ``"weakest"`` deactivation
+    policy of :class:`SEIFSlam` deactivates the landmarks with the smallest value.
+
+    Parameters
+    ----------
+    Omega : ndarray, shape (d, d)
+        Information over the robot (rows 0..2) and landmarks (the local system is enough: the
+        blocks used are the global ones).
+    rows : sequence of int
+        First row of each landmark.
+
+    Returns
+    -------
+    ndarray, shape (len(rows),)
+        Non-negative; ``inf`` never (a singular block raises).
+    """
+    k = len(rows)
+    if k == 0:
+        return np.zeros(0)
+    r = np.asarray(rows, dtype=np.intp)
+    idx = np.concatenate([np.broadcast_to(np.arange(3), (k, 3)), r[:, None] + np.arange(2)], 1)
+    J = Omega[idx[:, :, None], idx[:, None, :]]  # (k, 5, 5)
+    sign_j, logdet_j = np.linalg.slogdet(J)
+    sign_m, logdet_m = np.linalg.slogdet(J[:, 3:, 3:])
+    sign_x, logdet_x = np.linalg.slogdet(Omega[:3, :3])
+    if sign_x <= 0 or np.any(sign_j <= 0) or np.any(sign_m <= 0):
+        raise SingularInformationError("robot-landmark information block is not positive definite")
+    return np.maximum(0.5 * (logdet_x + logdet_m - logdet_j), 0.0)
+
+
 # ---------------------------------------------------------------------------------------------
 # Stateful tier
 # ---------------------------------------------------------------------------------------------
@@ -301,6 +341,9 @@ class SeifConfig:
         Up to this many landmarks, :attr:`SEIFSlam.pose_covariance` is the exact marginal
         (sparse LU, O(n) per call); beyond it, the covariance conditioned on the landmarks outside
         the robot's Markov blanket (smaller than the marginal).
+    deactivation : {"oldest", "weakest"}
+        Which landmarks leave the active set: the least recently observed, or those whose link
+        to the robot carries the least information (:func:`robot_link_information`).
     """
 
     max_active: int | None = 10
@@ -310,8 +353,13 @@ class SeifConfig:
     new_landmark_probability: float = 0.9999
     search_radius: float = 10.0
     exact_covariance_max: int = 150
+    deactivation: str = "oldest"
 
     def __post_init__(self) -> None:
+        if self.deactivation not in ("oldest", "weakest"):
+            raise ValueError(
+                f"deactivation must be 'oldest' or 'weakest', got {self.deactivation!r}"
+            )
         if self.max_active is not None and self.max_active < 1:
             raise ValueError(f"max_active must be >= 1 or None, got {self.max_active}")
         if self.passive_sweeps < 0:
@@ -339,7 +387,7 @@ class SEIFSlam:
     initial_covariance : array_like, shape (3, 3)
         Symmetric positive definite.
     max_active, passive_sweeps, exact_mean, gate_probability, new_landmark_probability,
-    search_radius, exact_covariance_max
+    search_radius, exact_covariance_max, deactivation
         See :class:`SeifConfig`.
     """
 
@@ -357,6 +405,7 @@ class SEIFSlam:
         new_landmark_probability: float = 0.9999,
         search_radius: float = 10.0,
         exact_covariance_max: int = 150,
+        deactivation: str = "oldest",
     ) -> None:
         self.config = SeifConfig(
             max_active,
@@ -366,6 +415,7 @@ class SEIFSlam:
             new_landmark_probability,
             search_radius,
             exact_covariance_max,
+            deactivation,
         )
         mu0 = np.asarray(initial_pose, dtype=np.float64)
         P0 = np.asarray(initial_covariance, dtype=np.float64)
@@ -626,7 +676,7 @@ class SEIFSlam:
         if new_z:
             Omega, xi, mu = self._initialize_landmarks(local, Omega, xi, mu, z[new_z], new_ids)
             pos = st.local_index(local)
-        m0 = self._deactivation(local)
+        m0 = self._deactivation(local, Omega, pos)
         if m0:
             Omega, xi = self.sparsify_local(Omega, xi, mu, [pos[s] for s in m0])
             for s in m0:
@@ -708,23 +758,32 @@ class SEIFSlam:
             ) from exc
         return np.asarray(sla.cho_solve(c, b))
 
-    def _deactivation(self, local: Sequence[int]) -> list[int]:
+    def _deactivation(
+        self, local: Sequence[int], Omega: FloatArray, pos: dict[int, int]
+    ) -> list[int]:
+        """Slots to deactivate (the deactivation policy); ``Omega`` is the local system."""
         limit = self.config.max_active
         if limit is None or len(self._active) <= limit:
             return []
+        excess = len(self._active) - limit
+        if self.config.deactivation == "weakest":
+            slots = list(self._active)
+            score = robot_link_information(Omega, [pos[s] for s in slots])
+            order = np.argsort(score, kind="stable")
+            return [slots[i] for i in order[:excess]]
         # dict order: least recently observed first (observed slots are re-inserted at the end)
-        return list(self._active)[: len(self._active) - limit]
+        return list(self._active)[:excess]
 
     def sparsify(self) -> None:
         """Table 12.4 on the current state: deactivate beyond ``max_active`` (normally run by
         :meth:`update`)."""
         st = self._store
         local = list(self._active)
-        m0 = self._deactivation(local)
-        if not m0:
-            return
         Omega, xi, mu = st.gather(local)
         pos = st.local_index(local)
+        m0 = self._deactivation(local, Omega, pos)
+        if not m0:
+            return
         Omega, xi = sparsify_information(Omega, xi, mu, [pos[s] for s in m0])
         for s in m0:
             del self._active[s]
@@ -923,4 +982,5 @@ def build_seif(dataset: Any, config: SeifConfig | None = None) -> SEIFSlam:
         new_landmark_probability=cfg.new_landmark_probability,
         search_radius=cfg.search_radius,
         exact_covariance_max=cfg.exact_covariance_max,
+        deactivation=cfg.deactivation,
     )

@@ -191,7 +191,7 @@ def test_class_sparsify_matches_book_formula_on_a_run():
     active = list(seif._active)
     assert len(active) > 4
     Omega, xi, mu = seif.information_matrix(), seif.information_vector(), seif.mean_vector()
-    seif.config = SeifConfig(max_active=3)
+    seif.config = SeifConfig(max_active=3, deactivation="oldest")
     m0_slots = active[: len(active) - 3]
     seif.sparsify()
     rows = lambda slots: np.concatenate([3 + 2 * np.array(slots)[:, None] + np.arange(2)]).ravel()  # noqa: E731

@@ -104,6 +104,9 @@ class GridSlamConfig:
         which the match is taken as unconstrained there (a flat score over the search window of
         half-width ``w`` gives ``w / sqrt(3)``; ties between neighbouring steps about half
         that).
+    known_fraction : float
+        The guard leaves out endpoints on never-observed cells only when at least this
+        fraction of them lands on observed cells (in new rooms all are kept).
     """
 
     particles: int = 30
@@ -127,6 +130,7 @@ class GridSlamConfig:
     degeneracy_guard: bool = True
     match_temperature: float = 1.0
     degenerate_sd: float = 0.04
+    known_fraction: float = 0.8
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -141,6 +145,8 @@ class GridSlamConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be >= 0, got {v}")
+        if not 0.0 <= self.known_fraction <= 1.0:
+            raise ValueError(f"known_fraction must be in [0, 1], got {self.known_fraction}")
         if self.field_radius < 1 or self.likelihood_skip < 1:
             raise ValueError("field_radius and likelihood_skip must be >= 1")
         if not 0.0 < self.p_miss < 0.5 < self.p_hit < 1.0:
@@ -401,7 +407,8 @@ class GridSlam:
     def _known_points(
         self, lo: NDArray[np.float32], fld: MatchField, pts: NDArray, predicted: NDArray
     ) -> NDArray[np.float64]:
-        """The endpoints that land, seen from the predicted pose, on cells observed before.
+        """The endpoints that land, seen from the predicted pose, on cells observed before
+        (all endpoints when fewer than ``known_fraction`` of them do).
 
         Endpoints on never-observed cells carry no information about the pose (the likelihood
         field is uniform there, Table 6.3), yet on the map's field they pull the match back
@@ -417,6 +424,8 @@ class GridSlam:
         inside = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h)
         known = np.zeros(len(pts), dtype=bool)
         known[inside] = lo[iy[inside], ix[inside]] != 0.0
+        if known.sum() < self.config.known_fraction * len(pts):
+            return pts  # much new ground (a new room): too few would be left; keep them all
         return np.ascontiguousarray(pts[known])
 
     def _match_guarded(
@@ -428,32 +437,30 @@ class GridSlam:
         The correlative search is read as a distribution over the search box (weights
         ``exp((S - S_max) / match_temperature)``, Olson 2009,
         :func:`~probmap.slam.scan_matching.correlative_distribution`). Along a principal axis of
-        its translational covariance wider than ``degenerate_sd`` the score is flat (a
-        featureless corridor): there the best pose is only the first of many equals, so the
-        correction from the prediction is dropped along that axis and the odometry is kept.
-        The other directions take the Gauss-Newton refined match. Returns None when the match
-        is not trustworthy (mean score below ``min_score``).
+        its translational covariance wider than ``degenerate_sd`` (and 3x the other axis) the
+        score is flat (a featureless corridor): there the best pose is only the first of many
+        equals, so its offset from the prediction along that axis is dropped before the
+        Gauss-Newton refinement, which then moves along the corridor only as far as the
+        bilinear field's gradient (real features) takes it. Returns None when the match is not
+        trustworthy (mean score below ``min_score``).
         """
         from probmap.slam.scan_matching import correlative_distribution, normal_equations, refine
 
         cfg = self.config
         m = cfg.matcher
         _, cov, best, _ = correlative_distribution(fld, pts, predicted, m, cfg.match_temperature)
-        pose, _, _ = refine(fld, pts, best, m.iterations, (m.linear_step, m.angular_step))
-        score, _, _ = normal_equations(fld, pts, pose)
-        if score / pts.shape[0] < cfg.min_score:
-            return None
-        d = pose - predicted
-        d[2] = float(wrap_angle(d[2]))
+        start = best.copy()  # Gauss-Newton starts from here
         vals, vecs = np.linalg.eigh(cov[:2, :2])  # ascending
         if vals[1] > cfg.degenerate_sd**2 and vals[1] > 9.0 * max(vals[0], 0.0):
             # a ridge: flat along vecs[:, 1], sharp across (a broad bowl is not a ridge)
             v = vecs[:, 1]
-            d[:2] -= float(v @ d[:2]) * v
+            start[:2] -= float(v @ (best[:2] - predicted[:2])) * v
             self.degenerate += 1
-        out = predicted + d
-        out[2] = float(wrap_angle(out[2]))
-        return out
+        pose, _, _ = refine(fld, pts, start, m.iterations, (m.linear_step, m.angular_step))
+        score, _, _ = normal_equations(fld, pts, pose)
+        if score / pts.shape[0] < cfg.min_score:
+            return None
+        return pose
 
     def _propose(
         self, fld: MatchField, pts: NDArray, predicted: NDArray, u: NDArray

@@ -62,7 +62,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=600)
     ap.add_argument("--max-active", type=int, default=10)
-    ap.add_argument("--deactivation", choices=["oldest", "weakest"], default="oldest")
+    ap.add_argument("--deactivation", choices=["weakest", "oldest"], default="weakest")
     ap.add_argument("--ekf-max", type=int, default=3000, help="largest n for the EKF")
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()

@@ -8,7 +8,9 @@ radians since the last one), for every particle:
 
 1. predict the pose from the odometry increment;
 2. match the scan against the particle's own map (:func:`~probmap.slam.scan_matching.
-   match_scan`), which finds the mode of the observation likelihood;
+   match_scan`), which finds the mode of the observation likelihood; by default guarded
+   against degenerate geometry (:meth:`GridSlam._match_guarded`: no correction from a flat
+   score along a featureless corridor);
 3. evaluate ``tau_j = p(z | m, x_j) p(x_j | x_{t-1}, u)`` on poses ``x_j`` around the mode, fit
    a Gaussian to them (Grisetti 2007, eqs. 15-16) and draw the new pose from it; the weight is
    multiplied by ``eta = sum_j tau_j`` (eq. 18);

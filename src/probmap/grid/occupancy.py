@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -103,6 +104,49 @@ class ScanStats:
             self.dropped + other.dropped,
             self.cell_updates + other.cell_updates,
         )
+
+
+def plan_growth(
+    spec: GridSpec, box: NDArray[np.float64], *, fixed: bool
+) -> tuple[GridSpec, tuple[int, int] | None]:
+    """The geometry a grid needs to contain ``box = (xmin, xmax, ymin, ymax)``.
+
+    Returns ``(spec, offset)``: ``spec`` itself when the box fits; otherwise a larger grid on the
+    same cell lattice, grown geometrically (:meth:`GridSpec.enclosing`), with ``offset = (column,
+    row)`` of the old cell ``[0, 0]`` in it, or ``None`` when the old grid had no cells.
+
+    Raises
+    ------
+    GridBoundsError
+        When ``fixed`` and the box leaves the grid.
+    """
+    xmin, xmax, ymin, ymax = (float(v) for v in box)
+    if spec.width == 0 or spec.height == 0:
+        if fixed:
+            raise GridBoundsError("fixed grid has no cells")
+        return GridSpec.around(spec.resolution, xmin, xmax, ymin, ymax, margin=32), None
+    new, off_x, off_y = spec.enclosing(xmin, xmax, ymin, ymax)
+    if new is not spec and fixed:
+        x0, x1, y0, y1 = spec.extent
+        raise GridBoundsError(
+            f"scan reaches x in [{xmin:.3f}, {xmax:.3f}], y in [{ymin:.3f}, {ymax:.3f}] m, "
+            f"outside the fixed grid x in [{x0:.3f}, {x1:.3f}], y in [{y0:.3f}, {y1:.3f}] m"
+        )
+    return new, (off_x, off_y)
+
+
+def regrid(
+    old: NDArray[Any], shape: tuple[int, int], offset: tuple[int, int] | None, fill: Any
+) -> NDArray[Any]:
+    """A ``shape`` (H, W, ...) array filled with ``fill`` holding ``old`` at ``offset`` (column,
+    row) — the cells of a grown grid; ``offset=None`` gives a fresh array."""
+    new = np.empty((*shape, *old.shape[2:]), dtype=old.dtype)
+    new[...] = fill
+    if offset is not None:
+        off_x, off_y = offset
+        h, w = old.shape[:2]
+        new[off_y : off_y + h, off_x : off_x + w] = old
+    return new
 
 
 class OccupancyGrid:
@@ -292,32 +336,14 @@ class OccupancyGrid:
 
     # ------------------------------------------------------------------ growth
     def _ensure_bounds(self, box: NDArray[np.float64]) -> None:
-        xmin, xmax, ymin, ymax = (float(v) for v in box)
         if not np.isfinite(box).all():
             raise ValueError("poses must be finite numbers")
-        spec = self._spec
-        if spec.width == 0 or spec.height == 0:
-            if self.fixed:  # pragma: no cover - guarded in __init__
-                raise GridBoundsError("fixed grid has no cells")
-            self._spec = GridSpec.around(spec.resolution, xmin, xmax, ymin, ymax, margin=32)
-            self._lo = np.full(self._spec.shape, self.l0, dtype=np.float32)
-            self._stamp = np.zeros(self._spec.shape, dtype=np.int32)
+        new, off = plan_growth(self._spec, box, fixed=self.fixed)
+        if new is self._spec:
             return
-        new, off_x, off_y = spec.enclosing(xmin, xmax, ymin, ymax)
-        if new is spec:
-            return
-        if self.fixed:
-            x0, x1, y0, y1 = spec.extent
-            raise GridBoundsError(
-                f"scan reaches x in [{xmin:.3f}, {xmax:.3f}], y in [{ymin:.3f}, {ymax:.3f}] m, "
-                f"outside the fixed grid x in [{x0:.3f}, {x1:.3f}], y in [{y0:.3f}, {y1:.3f}] m"
-            )
-        lo = np.full(new.shape, self.l0, dtype=np.float32)
-        st = np.zeros(new.shape, dtype=np.int32)
-        h, w = spec.shape
-        lo[off_y : off_y + h, off_x : off_x + w] = self._lo
-        st[off_y : off_y + h, off_x : off_x + w] = self._stamp
-        self._spec, self._lo, self._stamp = new, lo, st
+        self._lo = regrid(self._lo, new.shape, off, self.l0)
+        self._stamp = regrid(self._stamp, new.shape, off, 0)
+        self._spec = new
 
     # ------------------------------------------------------------------ updates
     def integrate_scan(

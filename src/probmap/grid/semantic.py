@@ -29,10 +29,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from probmap.grid.logodds import logit
 from probmap.grid.occupancy import (
-    GridBoundsError,
     OccupancyGrid,
     ScanStats,
     effective_clear_range,
+    plan_growth,
+    regrid,
 )
 from probmap.grid.spec import GridSpec
 
@@ -583,30 +584,13 @@ class SemanticGrid:
 
     # ------------------------------------------------------------------ growth
     def _ensure_bounds(self, box: NDArray[np.float64]) -> None:
-        xmin, xmax, ymin, ymax = (float(v) for v in box)
-        spec = self._spec
-        if spec.width == 0 or spec.height == 0:
-            self._spec = GridSpec.around(spec.resolution, xmin, xmax, ymin, ymax, margin=32)
-            self._lo = self._blank(self._spec.shape)
-            self._stamp = np.zeros(self._spec.shape, dtype=np.int32)
-            self._slot = np.zeros(self._spec.shape, dtype=np.int32)
+        new, off = plan_growth(self._spec, box, fixed=self.fixed)
+        if new is self._spec:
             return
-        new, off_x, off_y = spec.enclosing(xmin, xmax, ymin, ymax)
-        if new is spec:
-            return
-        if self.fixed:
-            x0, x1, y0, y1 = spec.extent
-            raise GridBoundsError(
-                f"scan reaches x in [{xmin:.3f}, {xmax:.3f}], y in [{ymin:.3f}, {ymax:.3f}] m, "
-                f"outside the fixed grid x in [{x0:.3f}, {x1:.3f}], y in [{y0:.3f}, {y1:.3f}] m"
-            )
-        lo = self._blank(new.shape)
-        st = np.zeros(new.shape, dtype=np.int32)
-        h, w = spec.shape
-        lo[off_y : off_y + h, off_x : off_x + w] = self._lo
-        st[off_y : off_y + h, off_x : off_x + w] = self._stamp
-        self._spec, self._lo, self._stamp = new, lo, st
+        self._lo = regrid(self._lo, new.shape, off, self.l_prior.astype(np.float32))
+        self._stamp = regrid(self._stamp, new.shape, off, 0)
         self._slot = np.zeros(new.shape, dtype=np.int32)
+        self._spec = new
 
     # ------------------------------------------------------------------ updates
     def integrate_scan(

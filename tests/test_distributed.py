@@ -442,3 +442,24 @@ def test_semantic_on_cluster(client, tmp_path: Path) -> None:
     bad.write_bytes(b"not a zip")
     with pytest.raises(DistributedMappingError, match="bad.npz"):
         map_labelled_distributed([paths[0], bad], resolution=0.1, client=client, clamp=wide)
+
+
+def test_increments_clear_no_further_than_the_sequential_grid():
+    """Max-range readings clear min(max_clear_range, max_range), as OccupancyGrid does."""
+    from probmap.distributed import integrate_increments
+    from probmap.pipelines import MappingConfig
+
+    rng = np.random.default_rng(5)
+    poses = np.column_stack([rng.uniform(-1, 1, 6), rng.uniform(-1, 1, 6), rng.uniform(-3, 3, 6)])
+    ranges = rng.uniform(0.3, 3.0, (6, 30))
+    ranges[:, ::3] = 4.0  # no return
+    angles = np.linspace(-1.5, 1.5, 30)
+    cfg = MappingConfig(resolution=0.1, max_clear_range=20.0)
+    inc = integrate_increments(poses, ranges, angles, 4.0, cfg)
+    grid = cfg.make_grid()
+    grid.integrate_scans(poses, ranges, angles, max_range=4.0)
+    a = inc.to_grid(cfg)
+    assert a.observed.sum() == grid.observed.sum()
+    iy, ix = np.nonzero(grid.observed)
+    c = a.spec.world_to_cell(grid.spec.cell_to_world(np.column_stack([ix, iy])))
+    np.testing.assert_allclose(a.log_odds[c[:, 1], c[:, 0]], grid.log_odds[iy, ix], atol=1e-6)

@@ -43,7 +43,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from probmap.grid.occupancy import InverseSensorModel, OccupancyGrid, ScanStats
+from probmap.grid.occupancy import (
+    InverseSensorModel,
+    OccupancyGrid,
+    ScanStats,
+    effective_clear_range,
+)
 from probmap.grid.spec import GridSpec
 from probmap.pipelines import MappingConfig, MappingResult
 
@@ -296,7 +301,7 @@ def integrate_increments(
         return IncrementGrid.empty(res)
     model = _model(config)
     clear = model.max_clear_range
-    clear_range = (max_range if math.isfinite(max_range) else 0.0) if clear is None else clear
+    clear_range = effective_clear_range(clear, max_range)
     # window: every pose and endpoint plus one cell, rounded out to whole tiles
     box = np.empty(4)
     _kernels.scan_bounds(P, R, A, shared, float(max_range), clear_range, model.thickness, box)

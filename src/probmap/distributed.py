@@ -803,7 +803,7 @@ def integrate_semantic_increments(
     model = probe.model
     clear = model.max_clear_range
     mr = float(scans.max_range)
-    clear_range = (mr if math.isfinite(mr) else 0.0) if clear is None else clear
+    clear_range = effective_clear_range(clear, mr)
     A = np.ascontiguousarray(angles[None, :] if angles.ndim == 1 else angles)
     if not np.isfinite(poses).all():
         raise ValueError("poses must be finite numbers")

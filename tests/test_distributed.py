@@ -17,6 +17,7 @@ from probmap.distributed import (
     IncrementGrid,
     clamping_bound,
     integrate_increments,
+    local_cluster,
     map_logs_distributed,
     tree_sum,
 )
@@ -73,11 +74,9 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
 @pytest.fixture(scope="module")
 def client():
     """A LocalCluster of 2 single-threaded worker processes, closed after the module."""
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
-    cluster = LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0"
-    )
+    cluster = local_cluster(2)
     c = Client(cluster)
     try:
         yield c
@@ -165,6 +164,46 @@ def test_increment_counts_against_python_reference() -> None:
     assert count(0, 1) == (0, 1)
     assert count(0, 8) == (0, 1)
     assert int(inc.hits.sum()) == 3 and inc.stats.dropped == 1 and inc.stats.max_range == 1
+
+
+def test_counts_switch_to_int32_beyond_uint16_scans() -> None:
+    """70,000 identical one-beam scans: closed-form counts, exact past 65,535 (int32 path)."""
+    cfg = MappingConfig(resolution=1.0, max_clear_range=None)
+    n = 70_000
+    poses = np.tile([0.5, 0.5, 0.0], (n, 1))
+    inc = integrate_increments(poses, np.full((n, 1), 3.0), np.zeros(1), 9.0, cfg, tile=4)
+    assert inc.hits.dtype == np.int32 and inc.frees.dtype == np.int32
+    j, i = -inc.cell0[1], -inc.cell0[0]
+    assert int(inc.hits[j, i + 3]) == n and int(inc.frees[j, i + 3]) == 0
+    assert [int(inc.frees[j, i + k]) for k in range(3)] == [n, n, n]
+    assert int(inc.hits.sum()) == n and int(inc.frees.sum()) == 3 * n
+    small = integrate_increments(poses[:10], np.full((10, 1), 3.0), np.zeros(1), 9.0, cfg, tile=4)
+    assert small.hits.dtype == np.uint16 and int(small.frees.sum()) == 30
+
+
+def test_reused_stamp_buffer_gives_fresh_results(monkeypatch) -> None:
+    """Tasks share a per-thread stamp buffer: results do not depend on what ran before, also
+    across the int32 wrap-around of the stamp ids."""
+    import probmap.distributed as dist
+
+    a = world(6, size=(8.0, 12.0), step=0.5, n_beams=61)
+    b = world(7, size=(20.0, 6.0), step=0.5, n_beams=61)
+
+    def run(w: Any) -> IncrementGrid:
+        return integrate_increments(w.poses, w.ranges, w.angles, w.max_range, NO_CLAMP, tile=8)
+
+    monkeypatch.setattr(dist, "_STAMPS", dist.threading.local())
+    first = run(a)
+    run(b)  # another window shape in between
+    again = run(a)
+    np.testing.assert_array_equal(again.hits, first.hits)
+    np.testing.assert_array_equal(again.frees, first.frees)
+    # ids about to overflow: the buffer is cleared and ids restart
+    dist._STAMPS.next = np.iinfo(np.int32).max - 3
+    wrapped = run(a)
+    assert dist._STAMPS.next == len(a.poses) + 1
+    np.testing.assert_array_equal(wrapped.hits, first.hits)
+    np.testing.assert_array_equal(wrapped.frees, first.frees)
 
 
 def test_tree_sum_is_exact_and_order_free() -> None:
@@ -326,6 +365,16 @@ def test_cli_helper_writes_map_and_lists_inputs(client, fleet, tmp_path: Path, c
     assert not (tmp_path / "x.yaml").exists()
     with pytest.raises(CliError, match="not both"):
         run_map_distributed(fleet, tmp_path / "x", NO_CLAMP, workers=2, scheduler=address)
+
+
+def test_local_cluster_workers_keep_glibc_adaptive_malloc(client) -> None:
+    """``local_cluster`` spawns workers without Dask's MALLOC_TRIM_THRESHOLD_ (see its notes)."""
+    envs = client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_"))
+    assert len(envs) == 2 and set(envs.values()) == {None}
+    threads = client.run(lambda dask_worker: dask_worker.state.nthreads)
+    assert set(threads.values()) == {1}
+    with pytest.raises(ValueError, match="n_workers"):
+        local_cluster(0)
 
 
 def test_local_cluster_started_and_closed(fleet) -> None:

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -54,12 +55,6 @@ from probmap.pipelines import MappingConfig, MappingResult
 
 if TYPE_CHECKING:
     from probmap.datasets.records import ScanBatch
-
-# Per kernel call the hit count is encoded as multiples of 2**16 and the free count in the low
-# 16 bits of a float64 (exact integers up to 2**53); a cell changes at most once per scan, so a
-# call integrates at most 2**16 - 1 scans.
-_FREE_BITS = 16
-_MAX_SCANS_PER_CALL = (1 << _FREE_BITS) - 1
 
 
 class DistributedMappingError(RuntimeError):
@@ -124,9 +119,11 @@ class IncrementGrid:
     cell0 : tuple of int
         ``(ix0, iy0)``: lattice index of the window's cell ``[0, 0]``; its lower-left corner is
         at ``(ix0 r, iy0 r)`` metres in the world frame.
-    hits, frees : ndarray of int32, shape (H, W)
+    hits, frees : ndarray of uint16 or int32, shape (H, W)
         Scans that hit the cell (endpoint or obstacle thickness) and scans whose beams crossed
-        it, indexed ``[iy, ix]``. The log-odds increment is
+        it, indexed ``[iy, ix]``. A task's own counts are uint16 when it integrated fewer than
+        65,536 scans (a cell changes at most once per scan, so they cannot overflow; half the
+        bytes to ship), int32 otherwise and in every sum. The log-odds increment is
         ``hits (l_hit - l0) + frees (l_miss - l0)``.
     stats : ScanStats
         Counts of the scans integrated.
@@ -136,8 +133,8 @@ class IncrementGrid:
 
     resolution: float
     cell0: tuple[int, int]
-    hits: NDArray[np.int32]
-    frees: NDArray[np.int32]
+    hits: NDArray[np.integer[Any]]
+    frees: NDArray[np.integer[Any]]
     stats: ScanStats
     skipped_lines: int = 0
 
@@ -245,6 +242,31 @@ def clamping_bound(increments: IncrementGrid, config: MappingConfig) -> NDArray[
 
 
 # ------------------------------------------------------------------ task bodies (run on workers)
+_STAMPS = threading.local()
+
+
+def _scratch_stamps(shape: tuple[int, int], n_scans: int) -> tuple[NDArray[np.int32], int]:
+    """A per-thread stamp array of ``shape`` reused across tasks, and the first of ``n_scans``
+    fresh stamp ids.
+
+    The once-per-scan rule needs a stamp per cell that no earlier scan left equal to the current
+    scan's id. Ids only grow within a process, so the buffer never needs clearing between tasks
+    (it is cleared only when the ids would overflow int32): a worker touches warm memory instead
+    of faulting in a new array per task, which measured 7 % of a task's time.
+    """
+    size = shape[0] * shape[1]
+    buf: NDArray[np.int32] | None = getattr(_STAMPS, "buf", None)
+    nxt: int = getattr(_STAMPS, "next", 1)
+    if buf is None or buf.size < size:
+        buf = np.zeros(max(size, 0 if buf is None else 2 * buf.size), dtype=np.int32)
+        nxt = 1
+    if nxt + n_scans >= np.iinfo(np.int32).max:
+        buf[:] = 0
+        nxt = 1
+    _STAMPS.buf, _STAMPS.next = buf, nxt + n_scans
+    return buf[:size].reshape(shape), nxt
+
+
 def integrate_increments(
     poses: NDArray[np.float64],
     ranges: NDArray[np.float64],
@@ -310,38 +332,29 @@ def integrate_increments(
     ix1 = -((-(math.floor(box[1] / res) + 2)) // tile) * tile
     iy1 = -((-(math.floor(box[3] / res) + 2)) // tile) * tile
     shape = (iy1 - iy0, ix1 - ix0)
-    hits = np.zeros(shape, dtype=np.int32)
-    frees = np.zeros(shape, dtype=np.int32)
-    code = np.zeros(shape, dtype=np.float64)
-    stamp = np.zeros(shape, dtype=np.int32)
-    counts = np.zeros(4, dtype=np.int64)
     n = P.shape[0]
-    for start in range(0, n, _MAX_SCANS_PER_CALL):
-        stop = min(start + _MAX_SCANS_PER_CALL, n)
-        code[:] = 0.0
-        _kernels.integrate_scans(
-            code,
-            stamp,
-            start + 1,
-            ix0 * res,
-            iy0 * res,
-            res,
-            P[start:stop],
-            R[start:stop],
-            A if shared else A[start:stop],
-            shared,
-            float(max_range),
-            clear_range,
-            model.thickness,
-            float(1 << _FREE_BITS),  # a hit adds 2**16
-            1.0,  # a crossing adds 1
-            -math.inf,
-            math.inf,
-            counts,
-        )
-        c = code.astype(np.int64)
-        hits += (c >> _FREE_BITS).astype(np.int32)
-        frees += (c & _MAX_SCANS_PER_CALL).astype(np.int32)
+    dtype = np.uint16 if n <= np.iinfo(np.uint16).max else np.int32
+    hits = np.zeros(shape, dtype=dtype)
+    frees = np.zeros(shape, dtype=dtype)
+    stamp, sid0 = _scratch_stamps(shape, n)
+    counts = np.zeros(4, dtype=np.int64)
+    _kernels.count_scans(
+        hits,
+        frees,
+        stamp,
+        sid0,
+        ix0 * res,
+        iy0 * res,
+        res,
+        P,
+        R,
+        A,
+        shared,
+        float(max_range),
+        clear_range,
+        model.thickness,
+        counts,
+    )
     stats = ScanStats(
         n, int(R.size), int(counts[0]), int(counts[1]), int(counts[2]), int(counts[3])
     )
@@ -481,6 +494,50 @@ def _error_text(exc: BaseException | None) -> str:
     return msg
 
 
+_TRIM_VAR = "MALLOC_TRIM_THRESHOLD_"
+
+
+def local_cluster(n_workers: int, **kwargs: Any) -> Any:
+    """Start a Dask ``LocalCluster`` of ``n_workers`` single-threaded worker processes, set up
+    for mapping tasks (what ``map_logs_distributed(workers=N)`` starts).
+
+    Differs from Dask's defaults in one setting: worker processes are spawned without Dask's
+    ``MALLOC_TRIM_THRESHOLD_=65536``. Setting that variable turns off glibc's adaptive mmap
+    threshold, so every array of a task (a few MB of counts and scan arrays) is mapped fresh
+    from the OS and page-faulted in; measured on 48 simulated logs with 2 workers, mapping
+    tasks took 8 % longer and the reduction's sums 4x longer with it. Workers of a cluster you
+    start yourself (``--scheduler``) can get the same by unsetting it in their environment
+    (``distributed.nanny.pre-spawn-environ``). ``kwargs`` go to ``LocalCluster``.
+
+    Returns
+    -------
+    distributed.LocalCluster
+        Close it when done (``with local_cluster(2) as cluster: ...``).
+    """
+    import dask
+    from distributed import LocalCluster
+
+    if n_workers < 1:
+        raise ValueError(f"n_workers must be >= 1, got {n_workers}")
+    options: dict[str, Any] = {
+        "threads_per_worker": 1,
+        "processes": True,
+        "dashboard_address": ":0",
+    }
+    options.update(kwargs)
+    # an earlier cluster's nanny in this process may have exported Dask's value; workers
+    # inherit this process's environment, so it is lifted while they are spawned
+    inherited = os.environ.get(_TRIM_VAR)
+    if inherited == "65536":
+        del os.environ[_TRIM_VAR]
+    try:
+        with dask.config.set({f"distributed.nanny.pre-spawn-environ.{_TRIM_VAR}": None}):
+            return LocalCluster(n_workers=n_workers, **options)
+    finally:
+        if inherited == "65536":
+            os.environ[_TRIM_VAR] = inherited
+
+
 def map_logs_distributed(
     paths: Sequence[str | os.PathLike[str]],
     config: MappingConfig | None = None,
@@ -528,7 +585,7 @@ def map_logs_distributed(
         Some (or all) inputs could not be mapped; the message names each file and its error.
     """
     try:
-        from distributed import Client, LocalCluster
+        from distributed import Client
     except ImportError as exc:  # pragma: no cover - dask is in the test extra
         raise ImportError(
             "distributed mapping needs Dask: pip install 'probmap[distributed]'"
@@ -551,12 +608,7 @@ def map_logs_distributed(
         if scheduler is not None:
             client = Client(scheduler)
         else:
-            cluster = LocalCluster(
-                n_workers=workers or os.cpu_count() or 1,
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=":0",
-            )
+            cluster = local_cluster(workers or os.cpu_count() or 1)
             client = Client(cluster)
     try:
         n_workers = len(client.scheduler_info()["workers"])

@@ -86,6 +86,64 @@ def integrate_scans(
     Hits are applied first, then free space, so that within one scan a hit cell is never also
     freed and every cell changes at most once (the stamp records the last scan that touched it).
     """
+    _integrate_body(
+        lo, lo, stamp, sid0, ox, oy, res, poses, ranges, angles, angles_shared, max_range,
+        clear_range, thickness, d_hit, d_free, lmin, lmax, counts,
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def count_scans(
+    hits,
+    frees,
+    stamp,
+    sid0,
+    ox,
+    oy,
+    res,
+    poses,
+    ranges,
+    angles,
+    angles_shared,
+    max_range,
+    clear_range,
+    thickness,
+    counts,
+):  # pragma: no cover - compiled
+    """Count, per cell, the scans that hit it (``hits += 1``) and that crossed it
+    (``frees += 1``): the same cells, order and once-per-scan rule as :func:`integrate_scans`,
+    without prior or clamping (for summing increments across processes)."""
+    big = np.iinfo(np.int64).max
+    _integrate_body(
+        hits, frees, stamp, sid0, ox, oy, res, poses, ranges, angles, angles_shared, max_range,
+        clear_range, thickness, 1, 1, -big, big, counts,
+    )  # fmt: skip
+
+
+@njit(cache=True, inline="always")
+def _integrate_body(
+    lo_hit,
+    lo_free,
+    stamp,
+    sid0,
+    ox,
+    oy,
+    res,
+    poses,
+    ranges,
+    angles,
+    angles_shared,
+    max_range,
+    clear_range,
+    thickness,
+    d_hit,
+    d_free,
+    lmin,
+    lmax,
+    counts,
+):  # pragma: no cover - compiled
+    """Body of :func:`integrate_scans`: hits go to ``lo_hit``, free space to ``lo_free`` (the
+    same array for a log-odds grid, two count arrays for :func:`count_scans`)."""
     n_scans, n_beams = ranges.shape
     inv = 1.0 / res
     end = np.empty((n_beams, 2))
@@ -126,15 +184,19 @@ def integrate_scans(
             if thickness > 0.0:
                 tx = (px + (r + thickness) * c - ox) * inv
                 ty = (py + (r + thickness) * sn - oy) * inv
-                counts[3] += _walk_update(lo, stamp, sid, ex, ey, tx, ty, True, d_hit, lmin, lmax)
+                counts[3] += _walk_update(
+                    lo_hit, stamp, sid, ex, ey, tx, ty, True, d_hit, lmin, lmax
+                )
             else:
-                counts[3] += _walk_update(lo, stamp, sid, ex, ey, ex, ey, True, d_hit, lmin, lmax)
+                counts[3] += _walk_update(
+                    lo_hit, stamp, sid, ex, ey, ex, ey, True, d_hit, lmin, lmax
+                )
         # pass 2: free space along every beam up to (not including) its last cell
         for b in range(n_beams):
             if kind[b] == 0:
                 continue
             counts[3] += _walk_update(
-                lo, stamp, sid, gx0, gy0, end[b, 0], end[b, 1], False, d_free, lmin, lmax
+                lo_free, stamp, sid, gx0, gy0, end[b, 0], end[b, 1], False, d_free, lmin, lmax
             )
 
 

@@ -288,7 +288,36 @@ def test_cluster_chunks_of_one_log_equal_whole_log(client, fleet) -> None:
         options=opts,
     )  # fmt: skip
     np.testing.assert_array_equal(again.grid.log_odds, res.grid.log_odds)
-    assert progress[-1] == (5, 5)  # a read task and 4 chunk tasks
+    assert progress[-1] == (9, 9)  # a read task, 4 parse tasks and 4 integrating tasks
+
+
+def test_cluster_chunks_parse_in_parallel_like_the_whole_log(client, fleet, tmp_path) -> None:
+    """Chunks of a gzipped log, max range from its PARAM (config leaves it unset): the same
+    counts as the whole log in one task; a bad line in a later share is named by file and line."""
+    import gzip
+
+    cfg = MappingConfig(resolution=0.1, clamp=(1e-15, 1 - 1e-15), max_clear_range=None)
+    text = fleet[1].read_text()
+    gz = tmp_path / "robot1.log.gz"
+    gz.write_bytes(gzip.compress(text.encode()))
+    whole = map_logs_distributed([gz], cfg, client=client, progress=False,
+                                 options=DistributedOptions(mode="increments"))  # fmt: skip
+    for chunks in (3, 50):  # 50 > scans: the extra shares are empty
+        res = map_logs_distributed([gz], cfg, client=client, progress=False,
+                                   options=DistributedOptions(chunks=chunks))  # fmt: skip
+        assert res.increments is not None and whole.increments is not None
+        assert res.stats == whole.stats
+        np.testing.assert_array_equal(res.increments.hits, whole.increments.hits)
+        np.testing.assert_array_equal(res.increments.frees, whole.increments.frees)
+    lines = text.splitlines()
+    lines[15] = lines[15].replace("FLASER 91", "FLASER 90")  # wrong count, line 16
+    bad = tmp_path / "bad.log"
+    bad.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DistributedMappingError) as info:
+        map_logs_distributed([bad], cfg, client=client, progress=False,
+                             options=DistributedOptions(chunks=4))  # fmt: skip
+    msg = str(info.value)
+    assert "bad.log" in msg and "line 16" in msg
 
 
 def test_cluster_reports_unreadable_log(client, fleet, tmp_path: Path) -> None:

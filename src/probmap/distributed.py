@@ -54,6 +54,7 @@ from probmap.grid.spec import GridSpec
 from probmap.pipelines import MappingConfig, MappingResult
 
 if TYPE_CHECKING:
+    from probmap.datasets.carmen import LogShare
     from probmap.datasets.records import ScanBatch
 
 
@@ -269,7 +270,7 @@ def _scratch_stamps(shape: tuple[int, int], n_scans: int) -> tuple[NDArray[np.in
 
 def integrate_increments(
     poses: NDArray[np.float64],
-    ranges: NDArray[np.float64],
+    ranges: NDArray[np.floating[Any]],
     angles: NDArray[np.float64],
     max_range: float,
     config: MappingConfig,
@@ -373,54 +374,54 @@ def _max_range(batch: ScanBatch, config: MappingConfig) -> float:
     return float(config.max_range if config.max_range is not None else batch.max_range)
 
 
-@dataclass(frozen=True)
-class _Chunk:
-    """A contiguous share of one log's scans, as a task's input."""
-
-    poses: NDArray[np.float64]
-    ranges: NDArray[np.float64]
-    angles: NDArray[np.float64]
-    max_range: float
-    skipped_lines: int
-
-
-def _split(batch: ScanBatch, n_chunks: int, config: MappingConfig) -> list[_Chunk]:
-    """``n_chunks`` contiguous, nearly equal chunks of the batch's scans (copies, so that a
-    chunk sent to another worker carries its own scans only)."""
-    n = len(batch.times)
-    angles = np.asarray(batch.angles)
-    out = []
-    for k in range(n_chunks):
-        a, b = (k * n) // n_chunks, ((k + 1) * n) // n_chunks
-        out.append(
-            _Chunk(
-                np.asarray(batch.laser_poses)[a:b].copy(),
-                np.asarray(batch.ranges)[a:b].copy(),
-                angles if angles.ndim == 1 else angles[a:b].copy(),
-                _max_range(batch, config),
-                int(batch.skipped_lines) if k == 0 else 0,  # counted once per log
-            )
-        )
-    return out
-
-
-def _read_task(path: str, config: MappingConfig, n_chunks: int) -> list[_Chunk]:
-    return _split(_load(path, config), n_chunks, config)
-
-
-def _pick(chunks: list[_Chunk], k: int) -> _Chunk:
-    return chunks[k]
-
-
-def _chunk_task(chunk: _Chunk, config: MappingConfig, tile: int) -> IncrementGrid:
+def _batch_task(
+    batch: ScanBatch | None, max_range: float, config: MappingConfig, tile: int
+) -> IncrementGrid:
+    """Increments of one batch of scans (None: a share of a log without scans)."""
+    if batch is None:
+        return IncrementGrid.empty(float(config.resolution))
     inc = integrate_increments(
-        chunk.poses, chunk.ranges, chunk.angles, chunk.max_range, config, tile=tile
+        batch.laser_poses, batch.ranges, batch.angles, max_range, config, tile=tile
     )
-    return replace(inc, skipped_lines=chunk.skipped_lines)
+    return replace(inc, skipped_lines=int(batch.skipped_lines))
 
 
 def _log_task(path: str, config: MappingConfig, tile: int) -> IncrementGrid:
-    return _chunk_task(_read_task(path, config, 1)[0], config, tile)
+    """A whole log: read, then count its updates."""
+    batch = _load(path, config)
+    return _batch_task(batch, _max_range(batch, config), config, tile)
+
+
+def _split_task(path: str, n_shares: int) -> list[LogShare]:
+    """Read (decompress) a log once and cut it into shares of lines (parsed by other tasks)."""
+    from probmap.datasets.carmen import split_log
+
+    return split_log(path, n_shares)
+
+
+def _pick(shares: list[LogShare], k: int) -> LogShare | None:
+    return shares[k] if k < len(shares) else None  # a log with fewer laser lines than shares
+
+
+def _parse_task(share: LogShare | None, config: MappingConfig) -> ScanBatch | None:
+    """The scans of one share, parsed where the share is (in parallel with the others)."""
+    from probmap.datasets.carmen import load_share
+
+    if share is None:
+        return None
+    return load_share(
+        share, poses=config.poses, max_range=config.max_range, skip_bad_lines=config.skip_bad_lines
+    )
+
+
+def _max_range_task(path: str, *batches: ScanBatch | None) -> float:
+    """The whole log's maximum range (the smallest of its scans', as for one batch)."""
+    from probmap.datasets.carmen import DatasetError
+
+    found = [b.max_range for b in batches if b is not None]
+    if not found:
+        raise DatasetError("no FLASER/ROBOTLASER1 scans in the log", path=path)
+    return float(min(found))
 
 
 def _merge_task(*parts: IncrementGrid) -> IncrementGrid:
@@ -631,6 +632,8 @@ def _run(
     n_workers: int,
     t0: float,
 ) -> DistributedMappingResult:
+    from distributed import wait
+
     from probmap.pipelines import map_log
 
     retries = opts.retries
@@ -654,31 +657,42 @@ def _run(
         )
     # the whole graph goes in at once (nothing waits on the client): per log, one task, or a
     # read task that splits the scans and one task per chunk
-    per_log: list[list[Any]] = []
+    # per log: every future of the log (a failure in any fails the log) and its increments
+    per_log: list[tuple[list[Any], list[Any]]] = []
+    shown: list[Any] = []  # the tasks the progress counts (not the picks, which only index)
     for f in files:
         if opts.chunks == 1:
-            per_log.append(
-                [client.submit(_log_task, str(f), cfg, opts.tile, retries=retries, pure=False)]
-            )
+            inc = client.submit(_log_task, str(f), cfg, opts.tile, retries=retries, pure=False)
+            per_log.append(([inc], [inc]))
+            shown.append(inc)
             continue
-        read = client.submit(_read_task, str(f), cfg, opts.chunks, retries=retries, pure=False)
-        # picking a chunk runs where the log was read; only the chunk travels to its worker
-        picks = [client.submit(_pick, read, k, retries=retries) for k in range(opts.chunks)]
-        per_log.append(
-            [read] + [client.submit(_chunk_task, c, cfg, opts.tile, retries=retries) for c in picks]
-        )
-    _wait(client, [fut for fs in per_log for fut in fs], progress)
+        # one task reads (decompresses) the log and cuts its lines into shares; the shares are
+        # parsed and integrated in parallel, each where it was picked
+        split = client.submit(_split_task, str(f), opts.chunks, retries=retries, pure=False)
+        picks = [client.submit(_pick, split, k, retries=retries) for k in range(opts.chunks)]
+        parsed = [client.submit(_parse_task, s, cfg, retries=retries) for s in picks]
+        futs = [split, *picks, *parsed]
+        if cfg.max_range is None:  # the smallest of the scans' maxima, as for the whole log
+            mr = client.submit(_max_range_task, str(f), *parsed, retries=retries)
+            futs.append(mr)
+        else:
+            mr = float(cfg.max_range)
+        incs = [client.submit(_batch_task, b, mr, cfg, opts.tile, retries=retries) for b in parsed]
+        per_log.append((futs + incs, incs))
+        shown.extend([split, *parsed, *incs])
+    _wait(client, shown, progress)
+    wait([fut for fs, _ in per_log for fut in fs])
     mapped: list[Path] = []
     failed: list[tuple[Path, str]] = []
     parts: list[Any] = []
-    n_tasks = sum(len(fs) for fs in per_log) + (len(files) * opts.chunks if opts.chunks > 1 else 0)
-    for f, fs in zip(files, per_log, strict=True):
+    n_tasks = sum(len(fs) for fs, _ in per_log)
+    for f, (fs, incs) in zip(files, per_log, strict=True):
         bad = next((fut for fut in fs if fut.status != "finished"), None)
         if bad is not None:
             failed.append((f, _error_text(bad.exception())))
             continue
         mapped.append(f)
-        parts.extend(fs if opts.chunks == 1 else fs[1:])
+        parts.extend(incs)
     if not parts:
         msgs = "; ".join(f"{f}: {m}" for f, m in failed)
         raise DistributedMappingError(f"no input could be mapped ({msgs})", None)

@@ -19,6 +19,8 @@ from probmap.datasets.carmen import (
     default_angle_step,
     detect_compression,
     load_scans,
+    load_share,
+    split_log,
 )
 from probmap.datasets.protocol import Dataset, DatasetError
 from probmap.datasets.records import LaserScan, Odometry
@@ -422,6 +424,73 @@ def test_load_scans_mixed_beam_counts_pads_with_nan(tmp_path):
     assert batch.beams.tolist() == [180, 181]
     assert np.isnan(batch.ranges[0, 180]) and (batch.ranges[0, :180] == 2.0).all()
     assert batch.angles[0, 0] == -1.5708 and batch.angles[1, 0] == -1.5664
+
+
+# --------------------------------------------------------------------------- shares of a log
+
+
+def _concat(parts):
+    parts = [b for b in parts if b is not None]
+    return {f: np.concatenate([getattr(b, f) for b in parts])
+            for f in ("times", "ranges", "laser_poses", "robot_poses")}  # fmt: skip
+
+
+@pytest.mark.parametrize("suffix", ["", ".gz", ".bz2"])
+@pytest.mark.parametrize("n", [1, 2, 4, 9])
+def test_shares_parse_like_the_whole_log(tmp_path, suffix, n):
+    """Split a log into shares and parse each alone: the whole log's scans, in order, for both
+    pose sources (the laser offset PARAM sits in the first share only)."""
+    lines, scans, _ = basic_lines()
+    path = write(tmp_path / f"a.clf{suffix}", lines)
+    shares = split_log(path, n)
+    assert len(shares) == min(n, 6) and shares[0].first_line == 1
+    for poses in ("corrected", "odometry"):
+        whole = load_scans(path, poses=poses)
+        parts = [load_share(s, poses=poses) for s in shares]
+        assert all(b is not None and len(b.times) >= 1 for b in parts)
+        got = _concat(parts)
+        for f, v in got.items():
+            np.testing.assert_array_equal(v, getattr(whole, f))
+        assert {b.max_range for b in parts} == {50.0}  # PARAM context carried into every share
+
+
+def test_share_errors_name_the_log_line(tmp_path):
+    lines, scans, _ = basic_lines()
+    bad_line = scans[4][0]  # 1-based line number of the fifth FLASER
+    lines[bad_line - 1] = lines[bad_line - 1].replace("FLASER 180", "FLASER 179")
+    path = write(tmp_path / "bad.clf.gz", lines)
+    shares = split_log(path, 3)
+    with pytest.raises(DatasetError, match=f"bad.clf.gz.*line {bad_line}"):
+        for s in shares:
+            load_share(s)
+    with pytest.raises(DatasetError, match=f"line {bad_line}"):
+        load_scans(path)  # the same line in a whole-log read
+    # skipping: the share holding it counts it
+    with pytest.warns(UserWarning, match=f"line {bad_line}"):
+        counts = [load_share(s, skip_bad_lines=True) for s in shares]
+    assert sum(b.skipped_lines for b in counts if b is not None) == 1
+
+
+def test_split_log_without_scans_and_empty(tmp_path):
+    only_odom = write(tmp_path / "odo.clf", [odom((0.0, 0.0, 0.0)), odom((1.0, 0.0, 0.0))])
+    shares = split_log(only_odom, 4)
+    assert len(shares) == 1 and load_share(shares[0]) is None
+    empty = write(tmp_path / "empty.clf", ["\n"])
+    with pytest.raises(DatasetError, match="empty"):
+        split_log(empty, 2)
+    with pytest.raises(ValueError, match="n_shares"):
+        split_log(only_odom, 0)
+    with pytest.raises(FileNotFoundError):
+        split_log(tmp_path / "missing.clf", 2)
+
+
+@pytest.mark.realdata
+def test_intel_shares_equal_whole_log(shared_data):
+    path = shared_data("intel-research-lab/intel.clf.bz2")
+    whole = load_scans(path)
+    got = _concat([load_share(s) for s in split_log(path, 8)])
+    for f, v in got.items():
+        np.testing.assert_array_equal(v, getattr(whole, f))
 
 
 # --------------------------------------------------------------------------- real data

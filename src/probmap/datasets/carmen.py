@@ -288,6 +288,9 @@ class CarmenLog:
         self.name = _dataset_name(self.path)
         self._angles: dict[tuple[int, float, float], NDArray[np.float64]] = {}
         self._done: _PassState | None = None
+        # a share of the log's lines already read (see _text_share): text, first line number,
+        # PARAMs logged before it
+        self._share: tuple[str, int, dict[str, str]] | None = None
 
     # ------------------------------------------------------------------ protocol
     def __len__(self) -> int:
@@ -335,9 +338,16 @@ class CarmenLog:
         return 0 if self._done is None else self._done.skipped
 
     # ------------------------------------------------------------------ parsing
+    def _lines(self) -> Iterator[tuple[int, str]]:
+        if self._share is None:
+            return _numbered_lines(self.path)
+        text, first, _ = self._share
+        # the text was read through the same newline translation: "\n" ends every line
+        return enumerate(text.split("\n"), start=first)
+
     def _read(self, *, scans: bool, odometry: bool) -> Iterator[LaserScan | Odometry]:
-        state = _PassState(params={})
-        for lineno, line in _numbered_lines(self.path):
+        state = _PassState(params={} if self._share is None else dict(self._share[2]))
+        for lineno, line in self._lines():
             fields = line.split()
             if not fields:
                 continue
@@ -375,7 +385,7 @@ class CarmenLog:
                 state.skipped += 1
                 if not state.first_error:
                     state.first_error = f"line {lineno}: malformed {kind} line: {exc}"
-        if state.messages == 0:
+        if state.messages == 0 and self._share is None:
             raise DatasetError("empty log (no messages)", path=self.path)
         if state.skipped:
             warnings.warn(
@@ -385,7 +395,7 @@ class CarmenLog:
                 stacklevel=3,
             )
         self._done = state
-        if scans and state.scans == 0:
+        if scans and state.scans == 0 and self._share is None:
             raise DatasetError(
                 "no laser scans (FLASER, RLASER or ROBOTLASER1 lines) in the log", path=self.path
             )
@@ -549,6 +559,21 @@ def load_scans(
     DatasetError
         As :class:`CarmenLog`, and when the log holds no scan of the chosen ``sources``.
     """
+    _check_load_args(poses, sources)
+    log = CarmenLog(
+        path,
+        start_angle=start_angle,
+        angle_step=angle_step,
+        max_range=max_range,
+        skip_bad_lines=skip_bad_lines,
+    )
+    batch = _stack(log, poses, sources, dtype, None)
+    if batch is None:
+        raise DatasetError(f"no {'/'.join(sources)} scans in the log", path=log.path)
+    return batch
+
+
+def _check_load_args(poses: str, sources: Sequence[str]) -> None:
     if poses not in ("corrected", "odometry"):
         raise ValueError(f"poses must be 'corrected' or 'odometry', got {poses!r}")
     unknown = set(sources) - set(LASER_TYPES)
@@ -557,13 +582,17 @@ def load_scans(
     if poses == "odometry" and "RLASER" in sources:
         # the rear laser's mounting (offset and heading) is not described by the front PARAMs
         raise ValueError("poses='odometry' supports the front laser only; use poses='corrected'")
-    log = CarmenLog(
-        path,
-        start_angle=start_angle,
-        angle_step=angle_step,
-        max_range=max_range,
-        skip_bad_lines=skip_bad_lines,
-    )
+
+
+def _stack(
+    log: CarmenLog,
+    poses: str,
+    sources: Sequence[str],
+    dtype: type[np.floating],
+    offset_params: dict[str, str] | None,
+) -> ScanBatch | None:
+    """One pass over ``log``: its scans of ``sources`` stacked (None when it has none).
+    ``offset_params``: the PARAMs that give the laser offset (default: the log's own)."""
     keep = frozenset(sources)
     times: list[float] = []
     rows: list[NDArray[np.float64]] = []
@@ -581,7 +610,7 @@ def load_scans(
         robot.append(scan.robot_pose)
         max_ranges.append(scan.max_range)
     if not rows:
-        raise DatasetError(f"no {'/'.join(sources)} scans in the log", path=log.path)
+        return None
     beams = np.array([r.shape[0] for r in rows], dtype=np.int64)
     b = int(beams.max())
     if (beams == b).all():
@@ -603,7 +632,8 @@ def load_scans(
     if poses == "corrected":
         laser_poses = np.array(laser, dtype=np.float64).reshape(-1, 3)
     else:
-        d = float(log.params.get("robot_frontlaser_offset", 0.0))
+        params = log.params if offset_params is None else offset_params
+        d = float(params.get("robot_frontlaser_offset", 0.0))
         th = robot_poses[:, 2]
         laser_poses = np.column_stack(
             (robot_poses[:, 0] + d * np.cos(th), robot_poses[:, 1] + d * np.sin(th), th)
@@ -618,3 +648,94 @@ def load_scans(
         beams=beams,
         skipped_lines=log.skipped_lines,
     )
+
+
+# ---------------------------------------------------------------------------- shares of a log
+
+
+@dataclass(frozen=True)
+class LogShare:
+    """A contiguous run of a log's lines, read once and parsed elsewhere (another process).
+
+    ``params_before`` holds the PARAMs logged before ``first_line`` and ``params_all`` those of
+    the whole log, so that a share parses exactly as the same lines do in a whole-log pass.
+    """
+
+    path: Path
+    text: str
+    first_line: int
+    params_before: dict[str, str]
+    params_all: dict[str, str]
+
+
+def split_log(path: str | os.PathLike[str], n_shares: int) -> list[LogShare]:
+    """Read (and decompress) a log once and cut its lines into ``n_shares`` contiguous shares
+    holding nearly equal numbers of laser lines (for parsing them in parallel).
+
+    Raises
+    ------
+    FileNotFoundError, DatasetError
+        A missing file; an empty, truncated or corrupt one (named, as :class:`CarmenLog`).
+    """
+    if n_shares < 1:
+        raise ValueError(f"n_shares must be >= 1, got {n_shares}")
+    p = Path(path)
+    CarmenLog(p)  # the same checks on the path as a whole-log read
+    lines: list[str] = []
+    laser: list[int] = []  # indices of laser lines
+    params_at: list[tuple[int, list[str]]] = []
+    for _, line in _numbered_lines(p):
+        head = line[:12]
+        if head.startswith(("FLASER", "RLASER", "ROBOTLASER1")):
+            laser.append(len(lines))
+        elif head.startswith("PARAM"):
+            params_at.append((len(lines), line.split()))
+        lines.append(line)
+    if not any(line.strip() for line in lines):
+        raise DatasetError("empty log (no messages)", path=p)
+    # cut before the laser lines that start each share (the first share starts at line 1)
+    n = max(1, min(n_shares, len(laser)))
+    cuts = [0] + [laser[(k * len(laser)) // n] for k in range(1, n)] + [len(lines)]
+    everything: dict[str, str] = {}
+    for _, f in params_at:
+        try:
+            CarmenLog._parse_param(f, everything)
+        except _LineError:
+            pass  # reported by the share holding the line
+    shares = []
+    for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+        before: dict[str, str] = {}
+        for i, f in params_at:
+            if i >= a:
+                break
+            try:
+                CarmenLog._parse_param(f, before)
+            except _LineError:
+                pass
+        shares.append(LogShare(p, "".join(lines[a:b]), a + 1, before, everything))
+    return shares
+
+
+def load_share(
+    share: LogShare,
+    *,
+    poses: str = "corrected",
+    start_angle: float = -math.pi / 2,
+    angle_step: float | None = None,
+    max_range: float | None = None,
+    skip_bad_lines: bool = False,
+    sources: Sequence[str] = ("FLASER", "ROBOTLASER1"),
+    dtype: type[np.floating] = np.float64,
+) -> ScanBatch | None:
+    """The scans of one share of a log, as :func:`load_scans` reads them from the whole log
+    (same records, line numbers in errors, PARAM context); None when the share has none."""
+    _check_load_args(poses, sources)
+    log = CarmenLog(
+        share.path,
+        start_angle=start_angle,
+        angle_step=angle_step,
+        max_range=max_range,
+        skip_bad_lines=skip_bad_lines,
+    )
+    log._share = (share.text, share.first_line, share.params_before)
+    return _stack(log, poses, sources, dtype, share.params_all)

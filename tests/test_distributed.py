@@ -206,6 +206,27 @@ def test_reused_stamp_buffer_gives_fresh_results(monkeypatch) -> None:
     np.testing.assert_array_equal(wrapped.frees, first.frees)
 
 
+def test_final_log_odds_kernel_against_numpy() -> None:
+    """The one-pass kernel vs the formula in numpy, clamped and unclamped, both count dtypes."""
+    from probmap.distributed import _levels
+    from probmap.grid.occupancy import ScanStats
+
+    rng = np.random.default_rng(4)
+    for dtype in (np.uint16, np.int32):
+        hits = rng.integers(0, 40, (37, 53)).astype(dtype)
+        frees = rng.integers(0, 40, (37, 53)).astype(dtype)
+        hits[:5] = 0
+        frees[:5, :7] = 0
+        inc = IncrementGrid(0.1, (3, -4), hits, frees, ScanStats(0, 0, 0, 0, 0, 0))
+        for cfg in (CLAMPED, NO_CLAMP):
+            l0, dh, df, lmin, lmax = _levels(cfg)
+            ref = np.clip(l0 + hits.astype(float) * dh + frees.astype(float) * df, lmin, lmax)
+            np.testing.assert_array_equal(inc.log_odds(cfg), ref.astype(np.float32))
+            grid = inc.to_grid(cfg)
+            seen = (hits > 0) | (frees > 0)
+            assert int(grid.observed.sum()) == int(seen.sum())
+
+
 def test_tree_sum_is_exact_and_order_free() -> None:
     w = world(5, size=(8.0, 12.0), step=0.5, n_beams=61)
     whole = integrate_increments(w.poses, w.ranges, w.angles, w.max_range, CLAMPED, tile=8)

@@ -187,21 +187,46 @@ class IncrementGrid:
             self.skipped_lines + other.skipped_lines,
         )
 
+    def cropped(self, margin: int = 2) -> IncrementGrid:
+        """The counts trimmed to the observed cells plus ``margin`` cells (as
+        :meth:`OccupancyGrid.cropped`), on the same lattice; a window without observed cells is
+        returned as is."""
+        seen = (self.hits > 0) | (self.frees > 0)
+        rows = np.nonzero(seen.any(axis=1))[0]
+        cols = np.nonzero(seen.any(axis=0))[0]
+        if len(rows) == 0:
+            return self
+        h, w = seen.shape
+        y0, y1 = max(int(rows[0]) - margin, 0), min(int(rows[-1]) + 1 + margin, h)
+        x0, x1 = max(int(cols[0]) - margin, 0), min(int(cols[-1]) + 1 + margin, w)
+        return replace(
+            self,
+            cell0=(self.cell0[0] + x0, self.cell0[1] + y0),
+            hits=self.hits[y0:y1, x0:x1].copy(),
+            frees=self.frees[y0:y1, x0:x1].copy(),
+        )
+
     def log_odds(self, config: MappingConfig) -> NDArray[np.float32]:
         """Final log odds: prior plus increments, clamped once (see the module notes), (H, W)."""
+        return self._final(config)[0]
+
+    def _final(self, config: MappingConfig) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+        from probmap.grid import _kernels
+
         l0, d_hit, d_free, l_min, l_max = _levels(config)
-        lo = l0 + self.hits * d_hit + self.frees * d_free
-        return np.clip(lo, l_min, l_max).astype(np.float32)
+        lo = np.empty(self.hits.shape, dtype=np.float32)
+        seen = np.empty(self.hits.shape, dtype=np.bool_)
+        if lo.size:
+            _kernels.counts_to_log_odds(
+                self.hits, self.frees, l0, d_hit, d_free, l_min, l_max, lo, seen
+            )
+        return lo, seen
 
     def to_grid(self, config: MappingConfig) -> OccupancyGrid:
         """The occupancy grid these counts describe, cropped to the observed cells."""
+        lo, seen = self._final(config)
         grid = OccupancyGrid.from_log_odds(
-            self.spec,
-            self.log_odds(config),
-            p0=config.p0,
-            clamp=config.clamp,
-            observed=(self.hits > 0) | (self.frees > 0),
-            model=_model(config),
+            self.spec, lo, p0=config.p0, clamp=config.clamp, observed=seen, model=_model(config)
         )
         return grid.cropped()
 
@@ -429,6 +454,10 @@ def _merge_task(*parts: IncrementGrid) -> IncrementGrid:
     for p in parts[1:]:
         out = out.merge(p)
     return out
+
+
+def _crop_task(total: IncrementGrid) -> IncrementGrid:
+    return total.cropped()
 
 
 def tree_sum(parts: Sequence[IncrementGrid], fan_in: int = 4) -> IncrementGrid:
@@ -704,7 +733,9 @@ def _run(
             for i in range(0, len(level), opts.fan_in)
         ]
         n_tasks += len(level)
-    total: IncrementGrid = level[0].result()
+    # trimmed where the sum is, so that only the observed part travels to this process
+    total: IncrementGrid = client.submit(_crop_task, level[0], retries=retries).result()
+    n_tasks += 1
     grid = total.to_grid(cfg)
     result = DistributedMappingResult(
         grid=grid,

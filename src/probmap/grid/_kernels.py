@@ -324,3 +324,21 @@ def walk_next(ix, iy, ex, ey, sx, sy, tmx, tmy, tdx, tdy):  # pragma: no cover -
         iy += sy
         tmy += tdy
     return ix, iy, tmx, tmy
+
+
+@njit(cache=True)
+def counts_to_log_odds(hits, frees, l0, d_hit, d_free, lmin, lmax, lo, seen):
+    """``lo = clip(l0 + hits d_hit + frees d_free, lmin, lmax)`` (float64 sum, stored in ``lo``'s
+    dtype) and ``seen = hits > 0 or frees > 0``, cell by cell in one pass."""  # noqa: D401
+    h, w = hits.shape
+    for i in range(h):
+        for j in range(w):
+            a = hits[i, j]
+            b = frees[i, j]
+            v = l0 + a * d_hit + b * d_free
+            if v < lmin:
+                v = lmin
+            elif v > lmax:
+                v = lmax
+            lo[i, j] = v
+            seen[i, j] = a > 0 or b > 0

@@ -439,11 +439,16 @@ def _parse_task(share: LogShare | None, config: MappingConfig) -> ScanBatch | No
     )
 
 
-def _max_range_task(path: str, *batches: ScanBatch | None) -> float:
+def _share_max_range(batch: ScanBatch | None) -> float | None:
+    """A parsed share's maximum range (runs where the share is: only a number travels)."""
+    return None if batch is None else float(batch.max_range)
+
+
+def _max_range_task(path: str, *ranges: float | None) -> float:
     """The whole log's maximum range (the smallest of its scans', as for one batch)."""
     from probmap.datasets.carmen import DatasetError
 
-    found = [b.max_range for b in batches if b is not None]
+    found = [r for r in ranges if r is not None]
     if not found:
         raise DatasetError("no FLASER/ROBOTLASER1 scans in the log", path=path)
     return float(min(found))
@@ -702,8 +707,9 @@ def _run(
         parsed = [client.submit(_parse_task, s, cfg, retries=retries) for s in picks]
         futs = [split, *picks, *parsed]
         if cfg.max_range is None:  # the smallest of the scans' maxima, as for the whole log
-            mr = client.submit(_max_range_task, str(f), *parsed, retries=retries)
-            futs.append(mr)
+            each = [client.submit(_share_max_range, b, retries=retries) for b in parsed]
+            mr = client.submit(_max_range_task, str(f), *each, retries=retries)
+            futs.extend([*each, mr])
         else:
             mr = float(cfg.max_range)
         incs = [client.submit(_batch_task, b, mr, cfg, opts.tile, retries=retries) for b in parsed]

@@ -690,7 +690,7 @@ def _run(
             skipped_lines=res.skipped_lines,
         )
     # the whole graph goes in at once (nothing waits on the client): per log, one task, or a
-    # read task that splits the scans and one task per chunk
+    # read task that cuts its lines into shares, then a parse and an integrating task per share
     # per log: every future of the log (a failure in any fails the log) and its increments
     per_log: list[tuple[list[Any], list[Any]]] = []
     shown: list[Any] = []  # the tasks the progress counts (not the picks, which only index)

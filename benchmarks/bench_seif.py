@@ -64,8 +64,14 @@ def main() -> None:
     ap.add_argument("--max-active", type=int, default=10)
     ap.add_argument("--deactivation", choices=["weakest", "oldest"], default="weakest")
     ap.add_argument("--ekf-max", type=int, default=3000, help="largest n for the EKF")
+    ap.add_argument(
+        "--context-hops",
+        default="0,1",
+        help="SeifConfig.context_hops values to time, comma-separated (0 = Table 12.4)",
+    )
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
+    hop_values = [int(v) for v in args.context_hops.split(",")]
     sizes = [100, 1000, 10000, 100000]
     ekf_sizes = [100, 300, 1000, 3000]
     steps_n = args.steps
@@ -81,17 +87,24 @@ def main() -> None:
         obs = np.mean([s.z.shape[0] for s in steps])
         row = {"n": n, "obs": obs}
         if n in sizes:
-            seif = build_seif(
-                ds, SeifConfig(max_active=args.max_active, deactivation=args.deactivation)
-            )
-            seif.add_landmarks(
-                np.arange(n), lm, np.broadcast_to(PRIOR_SD**2 * np.eye(2), (n, 2, 2))
-            )
-            t = _time_steps(seif, steps)[warm:]
-            row["seif_ms"] = 1e3 * float(np.median(t))
-            row["seif_mean_ms"] = 1e3 * float(np.mean(t))
-            row["bytes_per_lm"] = seif.state_nbytes() / seif.n_landmarks
-            row["links"] = seif.store.block_counts()["landmark_links"]
+            for hops in hop_values:
+                seif = build_seif(
+                    ds,
+                    SeifConfig(
+                        max_active=args.max_active,
+                        deactivation=args.deactivation,
+                        context_hops=hops,
+                    ),
+                )
+                seif.add_landmarks(
+                    np.arange(n), lm, np.broadcast_to(PRIOR_SD**2 * np.eye(2), (n, 2, 2))
+                )
+                t = _time_steps(seif, steps)[warm:]
+                key = "" if hops == hop_values[0] else f"_h{hops}"
+                row["seif_ms" + key] = 1e3 * float(np.median(t))
+                row["seif_mean_ms" + key] = 1e3 * float(np.mean(t))
+                row["bytes_per_lm" + key] = seif.state_nbytes() / seif.n_landmarks
+                row["links" + key] = seif.store.block_counts()["landmark_links"]
         if n in ekf_sizes and n <= args.ekf_max:
             ekf = _ekf_with_prior(ds, lm)
             t = _time_steps(ekf, steps[: max(warm + 50, steps_n // (1 + n // 1000))])[warm:]
@@ -103,22 +116,36 @@ def main() -> None:
     def fmt(v, spec):
         return format(v, spec) if v is not None else "-"
 
-    print()
+    print(
+        f"\nSEIF columns: context_hops = {hop_values[0]}; extra columns: context_hops = "
+        f"{hop_values[1:]} (median ms, bytes/landmark)"
+    )
+    extra = [f"_h{h}" for h in hop_values[1:]]
+    head = "".join(f" | SEIF{k} median ms | SEIF{k} bytes/lm" for k in extra)
     print(
         "| landmarks | obs/step | SEIF median ms | SEIF mean ms | SEIF bytes/landmark "
-        "| SEIF links | EKF median ms | EKF bytes/landmark |"
+        f"| SEIF links{head} | EKF median ms | EKF bytes/landmark |"
     )
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---:|---:|---:|---:|---:|---:" + "|---:|---:" * len(extra) + "|---:|---:|")
     for r in rows:
+        cells = "".join(
+            f" | {fmt(r.get('seif_ms' + k), '.3f')} | {fmt(r.get('bytes_per_lm' + k), '.0f')}"
+            for k in extra
+        )
         print(
             f"| {r['n']:,} | {r['obs']:.1f} | {fmt(r.get('seif_ms'), '.3f')} "
             f"| {fmt(r.get('seif_mean_ms'), '.3f')} | {fmt(r.get('bytes_per_lm'), '.0f')} "
-            f"| {fmt(r.get('links'), 'd')} | {fmt(r.get('ekf_ms'), '.3f')} "
+            f"| {fmt(r.get('links'), 'd')}{cells} | {fmt(r.get('ekf_ms'), '.3f')} "
             f"| {fmt(r.get('ekf_bytes_per_lm'), ',.0f')} |"
         )
     seif_rows = [r for r in rows if "seif_ms" in r]
-    ratio = seif_rows[-1]["seif_ms"] / seif_rows[0]["seif_ms"]
-    print(f"\nSEIF t({seif_rows[-1]['n']:,}) / t({seif_rows[0]['n']:,}) = {ratio:.2f}")
+    for k in ["", *extra]:
+        ratio = seif_rows[-1]["seif_ms" + k] / seif_rows[0]["seif_ms" + k]
+        print(
+            f"SEIF{k} t({seif_rows[-1]['n']:,}) / t({seif_rows[0]['n']:,}) = {ratio:.2f}, "
+            f"t({seif_rows[-1]['n']:,}) / Table-12.4 t = "
+            f"{seif_rows[-1]['seif_ms' + k] / seif_rows[-1]['seif_ms']:.2f}"
+        )
     ekf_rows = [r for r in rows if "ekf_ms" in r]
     if len(ekf_rows) >= 2:
         x = np.log([r["n"] for r in ekf_rows])

@@ -31,7 +31,9 @@ from probmap.slam.pipeline import default_ekf_config, evaluate, run_landmark_sla
 from probmap.slam.seif import SeifConfig, build_seif  # noqa: E402
 
 SETTINGS: list[int | None] = [2, 4, 7, 10, 20, None]
-WEAKEST = "10w"  # max_active = 10, deactivation = "weakest"
+WEAKEST = "10w"  # max_active = 10, deactivation = "weakest" (the default SEIF)
+CONTEXT = "10c"  # the default SEIF with context_hops = 1 (an extension of Table 12.4)
+AT_10 = [10, WEAKEST, CONTEXT]
 
 
 def _get(m: dict[str, Any], *keys: str) -> float:
@@ -54,6 +56,8 @@ def _run(ds: Any, max_active: int | None | str) -> dict[str, float]:
         )
     elif max_active == WEAKEST:
         est = build_seif(ds, SeifConfig(max_active=10, deactivation="weakest"))
+    elif max_active == CONTEXT:
+        est = build_seif(ds, SeifConfig(max_active=10, deactivation="weakest", context_hops=1))
     else:
         est = build_seif(ds, SeifConfig(max_active=max_active, deactivation="oldest"))  # type: ignore[arg-type]
     m = evaluate(run_landmark_slam(est, ds), ds, with_dead_reckoning=False)
@@ -76,7 +80,13 @@ def main() -> None:
     ap.add_argument("--plot", default="docs/seif_max_active.png")
     ap.add_argument("--seeds", default="0-7", help="simulation seeds, a range A-B")
     ap.add_argument("--sim-only", action="store_true", help="skip MRCLAM and Victoria Park")
+    ap.add_argument(
+        "--only-10",
+        action="store_true",
+        help="run only the EKF and the max_active = 10 variants (for many seeds)",
+    )
     args = ap.parse_args()
+    variants: list[Any] = [WEAKEST, CONTEXT] if args.only_10 else [*SETTINGS, WEAKEST, CONTEXT]
     first, last = (int(v) for v in args.seeds.split("-"))
     datasets: list[tuple[str, Any]] = [
         (f"simulation seed {s}", simulate_landmarks(150, 600, seed=s, density=0.05))
@@ -98,11 +108,13 @@ def main() -> None:
     def label(k: Any) -> str:
         if k == WEAKEST:
             return "SEIF 10 weakest"
+        if k == CONTEXT:
+            return "SEIF 10 weakest, context 1"
         return "EKF" if k == "ekf" else f"SEIF {k or 'unbounded'}"
 
     for name, ds in datasets:
         results[name] = {"ekf": _run(ds, "ekf")}
-        for k in [*SETTINGS, WEAKEST]:
+        for k in variants:
             results[name][k] = _run(ds, k)
         print(
             f"done {name}: "
@@ -124,26 +136,50 @@ def main() -> None:
                 f"| {name} | {label(k)} | {r['robot']:.3f} | {r['landmark']:.3f} "
                 f"| {r['anees']:.2f} | {r['ms']:.3f} | {r['mapped']:.0f} |"
             )
-    print("\nratio to EKF at max_active = 10, robot RMSE, landmark RMSE (oldest | weakest):")
+    at10 = [k for k in AT_10 if k in variants]
+    print(
+        "\nratio to EKF at max_active = 10, robot RMSE, landmark RMSE ("
+        + " | ".join(label(k) for k in at10)
+        + "):"
+    )
     for name, rows in results.items():
-        e, sv, w = rows["ekf"], rows[10], rows[WEAKEST]
+        e = rows["ekf"]
         print(
-            f"  {name}: {sv['robot'] / e['robot']:.2f}, {sv['landmark'] / e['landmark']:.2f} | "
-            f"{w['robot'] / e['robot']:.2f}, {w['landmark'] / e['landmark']:.2f}"
+            f"  {name}: "
+            + " | ".join(
+                f"{rows[k]['robot'] / e['robot']:.2f}, {rows[k]['landmark'] / e['landmark']:.2f}"
+                for k in at10
+            )
         )
     sims = [rows for name, rows in results.items() if name.startswith("simulation")]
     if sims:
-        print("pooled over the simulation seeds (RMS of each RMSE over seeds, SEIF / EKF):")
-        for k in [*SETTINGS, WEAKEST]:
-            ratios = []
+        # Monte Carlo RMSE: the root of the mean squared error over the runs (each run's RMSE
+        # squared is its mean squared error); 95 % interval of the ratio by bootstrapping seeds
+        boot = np.random.default_rng(0).integers(0, len(sims), size=(2000, len(sims)))
+        print(
+            f"Monte Carlo RMSE over {len(sims)} simulation seeds, SEIF / EKF "
+            "(95 % bootstrap interval over seeds), per-run ratios above 1.3:"
+        )
+        for k in variants:
+            parts = []
             for q in ("robot", "landmark"):
-                num = np.sqrt(np.mean([rows[k][q] ** 2 for rows in sims]))
-                ratios.append(num / np.sqrt(np.mean([rows["ekf"][q] ** 2 for rows in sims])))
-            anees = np.median([rows[k]["anees"] for rows in sims])
+                se = np.array([rows[k][q] ** 2 for rows in sims])
+                ee = np.array([rows["ekf"][q] ** 2 for rows in sims])
+                ratio = np.sqrt(se.mean() / ee.mean())
+                bs = np.sqrt(se[boot].mean(1) / ee[boot].mean(1))
+                lo, hi = np.percentile(bs, [2.5, 97.5])
+                over = int(np.sum(np.sqrt(se / ee) > 1.3))
+                parts.append(f"{q} {ratio:.2f} [{lo:.2f}, {hi:.2f}] ({over} > 1.3)")
+            anees = [rows[k]["anees"] for rows in sims]
             print(
-                f"  {label(k)}: robot {ratios[0]:.2f}, landmark {ratios[1]:.2f}, "
-                f"median ANEES {anees:.1f}"
+                f"  {label(k)}: "
+                + ", ".join(parts)
+                + f"; pose ANEES median {np.median(anees):.1f}, max {np.max(anees):.1f}"
             )
+        anees_e = [rows["ekf"]["anees"] for rows in sims]
+        print(f"  EKF pose ANEES median {np.median(anees_e):.1f}, max {np.max(anees_e):.1f}")
+    if args.only_10:
+        return
 
     import matplotlib
 

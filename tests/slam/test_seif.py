@@ -204,6 +204,127 @@ def test_class_sparsify_matches_book_formula_on_a_run():
     _assert_spd(seif.information_matrix())
 
 
+def _book_sparsification_with_context(Omega, xi, mu, x, mp, m0, ctx):
+    """The three-matrix form with the context landmarks marginalised in Omega1 and Omega2."""
+    d = Omega.shape[0]
+
+    def F(idx):
+        out = np.zeros((d, len(idx)))
+        out[idx, np.arange(len(idx))] = 1.0
+        return out
+
+    Fx, Fall = F(x), F(np.concatenate([x, mp, m0, ctx]))
+    Fc, Fxc = F(np.concatenate([m0, ctx])), F(np.concatenate([x, m0, ctx]))
+    Omega0 = Fall @ Fall.T @ Omega @ Fall @ Fall.T
+    Omega1 = Omega0 - Omega0 @ Fc @ np.linalg.inv(Fc.T @ Omega0 @ Fc) @ Fc.T @ Omega0
+    Omega2 = Omega0 - Omega0 @ Fxc @ np.linalg.inv(Fxc.T @ Omega0 @ Fxc) @ Fxc.T @ Omega0
+    Omega3 = Omega - Omega @ Fx @ np.linalg.inv(Fx.T @ Omega @ Fx) @ Fx.T @ Omega
+    Omega_t = Omega1 - Omega2 + Omega3
+    return Omega_t, xi + (Omega_t - Omega) @ mu
+
+
+def _blanket_system(seed: int, n_active: int, n_passive: int, ridge: float = 5.0):
+    rng = np.random.default_rng(seed)
+    d = 3 + 2 * (n_active + n_passive)
+    Omega = _spd(rng, d)
+    passive = np.arange(3 + 2 * n_active, d)
+    Omega[np.ix_(np.arange(3), passive)] = 0.0  # the robot links only to active landmarks
+    Omega[np.ix_(passive, np.arange(3))] = 0.0
+    Omega += ridge * d * np.eye(d)
+    np.linalg.cholesky(Omega)
+    mu = rng.standard_normal(d)
+    return Omega, Omega @ mu, mu
+
+
+def test_sparsify_with_all_passive_as_context_keeps_exact_marginals():
+    # context = every passive landmark: the result is p(m) p(x | m+), whose covariance over
+    # (x, m+) and over the map is the posterior's (closed form); Table 12.4 (no context) is not
+    Omega, xi, mu = _blanket_system(21, 4, 5, ridge=0.0)
+    d = Omega.shape[0]
+    Sigma = np.linalg.inv(Omega)
+    xmp = np.r_[0:3, 5:11]  # robot and m+ (landmarks 1-3); m0 = landmark 0 (rows 3, 4)
+    mapr = np.arange(3, d)
+    O_t, xi_t = sparsify_information(Omega, xi, mu, [3], n_context=5)
+    S_t = np.linalg.inv(O_t)
+    assert np.all(O_t[:3, 3:5] == 0.0)
+    assert np.allclose(S_t[np.ix_(xmp, xmp)], Sigma[np.ix_(xmp, xmp)], atol=1e-12)
+    assert np.allclose(S_t[np.ix_(mapr, mapr)], Sigma[np.ix_(mapr, mapr)], atol=1e-12)
+    assert np.allclose(np.linalg.solve(O_t, xi_t), mu, atol=1e-10)  # the mean is kept
+    assert np.array_equal(O_t[11:, :], Omega[11:, :])  # context rows untouched
+    _assert_spd(O_t)
+    # the literal three-matrix formula with the context marginalised gives the same matrix
+    ref_O, ref_xi = _book_sparsification_with_context(
+        Omega, xi, mu, np.arange(3), np.arange(5, 11), np.array([3, 4]), np.arange(11, d)
+    )
+    assert np.allclose(O_t, ref_O, atol=1e-9)
+    assert np.allclose(xi_t, ref_xi, atol=1e-9)
+    # Table 12.4 takes the blanket only, conditioning on the passive landmarks: the robot's
+    # marginal covariance shrinks (overconfidence)
+    loc = np.arange(11)
+    O_b = Omega.copy()
+    O_b[np.ix_(loc, loc)] = sparsify_information(Omega[np.ix_(loc, loc)], xi[loc], mu[loc], [3])[0]
+    S_b = np.linalg.inv(O_b)
+    assert np.linalg.det(S_b[:3, :3]) < 0.999 * np.linalg.det(Sigma[:3, :3])
+    assert np.abs(S_b[:3, :3] - Sigma[:3, :3]).max() > 1e-5
+
+
+def test_sparsify_context_partial_equals_dense_formula_and_validates():
+    Omega, xi, mu = _blanket_system(22, 5, 6)
+    d = Omega.shape[0]
+    # context = the first 3 passive landmarks; the last 3 are conditioned on (dropped)
+    keep = np.arange(3 + 2 * 8)
+    O_t, xi_t = sparsify_information(
+        Omega[np.ix_(keep, keep)], xi[keep], mu[keep], [5, 9], n_context=3
+    )
+    ref_O, ref_xi = _book_sparsification_with_context(
+        Omega[np.ix_(keep, keep)],
+        xi[keep],
+        mu[keep],
+        np.arange(3),
+        np.r_[3:5, 7:9, 11:13],
+        np.r_[5:7, 9:11],
+        np.arange(13, 19),
+    )
+    assert np.allclose(O_t, ref_O, atol=1e-9)
+    assert np.allclose(xi_t, ref_xi, atol=1e-9)
+    assert np.all(O_t[:3, 5:7] == 0.0) and np.all(O_t[:3, 9:11] == 0.0)
+    with pytest.raises(ValueError, match="n_context"):
+        sparsify_information(Omega, xi, mu, [3], n_context=d)
+    with pytest.raises(ValueError, match="before the context"):
+        sparsify_information(Omega, xi, mu, [d - 2], n_context=2)
+    with pytest.raises(ValueError, match="context_hops"):
+        SeifConfig(context_hops=-1)
+
+
+def test_class_context_sparsify_matches_dense_formula_on_a_run():
+    ds = simulate_landmarks(60, 80, seed=4, density=0.1)
+    seif = build_seif(ds, SeifConfig(max_active=6))
+    for step in ds:
+        seif.predict(step.control, step.dt)
+        seif.update(step.z, step.ids)
+    seif.config = dataclasses.replace(seif.config, max_active=None)
+    for step in list(ds)[:5]:  # grow the active set past 3 without sparsifying
+        seif.predict(step.control, step.dt)
+        seif.update(step.z, step.ids)
+    active = list(seif._active)
+    assert len(active) > 4
+    Omega, xi, mu = seif.information_matrix(), seif.information_vector(), seif.mean_vector()
+    rows = lambda slots: (3 + 2 * np.array(slots, dtype=int)[:, None] + np.arange(2)).ravel()  # noqa: E731
+    # one hop: every passive landmark linked to an active one (from the dense matrix)
+    link = np.abs(Omega[3:, 3:]).reshape(seif.n_landmarks, 2, seif.n_landmarks, 2).sum((1, 3))
+    hop1 = sorted({int(t) for s in active for t in np.flatnonzero(link[s]) if t not in active})
+    assert hop1, "the run should link active landmarks to passive ones"
+    seif.config = SeifConfig(max_active=3, deactivation="oldest", context_hops=1)
+    m0 = active[: len(active) - 3]
+    seif.sparsify()
+    ref_O, ref_xi = _book_sparsification_with_context(
+        Omega, xi, mu, np.arange(3), rows(active[-3:]), rows(m0), rows(hop1)
+    )
+    assert np.allclose(seif.information_matrix(), ref_O, atol=1e-6 * np.abs(Omega).max())
+    assert np.allclose(seif.information_vector(), ref_xi, atol=1e-6 * np.abs(xi).max())
+    _assert_spd(seif.information_matrix())
+
+
 # ----------------------------------------------------------------------------- Table 12.5
 def test_coordinate_descent_converges_to_exact_mean():
     rng = np.random.default_rng(5)
@@ -368,6 +489,20 @@ def test_seif_accuracy_beside_ekf_and_overconfidence():
     # EKF is near-consistent (ANEES ~ 3 for 3 dof); sparsification makes SEIF overconfident
     assert 1.5 < np.mean(an_e) < 6.0
     assert np.mean(an_s) > 2 * np.mean(an_e)
+
+
+def test_context_sparsification_removes_most_overconfidence():
+    # seeds 3-5: Table 12.4 at max_active = 10 is overconfident (pose ANEES 6.5-37 where the EKF
+    # gives 1.9-4.7); marginalising the one-hop neighbours instead brings it near the EKF's
+    an = np.zeros(3)
+    for seed in (3, 4, 5):
+        ds = simulate_landmarks(150, 600, seed=seed, density=0.05)
+        ekf, seif = _ekf_and_seif(ds, max_active=10)
+        _, ctx = _ekf_and_seif(ds, max_active=10, context_hops=1)
+        an += [_run(ekf, ds)[2], _run(seif, ds)[2], _run(ctx, ds)[2]]
+    an /= 3
+    assert an[1] > 3 * an[0], an
+    assert an[2] < 1.4 * an[0], an
 
 
 def _rmse(f, ds):

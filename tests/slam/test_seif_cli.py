@@ -32,6 +32,19 @@ def test_slam_seif_writes_the_ekf_outputs(tmp_path):
     assert "SEIF SLAM (max_active=8)" in res.output
 
 
+def test_slam_seif_context_hops_option(tmp_path):
+    out = tmp_path / "ctx"
+    args = ["slam", "seif", "simulation", "-o", str(out), "--no-plot", "--end-time", "60"]
+    res = runner.invoke(app, [*args, "--context-hops", "1"])
+    assert res.exit_code == 0, res.output
+    assert "SEIF SLAM (max_active=10, context_hops=1)" in res.output
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["ate"]["translation_m"]["rmse"] < 1.0
+    res = runner.invoke(app, [*args, "--context-hops", "-2"])
+    assert res.exit_code == 1
+    assert "error: --context-hops must be >= 0" in res.output and "Traceback" not in res.output
+
+
 def test_slam_seif_bad_input_one_line(tmp_path):
     res = runner.invoke(
         app, ["slam", "seif", "simulation", "-o", str(tmp_path), "--max-active", "-1"]

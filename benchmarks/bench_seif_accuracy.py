@@ -8,7 +8,9 @@ RMSE, pose ANEES, ms per step), the per-run and pooled (RMS over the simulation 
 the EKF at max_active = 10, and writes ``docs/seif_max_active.png``.
 
 Run: ``PROBMAP_DATA=../shared/data python benchmarks/bench_seif_accuracy.py
-[--end-time S] [--vp-end-time S] [--seeds 0-7] [--sim-only]``.
+[--end-time S] [--vp-end-time S] [--seeds 0-7] [--sim-only] [--only-10 | --sweep-context]``.
+``--only-10`` runs the EKF and SEIF-10 (with and without ``context_hops = 1``) for many seeds;
+``--sweep-context`` runs the weakest-link SEIF at each ``max_active`` with ``context_hops`` 0 and 1.
 """
 
 from __future__ import annotations
@@ -58,6 +60,8 @@ def _run(ds: Any, max_active: int | None | str) -> dict[str, float]:
         est = build_seif(ds, SeifConfig(max_active=10, deactivation="weakest"))
     elif max_active == CONTEXT:
         est = build_seif(ds, SeifConfig(max_active=10, deactivation="weakest", context_hops=1))
+    elif isinstance(max_active, tuple):  # (max_active, context_hops), weakest-link policy
+        est = build_seif(ds, SeifConfig(max_active=max_active[0], context_hops=max_active[1]))
     else:
         est = build_seif(ds, SeifConfig(max_active=max_active, deactivation="oldest"))  # type: ignore[arg-type]
     m = evaluate(run_landmark_slam(est, ds), ds, with_dead_reckoning=False)
@@ -73,11 +77,51 @@ def _run(ds: Any, max_active: int | None | str) -> dict[str, float]:
     }
 
 
+def _plot_context_sweep(sims: list[dict[Any, dict[str, float]]], out: Path) -> None:
+    """Monte Carlo RMSE ratio and median pose ANEES vs max_active, context_hops 0 and 1."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ks = [k for k in SETTINGS if k is not None]
+    xs = np.arange(len(ks))
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for h, style in ((0, "o-"), (1, "s--")):
+        name = "Table 12.4" if h == 0 else f"context_hops = {h}"
+        for q, color in (("robot", "C0"), ("landmark", "C1")):
+            ratio = [
+                np.sqrt(
+                    np.mean([r[(k, h)][q] ** 2 for r in sims])
+                    / np.mean([r["ekf"][q] ** 2 for r in sims])
+                )
+                for k in ks
+            ]
+            axes[0].plot(xs, ratio, style, color=color, label=f"{q}, {name}")
+        anees = [np.median([r[(k, h)]["anees"] for r in sims]) for k in ks]
+        axes[1].plot(xs, anees, style, color="C2" if h == 0 else "C3", label=name)
+    axes[1].axhline(np.median([r["ekf"]["anees"] for r in sims]), color="k", lw=0.8, label="EKF")
+    axes[0].axhline(1.0, color="k", lw=0.8)
+    axes[0].axhline(1.3, color="r", lw=0.8, ls="--")
+    axes[0].set_ylabel(f"Monte Carlo RMSE, SEIF / EKF ({len(sims)} runs)")
+    axes[1].set_yscale("log")
+    axes[1].set_ylabel("median pose ANEES (3 = consistent)")
+    for ax in axes:
+        ax.set_xticks(xs, [str(k) for k in ks])
+        ax.set_xlabel("max_active")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    print(f"wrote {out}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--end-time", type=float, default=300.0, help="MRCLAM seconds per robot")
     ap.add_argument("--vp-end-time", type=float, default=150.0, help="Victoria Park seconds")
     ap.add_argument("--plot", default="docs/seif_max_active.png")
+    ap.add_argument("--context-plot", default="docs/seif_context.png")
     ap.add_argument("--seeds", default="0-7", help="simulation seeds, a range A-B")
     ap.add_argument("--sim-only", action="store_true", help="skip MRCLAM and Victoria Park")
     ap.add_argument(
@@ -85,8 +129,15 @@ def main() -> None:
         action="store_true",
         help="run only the EKF and the max_active = 10 variants (for many seeds)",
     )
+    ap.add_argument(
+        "--sweep-context",
+        action="store_true",
+        help="weakest-link SEIF at max_active 2-20 with context_hops 0 and 1 (summary only)",
+    )
     args = ap.parse_args()
     variants: list[Any] = [WEAKEST, CONTEXT] if args.only_10 else [*SETTINGS, WEAKEST, CONTEXT]
+    if args.sweep_context:
+        variants = [(k, h) for k in SETTINGS if k is not None for h in (0, 1)]
     first, last = (int(v) for v in args.seeds.split("-"))
     datasets: list[tuple[str, Any]] = [
         (f"simulation seed {s}", simulate_landmarks(150, 600, seed=s, density=0.05))
@@ -110,6 +161,8 @@ def main() -> None:
             return "SEIF 10 weakest"
         if k == CONTEXT:
             return "SEIF 10 weakest, context 1"
+        if isinstance(k, tuple):
+            return f"SEIF {k[0]} weakest, context {k[1]}"
         return "EKF" if k == "ekf" else f"SEIF {k or 'unbounded'}"
 
     for name, ds in datasets:
@@ -178,7 +231,9 @@ def main() -> None:
             )
         anees_e = [rows["ekf"]["anees"] for rows in sims]
         print(f"  EKF pose ANEES median {np.median(anees_e):.1f}, max {np.max(anees_e):.1f}")
-    if args.only_10:
+    if args.sweep_context and sims:
+        _plot_context_sweep(sims, Path(args.context_plot))
+    if args.only_10 or args.sweep_context:
         return
 
     import matplotlib

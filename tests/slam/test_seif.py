@@ -133,20 +133,25 @@ def test_measurement_update_equals_kalman_update():
 
 
 # ----------------------------------------------------------------------------- Table 12.4
-def _book_sparsification(Omega, xi, mu, x, mp, m0):
-    """Table 12.4 with projection matrices over the full state (dense, slow, literal)."""
+def _book_sparsification(Omega, xi, mu, x, mp, m0, ctx=None):
+    """Table 12.4 with projection matrices over the full state (dense, slow, literal).
+
+    ``ctx``: context landmarks, marginalised with ``m0`` in Omega1 and Omega2 (the
+    ``context_hops`` extension); None or empty = the book's table.
+    """
     d = Omega.shape[0]
+    ctx = np.zeros(0, dtype=int) if ctx is None else ctx
 
     def F(idx):
         out = np.zeros((d, len(idx)))
         out[idx, np.arange(len(idx))] = 1.0
         return out
 
-    Fx, Fm0, Fxm0 = F(x), F(m0), F(np.concatenate([x, m0]))
-    Fall = F(np.concatenate([x, mp, m0]))
+    Fx, Fall = F(x), F(np.concatenate([x, mp, m0, ctx]))
+    Fc, Fxc = F(np.concatenate([m0, ctx])), F(np.concatenate([x, m0, ctx]))
     Omega0 = Fall @ Fall.T @ Omega @ Fall @ Fall.T
-    Omega1 = Omega0 - Omega0 @ Fm0 @ np.linalg.inv(Fm0.T @ Omega0 @ Fm0) @ Fm0.T @ Omega0
-    Omega2 = Omega0 - Omega0 @ Fxm0 @ np.linalg.inv(Fxm0.T @ Omega0 @ Fxm0) @ Fxm0.T @ Omega0
+    Omega1 = Omega0 - Omega0 @ Fc @ np.linalg.inv(Fc.T @ Omega0 @ Fc) @ Fc.T @ Omega0
+    Omega2 = Omega0 - Omega0 @ Fxc @ np.linalg.inv(Fxc.T @ Omega0 @ Fxc) @ Fxc.T @ Omega0
     Omega3 = Omega - Omega @ Fx @ np.linalg.inv(Fx.T @ Omega @ Fx) @ Fx.T @ Omega
     Omega_t = Omega1 - Omega2 + Omega3
     return Omega_t, xi + (Omega_t - Omega) @ mu
@@ -204,25 +209,6 @@ def test_class_sparsify_matches_book_formula_on_a_run():
     _assert_spd(seif.information_matrix())
 
 
-def _book_sparsification_with_context(Omega, xi, mu, x, mp, m0, ctx):
-    """The three-matrix form with the context landmarks marginalised in Omega1 and Omega2."""
-    d = Omega.shape[0]
-
-    def F(idx):
-        out = np.zeros((d, len(idx)))
-        out[idx, np.arange(len(idx))] = 1.0
-        return out
-
-    Fx, Fall = F(x), F(np.concatenate([x, mp, m0, ctx]))
-    Fc, Fxc = F(np.concatenate([m0, ctx])), F(np.concatenate([x, m0, ctx]))
-    Omega0 = Fall @ Fall.T @ Omega @ Fall @ Fall.T
-    Omega1 = Omega0 - Omega0 @ Fc @ np.linalg.inv(Fc.T @ Omega0 @ Fc) @ Fc.T @ Omega0
-    Omega2 = Omega0 - Omega0 @ Fxc @ np.linalg.inv(Fxc.T @ Omega0 @ Fxc) @ Fxc.T @ Omega0
-    Omega3 = Omega - Omega @ Fx @ np.linalg.inv(Fx.T @ Omega @ Fx) @ Fx.T @ Omega
-    Omega_t = Omega1 - Omega2 + Omega3
-    return Omega_t, xi + (Omega_t - Omega) @ mu
-
-
 def _blanket_system(seed: int, n_active: int, n_passive: int, ridge: float = 5.0):
     rng = np.random.default_rng(seed)
     d = 3 + 2 * (n_active + n_passive)
@@ -253,7 +239,7 @@ def test_sparsify_with_all_passive_as_context_keeps_exact_marginals():
     assert np.array_equal(O_t[11:, :], Omega[11:, :])  # context rows untouched
     _assert_spd(O_t)
     # the literal three-matrix formula with the context marginalised gives the same matrix
-    ref_O, ref_xi = _book_sparsification_with_context(
+    ref_O, ref_xi = _book_sparsification(
         Omega, xi, mu, np.arange(3), np.arange(5, 11), np.array([3, 4]), np.arange(11, d)
     )
     assert np.allclose(O_t, ref_O, atol=1e-9)
@@ -276,7 +262,7 @@ def test_sparsify_context_partial_equals_dense_formula_and_validates():
     O_t, xi_t = sparsify_information(
         Omega[np.ix_(keep, keep)], xi[keep], mu[keep], [5, 9], n_context=3
     )
-    ref_O, ref_xi = _book_sparsification_with_context(
+    ref_O, ref_xi = _book_sparsification(
         Omega[np.ix_(keep, keep)],
         xi[keep],
         mu[keep],
@@ -317,7 +303,7 @@ def test_class_context_sparsify_matches_dense_formula_on_a_run():
     seif.config = SeifConfig(max_active=3, deactivation="oldest", context_hops=1)
     m0 = active[: len(active) - 3]
     seif.sparsify()
-    ref_O, ref_xi = _book_sparsification_with_context(
+    ref_O, ref_xi = _book_sparsification(
         Omega, xi, mu, np.arange(3), rows(active[-3:]), rows(m0), rows(hop1)
     )
     assert np.allclose(seif.information_matrix(), ref_O, atol=1e-6 * np.abs(Omega).max())

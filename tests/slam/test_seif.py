@@ -371,9 +371,10 @@ def test_seif_without_sparsification_equals_ekf(unbounded):
 
 
 # ----------------------------------------------------------------------------- sparsity, memory
-def test_active_set_bounded_and_every_step_spd():
+@pytest.mark.parametrize("context_hops", [0, 1, 3])
+def test_active_set_bounded_and_every_step_spd(context_hops):
     ds = simulate_landmarks(300, 150, seed=8, density=0.1)
-    seif = build_seif(ds, SeifConfig(max_active=4))
+    seif = build_seif(ds, SeifConfig(max_active=4, context_hops=context_hops))
     for k, step in enumerate(ds):
         seif.predict(step.control, step.dt)
         seif.update(step.z, step.ids)

@@ -7,6 +7,9 @@ correlations), so the state really holds ``n`` landmarks while the robot moves. 
 correspondences. Times are per step (predict + update), median over the timed steps, in the same
 process. EKF runs stop at the largest size whose dense covariance fits comfortably in memory.
 
+Optional peer in the same run: GTSAM's iSAM2 (``pip install -e '.[bench]'``), one update per step
+over the same odometry and bearing-range factors, with the same prior map as prior factors.
+
 Run: ``python benchmarks/bench_seif.py`` (``--quick`` for a short smoke run).
 """
 
@@ -14,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -24,6 +28,9 @@ import numpy as np  # noqa: E402
 from probmap.datasets.simulation import simulate_landmarks  # noqa: E402
 from probmap.slam.ekf import EKFSLAM  # noqa: E402
 from probmap.slam.seif import SeifConfig, build_seif  # noqa: E402
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import _isam2_peer  # noqa: E402
 
 PRIOR_SD = 0.5
 
@@ -70,8 +77,14 @@ def main() -> None:
         help="SeifConfig.context_hops values to time, comma-separated (0 = Table 12.4)",
     )
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument(
+        "--no-isam2", action="store_true", help="skip the GTSAM iSAM2 peer (pip install gtsam)"
+    )
     args = ap.parse_args()
     hop_values = [int(v) for v in args.context_hops.split(",")]
+    use_isam2 = not args.no_isam2 and _isam2_peer.available()
+    if not args.no_isam2 and not use_isam2:
+        print("gtsam is not installed (pip install -e '.[bench]'): no iSAM2 column")
     sizes = [100, 1000, 10000, 100000]
     ekf_sizes = [100, 300, 1000, 3000]
     steps_n = args.steps
@@ -105,6 +118,11 @@ def main() -> None:
                 row["seif_mean_ms" + key] = 1e3 * float(np.mean(t))
                 row["bytes_per_lm" + key] = seif.state_nbytes() / seif.n_landmarks
                 row["links" + key] = seif.store.block_counts()["landmark_links"]
+        if n in sizes and use_isam2:
+            peer = _isam2_peer.ISAM2Peer(ds)
+            peer.add_landmark_priors(np.arange(n), lm, PRIOR_SD)
+            t = _isam2_peer.time_steps(peer, steps)[warm:]
+            row["isam2_ms"] = 1e3 * float(np.median(t))
         if n in ekf_sizes and n <= args.ekf_max:
             ekf = _ekf_with_prior(ds, lm)
             t = _time_steps(ekf, steps[: max(warm + 50, steps_n // (1 + n // 1000))])[warm:]
@@ -124,9 +142,9 @@ def main() -> None:
     head = "".join(f" | SEIF{k} median ms | SEIF{k} bytes/lm" for k in extra)
     print(
         "| landmarks | obs/step | SEIF median ms | SEIF mean ms | SEIF bytes/landmark "
-        f"| SEIF links{head} | EKF median ms | EKF bytes/landmark |"
+        f"| SEIF links{head} | EKF median ms | EKF bytes/landmark | iSAM2 median ms |"
     )
-    print("|---:|---:|---:|---:|---:|---:" + "|---:|---:" * len(extra) + "|---:|---:|")
+    print("|---:|---:|---:|---:|---:|---:" + "|---:|---:" * len(extra) + "|---:|---:|---:|")
     for r in rows:
         cells = "".join(
             f" | {fmt(r.get('seif_ms' + k), '.3f')} | {fmt(r.get('bytes_per_lm' + k), '.0f')}"
@@ -136,7 +154,7 @@ def main() -> None:
             f"| {r['n']:,} | {r['obs']:.1f} | {fmt(r.get('seif_ms'), '.3f')} "
             f"| {fmt(r.get('seif_mean_ms'), '.3f')} | {fmt(r.get('bytes_per_lm'), '.0f')} "
             f"| {fmt(r.get('links'), 'd')}{cells} | {fmt(r.get('ekf_ms'), '.3f')} "
-            f"| {fmt(r.get('ekf_bytes_per_lm'), ',.0f')} |"
+            f"| {fmt(r.get('ekf_bytes_per_lm'), ',.0f')} | {fmt(r.get('isam2_ms'), '.3f')} |"
         )
     seif_rows = [r for r in rows if "seif_ms" in r]
     for k in ["", *extra]:
@@ -145,6 +163,13 @@ def main() -> None:
             f"SEIF{k} t({seif_rows[-1]['n']:,}) / t({seif_rows[0]['n']:,}) = {ratio:.2f}, "
             f"t({seif_rows[-1]['n']:,}) / Table-12.4 t = "
             f"{seif_rows[-1]['seif_ms' + k] / seif_rows[-1]['seif_ms']:.2f}"
+        )
+    peer_rows = [r for r in rows if "isam2_ms" in r]
+    if peer_rows:
+        print(
+            f"iSAM2 t({peer_rows[-1]['n']:,}) / t({peer_rows[0]['n']:,}) = "
+            f"{peer_rows[-1]['isam2_ms'] / peer_rows[0]['isam2_ms']:.2f}; iSAM2 / SEIF: "
+            + ", ".join(f"{r['n']:,}: {r['isam2_ms'] / r['seif_ms']:.2f}x" for r in peer_rows)
         )
     ekf_rows = [r for r in rows if "ekf_ms" in r]
     if len(ekf_rows) >= 2:

@@ -9,7 +9,8 @@ the EKF at max_active = 10, and writes ``docs/seif_max_active.png``.
 
 Run: ``PROBMAP_DATA=../shared/data python benchmarks/bench_seif_accuracy.py
 [--end-time S] [--vp-end-time S] [--seeds 0-7] [--sim-only] [--only-10 | --sweep-context]``.
-``--only-10`` runs the EKF and SEIF-10 (with and without ``context_hops = 1``) for many seeds;
+``--only-10`` runs the EKF and SEIF-10 (with and without ``context_hops = 1``) for many seeds,
+with ``--sim-only`` also GTSAM's iSAM2 when ``gtsam`` is installed (``pip install -e '.[bench]'``);
 ``--sweep-context`` runs the weakest-link SEIF at each ``max_active`` with ``context_hops`` 0 and 1.
 """
 
@@ -17,6 +18,8 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
+import time
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
@@ -32,10 +35,14 @@ from probmap.slam.ekf import EKFSLAM  # noqa: E402
 from probmap.slam.pipeline import default_ekf_config, evaluate, run_landmark_slam  # noqa: E402
 from probmap.slam.seif import SeifConfig, build_seif  # noqa: E402
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import _isam2_peer  # noqa: E402
+
 SETTINGS: list[int | None] = [2, 4, 7, 10, 20, None]
 WEAKEST = "10w"  # max_active = 10, deactivation = "weakest" (the default SEIF)
 CONTEXT = "10c"  # the default SEIF with context_hops = 1 (an extension of Table 12.4)
 AT_10 = [10, WEAKEST, CONTEXT]
+ISAM2 = "isam2"  # GTSAM's iSAM2, the optional peer (simulation only, --only-10)
 
 
 def _get(m: dict[str, Any], *keys: str) -> float:
@@ -47,7 +54,31 @@ def _get(m: dict[str, Any], *keys: str) -> float:
     return float(v)
 
 
+def _run_isam2(ds: Any) -> dict[str, float]:
+    """The optional GTSAM iSAM2 peer: online pose after each step, final map (simulation)."""
+    peer = _isam2_peer.ISAM2Peer(ds)
+    steps = list(ds)
+    err = np.empty(len(steps))
+    t = np.empty(len(steps))
+    for i, s in enumerate(steps):
+        t0 = time.perf_counter()
+        peer.step(s.control, s.dt, s.z, s.ids)
+        t[i] = time.perf_counter() - t0
+        err[i] = np.sum((peer.pose[:2] - s.gt_pose[:2]) ** 2)
+    ids, xy = peer.landmarks()
+    lm = np.sqrt(np.mean(np.sum((xy - ds.landmarks_xy[ids]) ** 2, axis=1)))
+    return {
+        "robot": float(np.sqrt(err.mean())),
+        "landmark": float(lm),
+        "anees": float("nan"),
+        "ms": 1e3 * float(t.mean()),
+        "mapped": float(ids.size),
+    }
+
+
 def _run(ds: Any, max_active: int | None | str) -> dict[str, float]:
+    if max_active == ISAM2:
+        return _run_isam2(ds)
     if max_active == "ekf":
         est: Any = EKFSLAM(
             ds.motion_model,
@@ -138,6 +169,7 @@ def main() -> None:
     variants: list[Any] = [WEAKEST, CONTEXT] if args.only_10 else [*SETTINGS, WEAKEST, CONTEXT]
     if args.sweep_context:
         variants = [(k, h) for k in SETTINGS if k is not None for h in (0, 1)]
+    peer = args.only_10 and args.sim_only and _isam2_peer.available()
     first, last = (int(v) for v in args.seeds.split("-"))
     datasets: list[tuple[str, Any]] = [
         (f"simulation seed {s}", simulate_landmarks(150, 600, seed=s, density=0.05))
@@ -163,12 +195,16 @@ def main() -> None:
             return "SEIF 10 weakest, context 1"
         if isinstance(k, tuple):
             return f"SEIF {k[0]} weakest, context {k[1]}"
+        if k == ISAM2:
+            return "iSAM2 (GTSAM, smoother)"
         return "EKF" if k == "ekf" else f"SEIF {k or 'unbounded'}"
 
     for name, ds in datasets:
         results[name] = {"ekf": _run(ds, "ekf")}
         for k in variants:
             results[name][k] = _run(ds, k)
+        if peer:
+            results[name][ISAM2] = _run(ds, ISAM2)
         print(
             f"done {name}: "
             + ", ".join(
@@ -213,7 +249,7 @@ def main() -> None:
             f"Monte Carlo RMSE over {len(sims)} simulation seeds, SEIF / EKF "
             "(95 % bootstrap interval over seeds), per-run ratios above 1.3:"
         )
-        for k in variants:
+        for k in [*variants, *([ISAM2] if peer else [])]:
             parts = []
             for q in ("robot", "landmark"):
                 se = np.array([rows[k][q] ** 2 for rows in sims])

@@ -108,6 +108,12 @@ def _run(ds: Any, max_active: int | None | str) -> dict[str, float]:
     }
 
 
+def _mc_ratio(sims: list[dict[Any, dict[str, float]]], k: Any, q: str) -> float:
+    """Monte Carlo RMSE ratio to the EKF: root of the mean squared error over the runs."""
+    se = np.mean([rows[k][q] ** 2 for rows in sims])
+    return float(np.sqrt(se / np.mean([rows["ekf"][q] ** 2 for rows in sims])))
+
+
 def _plot_context_sweep(sims: list[dict[Any, dict[str, float]]], out: Path) -> None:
     """Monte Carlo RMSE ratio and median pose ANEES vs max_active, context_hops 0 and 1."""
     import matplotlib
@@ -121,13 +127,7 @@ def _plot_context_sweep(sims: list[dict[Any, dict[str, float]]], out: Path) -> N
     for h, style in ((0, "o-"), (1, "s--")):
         name = "Table 12.4" if h == 0 else f"context_hops = {h}"
         for q, color in (("robot", "C0"), ("landmark", "C1")):
-            ratio = [
-                np.sqrt(
-                    np.mean([r[(k, h)][q] ** 2 for r in sims])
-                    / np.mean([r["ekf"][q] ** 2 for r in sims])
-                )
-                for k in ks
-            ]
+            ratio = [_mc_ratio(sims, (k, h), q) for k in ks]
             axes[0].plot(xs, ratio, style, color=color, label=f"{q}, {name}")
         anees = [np.median([r[(k, h)]["anees"] for r in sims]) for k in ks]
         axes[1].plot(xs, anees, style, color="C2" if h == 0 else "C3", label=name)
@@ -226,12 +226,13 @@ def main() -> None:
                 f"| {r['anees']:.2f} | {r['ms']:.3f} | {r['mapped']:.0f} |"
             )
     at10 = [k for k in AT_10 if k in variants]
-    print(
-        "\nratio to EKF at max_active = 10, robot RMSE, landmark RMSE ("
-        + " | ".join(label(k) for k in at10)
-        + "):"
-    )
-    for name, rows in results.items():
+    if at10:
+        print(
+            "\nratio to EKF at max_active = 10, robot RMSE, landmark RMSE ("
+            + " | ".join(label(k) for k in at10)
+            + "):"
+        )
+    for name, rows in results.items() if at10 else ():
         e = rows["ekf"]
         print(
             f"  {name}: "
@@ -254,7 +255,7 @@ def main() -> None:
             for q in ("robot", "landmark"):
                 se = np.array([rows[k][q] ** 2 for rows in sims])
                 ee = np.array([rows["ekf"][q] ** 2 for rows in sims])
-                ratio = np.sqrt(se.mean() / ee.mean())
+                ratio = _mc_ratio(sims, k, q)
                 bs = np.sqrt(se[boot].mean(1) / ee[boot].mean(1))
                 lo, hi = np.percentile(bs, [2.5, 97.5])
                 over = int(np.sum(np.sqrt(se / ee) > 1.3))
@@ -263,7 +264,11 @@ def main() -> None:
             print(
                 f"  {label(k)}: "
                 + ", ".join(parts)
-                + f"; pose ANEES median {np.median(anees):.1f}, max {np.max(anees):.1f}"
+                + (
+                    f"; pose ANEES median {np.median(anees):.1f}, max {np.max(anees):.1f}"
+                    if not np.any(np.isnan(anees))
+                    else ""
+                )
             )
         anees_e = [rows["ekf"]["anees"] for rows in sims]
         print(f"  EKF pose ANEES median {np.median(anees_e):.1f}, max {np.max(anees_e):.1f}")

@@ -41,6 +41,7 @@ sparsification", IROS 2005 (why sparsification is overconfident).
 from __future__ import annotations
 
 import math
+import numbers
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -213,10 +214,11 @@ def sparsify_information(
     together with ``m0`` in ``Omega1`` and ``Omega2`` instead of being conditioned on, so the
     robot's new conditional ``p(x | m+)`` (``Omega1 - Omega2``) is taken from a posterior in which
     only the landmarks beyond ``c`` are held at their means. Their rows are returned unchanged.
-    With ``c`` = every other landmark the result is ``p(m) p(x | m+)`` with the exact marginals:
-    the distribution closest to the posterior (smallest ``KL(p || q)``) among those without the
-    robot-``m0`` links, whose covariance over ``(x, m+)`` and over the map is unchanged. Table
-    12.4 conditions on all of them, which makes the filter overconfident (Eustice et al. 2005).
+    With ``c`` = every other landmark the result is ``p(m) p(x | m+)``: among the distributions
+    in which the robot depends on the map only through ``m+``, the one closest to the posterior
+    (smallest ``KL(p || q)``); its covariance over ``(x, m+)`` and over the map is the posterior's.
+    Table 12.4 conditions on all of them, which makes the filter overconfident (Eustice et al.
+    2005).
 
     Parameters
     ----------
@@ -391,7 +393,7 @@ class SeifConfig:
         with the deactivated ones instead (:func:`sparsify_information` with ``n_context``);
         still constant time per step. One hop removes most of the overconfidence
         (BENCHMARKS.md: median pose ANEES over 20 simulated runs at ``max_active = 10`` 4.9 ->
-        2.6, the EKF's 2.5).
+        2.7, the EKF's 2.5).
     """
 
     max_active: int | None = 10
@@ -406,9 +408,10 @@ class SeifConfig:
 
     def __post_init__(self) -> None:
         if isinstance(self.context_hops, bool) or not (
-            isinstance(self.context_hops, int) and self.context_hops >= 0
+            isinstance(self.context_hops, numbers.Integral) and self.context_hops >= 0
         ):
             raise ValueError(f"context_hops must be an integer >= 0, got {self.context_hops!r}")
+        object.__setattr__(self, "context_hops", int(self.context_hops))
         if self.deactivation not in ("oldest", "weakest"):
             raise ValueError(
                 f"deactivation must be 'oldest' or 'weakest', got {self.deactivation!r}"

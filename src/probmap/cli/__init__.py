@@ -37,3 +37,6 @@ def register(app: typer.Typer) -> None:
     from probmap.cli import semantic
 
     semantic.register(app)
+    from probmap.cli import optimize
+
+    optimize.register(app)

@@ -1,34 +1,56 @@
-"""Read and write 2-D pose-landmark graphs in the g2o text format.
+"""Read and write 2-D pose(-landmark) graphs: the g2o and TORO text formats.
 
-Supported records (one per line, whitespace separated)::
+Supported records (one per line, whitespace separated; the tag tells the format, so g2o and
+TORO files are recognised by their content, not their name)::
 
-    VERTEX_SE2 id x y theta
-    VERTEX_XY id x y
-    EDGE_SE2 i j dx dy dtheta I11 I12 I13 I22 I23 I33
-    EDGE_SE2_XY i j dx dy I11 I12 I22
+    VERTEX_SE2 id x y theta                                   (g2o)
+    VERTEX_XY id x y                                          (g2o)
+    EDGE_SE2 i j dx dy dtheta I11 I12 I13 I22 I23 I33         (g2o)
+    EDGE_SE2_XY i j dx dy I11 I12 I22                         (g2o)
+    FIX id                                                    (g2o)
+    VERTEX2 id x y theta                                      (TORO)
+    EDGE2 i j dx dy dtheta I11 I12 I22 I33 I13 I23            (TORO)
+    EQUIV i j                                                 (TORO)
 
-Edge measurements are expressed in the frame of vertex ``i`` (``EDGE_SE2``: ``x_i^-1 ⊕ x_j``;
-``EDGE_SE2_XY``: the landmark position in the robot frame). Information matrices are given by
-their upper triangles, row by row. ``FIX id`` lines are kept; other tags raise a
-:class:`~probmap.datasets.protocol.DatasetError` unless ``skip_unknown=True`` (counted and warned).
+Edge measurements are expressed in the frame of vertex ``i`` (``EDGE_SE2``/``EDGE2``:
+``x_i^-1 ⊕ x_j``; ``EDGE_SE2_XY``: the landmark position in the robot frame). Information
+matrices are given by their upper triangles, row by row in g2o, in TORO's own order in TORO.
+``FIX`` and ``EQUIV`` lines are kept. ``EQUIV`` pairs are not merged: like GTSAM's
+``load2D``, the optimizer treats the two ids as distinct nodes (on ``w10000.graph`` that gives
+GTSAM's 10 000 nodes and final error). A file without vertex lines takes its initial poses by
+chaining its odometry edges (``i -> i+1`` between consecutive ids, from the first id at the
+origin). Other tags raise a :class:`~probmap.datasets.protocol.DatasetError` unless
+``skip_unknown=True`` (counted and warned).
 """
 
 from __future__ import annotations
 
+import math
 import os
-import tempfile
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
+from probmap._atomic import atomic_write
 from probmap.datasets.protocol import DatasetError
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
 
-__all__ = ["LandmarkEdge", "PoseEdge", "PoseGraph", "read_g2o", "write_g2o"]
+__all__ = [
+    "LandmarkEdge",
+    "PoseEdge",
+    "PoseGraph",
+    "PoseGraphArrays",
+    "pose_graph_arrays",
+    "read_g2o",
+    "read_pose_graph",
+    "with_poses",
+    "write_g2o",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,6 +85,12 @@ class PoseGraph:
     landmark_edges : list of LandmarkEdge
     fixed : list of int
         Ids of ``FIX`` vertices.
+    equivalences : list of (int, int)
+        TORO ``EQUIV`` pairs, as read (not merged).
+    format : str
+        ``"g2o"`` or ``"toro"``: the format of the file's pose records.
+    chained : bool
+        True when the file had no vertex lines and ``poses`` were chained from odometry.
     """
 
     poses: dict[int, FloatArray] = field(default_factory=dict)
@@ -71,6 +99,9 @@ class PoseGraph:
     landmark_edges: list[LandmarkEdge] = field(default_factory=list)
     fixed: list[int] = field(default_factory=list)
     name: str = "g2o"
+    equivalences: list[tuple[int, int]] = field(default_factory=list)
+    format: str = "g2o"
+    chained: bool = False
 
 
 def _upper_to_full(vals: list[float], n: int) -> FloatArray:
@@ -79,23 +110,54 @@ def _upper_to_full(vals: list[float], n: int) -> FloatArray:
     return M + np.triu(M, 1).T
 
 
-_COUNTS = {"VERTEX_SE2": 5, "VERTEX_XY": 4, "EDGE_SE2": 12, "EDGE_SE2_XY": 8, "FIX": 2}
+def _toro_to_full(v: list[float]) -> FloatArray:
+    """TORO's ``I11 I12 I22 I33 I13 I23`` as a symmetric 3x3 matrix."""
+    return np.array([[v[0], v[1], v[4]], [v[1], v[2], v[5]], [v[4], v[5], v[3]]])
 
 
-def read_g2o(path: str | os.PathLike[str], *, skip_unknown: bool = False) -> PoseGraph:
-    """Parse a g2o file into a :class:`PoseGraph`.
+# tag -> number of fields including the tag
+_COUNTS = {
+    "VERTEX_SE2": 5,
+    "VERTEX_XY": 4,
+    "EDGE_SE2": 12,
+    "EDGE_SE2_XY": 8,
+    "FIX": 2,
+    "VERTEX2": 5,
+    "EDGE2": 12,
+    "EQUIV": 3,
+}
+_INT_FIELDS = {"EDGE_SE2": 2, "EDGE_SE2_XY": 2, "EDGE2": 2, "EQUIV": 2}
+
+
+def read_pose_graph(path: str | os.PathLike[str], *, skip_unknown: bool = False) -> PoseGraph:
+    """Parse a g2o or TORO file (recognised line by line by its tags) into a :class:`PoseGraph`.
+
+    Parameters
+    ----------
+    path : path-like
+        The graph file.
+    skip_unknown : bool
+        Skip (and count in a warning) lines with unknown tags instead of raising.
+
+    Returns
+    -------
+    PoseGraph
+        Vertex poses by id (chained from the odometry edges when the file has no vertex
+        lines), edges in file order with full 3x3 (2x2) information matrices.
 
     Raises
     ------
     DatasetError
         Short lines, non-numeric fields, non-finite values, duplicate vertex ids, edges that
-        reference missing vertices, or (unless ``skip_unknown``) unknown tags; the message names
-        the file and line.
+        reference missing vertices, a vertex-less file whose odometry chain has a gap, or
+        (unless ``skip_unknown``) unknown tags; the message names the file and line.
     """
     path = Path(path)
     g = PoseGraph(name=path.stem)
     unknown = 0
     edge_lines: list[tuple[int, str, int, int]] = []
+    has_vertices = False
+    toro = g2o = False
     with open(path) as f:
         for lineno, line in enumerate(f, start=1):
             parts = line.split()
@@ -113,34 +175,44 @@ def read_g2o(path: str | os.PathLike[str], *, skip_unknown: bool = False) -> Pos
                     f"{tag} needs {need - 1} fields, found {len(parts) - 1}", path=path, line=lineno
                 )
             try:
-                ids = [int(p) for p in parts[1 : 3 if tag.startswith("EDGE") else 2]]
-                vals = [float(p) for p in parts[len(ids) + 1 : need]]
+                n_ids = _INT_FIELDS.get(tag, 1)
+                ids = [int(p) for p in parts[1 : 1 + n_ids]]
+                vals = [float(p) for p in parts[1 + n_ids : need]]
             except ValueError as exc:
                 raise DatasetError(f"bad number in {tag}: {exc}", path=path, line=lineno) from None
-            if not np.all(np.isfinite(vals)):
+            if not all(math.isfinite(v) for v in vals):
                 raise DatasetError(f"non-finite value in {tag}", path=path, line=lineno)
-            if tag == "VERTEX_SE2" or tag == "VERTEX_XY":
+            if tag in ("VERTEX_SE2", "VERTEX2", "VERTEX_XY"):
+                has_vertices = True
                 vid = ids[0]
                 if vid in g.poses or vid in g.landmarks:
                     raise DatasetError(f"duplicate vertex id {vid}", path=path, line=lineno)
-                if tag == "VERTEX_SE2":
-                    g.poses[vid] = np.array(vals)
-                else:
+                if tag == "VERTEX_XY":
                     g.landmarks[vid] = np.array(vals)
+                else:
+                    g.poses[vid] = np.array(vals)
+                    toro |= tag == "VERTEX2"
+                    g2o |= tag == "VERTEX_SE2"
             elif tag == "FIX":
                 g.fixed.append(ids[0])
-            elif tag == "EDGE_SE2":
-                g.pose_edges.append(
-                    PoseEdge(ids[0], ids[1], np.array(vals[:3]), _upper_to_full(vals[3:], 3))
-                )
+            elif tag == "EQUIV":
+                g.equivalences.append((ids[0], ids[1]))
+            elif tag in ("EDGE_SE2", "EDGE2"):
+                info = _upper_to_full(vals[3:], 3) if tag == "EDGE_SE2" else _toro_to_full(vals[3:])
+                g.pose_edges.append(PoseEdge(ids[0], ids[1], np.array(vals[:3]), info))
                 edge_lines.append((lineno, tag, ids[0], ids[1]))
+                toro |= tag == "EDGE2"
+                g2o |= tag == "EDGE_SE2"
             else:
                 g.landmark_edges.append(
                     LandmarkEdge(ids[0], ids[1], np.array(vals[:2]), _upper_to_full(vals[2:], 2))
                 )
                 edge_lines.append((lineno, tag, ids[0], ids[1]))
+    g.format = "toro" if toro and not g2o else "g2o"
+    if not has_vertices and g.pose_edges:
+        _chain_odometry(g, edge_lines, path)
     for lineno, tag, i, j in edge_lines:
-        j_ok = j in g.poses if tag == "EDGE_SE2" else j in g.landmarks
+        j_ok = j in g.landmarks if tag == "EDGE_SE2_XY" else j in g.poses
         if i not in g.poses or not j_ok:
             raise DatasetError(f"{tag} {i} {j} references a missing vertex", path=path, line=lineno)
     if unknown:
@@ -148,12 +220,53 @@ def read_g2o(path: str | os.PathLike[str], *, skip_unknown: bool = False) -> Pos
     return g
 
 
+def read_g2o(path: str | os.PathLike[str], *, skip_unknown: bool = False) -> PoseGraph:
+    """Parse a g2o file into a :class:`PoseGraph` (TORO records are read too: see
+    :func:`read_pose_graph`, which this is)."""
+    return read_pose_graph(path, skip_unknown=skip_unknown)
+
+
+def _chain_odometry(g: PoseGraph, edge_lines: list[tuple[int, str, int, int]], path: Path) -> None:
+    """Initial poses of a vertex-less file: the first id at the origin, every next id (in
+    increasing order) by composing the odometry edge from its predecessor."""
+    from probmap.geometry.se2 import compose, inverse
+
+    first_line: dict[int, int] = {}
+    odo: dict[tuple[int, int], int] = {}
+    for k, (lineno, tag, i, j) in enumerate(edge_lines):
+        if tag == "EDGE_SE2_XY":
+            continue
+        first_line.setdefault(i, lineno)
+        first_line.setdefault(j, lineno)
+        odo.setdefault((i, j), k)
+    ids = sorted(first_line)
+    pose = np.zeros(3)
+    g.poses[ids[0]] = pose
+    for a, b in zip(ids[:-1], ids[1:], strict=True):
+        if (a, b) in odo:
+            pose = compose(pose, g.pose_edges[odo[a, b]].measurement)
+        elif (b, a) in odo:
+            pose = compose(pose, inverse(g.pose_edges[odo[b, a]].measurement))
+        else:
+            raise DatasetError(
+                f"no vertex lines, and no odometry edge {a} -> {b} to chain the initial poses",
+                path=path,
+                line=first_line[b],
+            )
+        g.poses[b] = pose
+    g.chained = True
+
+
 def _fmt(v: float) -> str:
     return repr(float(v))
 
 
 def write_g2o(path: str | os.PathLike[str], graph: PoseGraph) -> Path:
-    """Write ``graph`` to ``path`` atomically (temp file + ``os.replace``), full precision."""
+    """Write ``graph`` to ``path`` in g2o format, atomically, at full precision.
+
+    TORO input is written as g2o (``VERTEX_SE2``/``EDGE_SE2`` with the information in g2o's
+    order); ``EQUIV`` pairs have no g2o record and are not written.
+    """
     path = Path(path)
     lines = []
     for vid, p in graph.poses.items():
@@ -170,12 +283,84 @@ def write_g2o(path: str | os.PathLike[str], graph: PoseGraph) -> Path:
         info = le.information[np.triu_indices(2)]
         vals = " ".join(_fmt(v) for v in (*le.measurement, *info))
         lines.append(f"EDGE_SE2_XY {le.i} {le.j} {vals}")
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write("\n".join(lines) + "\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_write(path, "w") as f:
+        f.write("\n".join(lines) + "\n")
     return path
+
+
+@dataclass(frozen=True, eq=False)
+class PoseGraphArrays:
+    """A graph's poses and pose edges as the arrays :mod:`probmap.slam.posegraph` takes.
+
+    Attributes
+    ----------
+    ids : ndarray, shape (N,), int64
+        Vertex id of every row of ``poses``, increasing.
+    poses : ndarray, shape (N, 3)
+        ``(x, y, theta)`` per vertex, metres and radians.
+    edges : ndarray, shape (E, 2), int64
+        Row indices into ``poses`` of each pose edge (file order).
+    measurements : ndarray, shape (E, 3)
+    information : ndarray, shape (E, 3, 3)
+    fixed : ndarray, shape (F,), int64
+        Row indices of the ``FIX`` vertices (empty when the file has none).
+    """
+
+    ids: IntArray
+    poses: FloatArray
+    edges: IntArray
+    measurements: FloatArray
+    information: FloatArray
+    fixed: IntArray
+
+
+def pose_graph_arrays(graph: PoseGraph) -> PoseGraphArrays:
+    """Arrays of ``graph``'s poses and pose edges, with the id -> row mapping.
+
+    Raises
+    ------
+    ValueError
+        The graph has landmark edges (the SE(2) optimizer handles pose edges only), or no
+        poses.
+    """
+    if graph.landmark_edges:
+        raise ValueError(
+            f"{graph.name}: {len(graph.landmark_edges)} landmark edges; "
+            "pose-graph optimization takes pose edges only"
+        )
+    if not graph.poses:
+        raise ValueError(f"{graph.name}: the graph has no poses")
+    ids = np.array(sorted(graph.poses), dtype=np.int64)
+    poses = np.array([graph.poses[int(i)] for i in ids], dtype=np.float64).reshape(-1, 3)
+    E = len(graph.pose_edges)
+    ij = np.array([(e.i, e.j) for e in graph.pose_edges], dtype=np.int64).reshape(E, 2)
+    edges = np.searchsorted(ids, ij).astype(np.int64)
+    z = np.array([e.measurement for e in graph.pose_edges], dtype=np.float64).reshape(E, 3)
+    om = np.array([e.information for e in graph.pose_edges], dtype=np.float64).reshape(E, 3, 3)
+    fixed_ids = np.array(sorted(set(graph.fixed) & set(graph.poses)), dtype=np.int64)
+    fixed = np.searchsorted(ids, fixed_ids).astype(np.int64)
+    return PoseGraphArrays(ids, poses, edges, z, om, fixed)
+
+
+def with_poses(graph: PoseGraph, ids: ArrayLike, poses: ArrayLike) -> PoseGraph:
+    """A copy of ``graph`` whose vertices ``ids (N,)`` take ``poses (N, 3)`` (edges shared)."""
+    ids_a = np.asarray(ids, dtype=np.int64)
+    p = np.asarray(poses, dtype=np.float64)
+    if p.shape != (ids_a.size, 3):
+        raise ValueError(f"poses must have shape ({ids_a.size}, 3), got {p.shape}")
+    new = dict(graph.poses)
+    for vid, row in zip(ids_a.tolist(), p, strict=True):
+        if vid not in new:
+            raise ValueError(f"{graph.name}: no vertex {vid}")
+        new[vid] = row.copy()
+    return PoseGraph(
+        poses=new,
+        landmarks=dict(graph.landmarks),
+        pose_edges=graph.pose_edges,
+        landmark_edges=graph.landmark_edges,
+        fixed=list(graph.fixed),
+        name=graph.name,
+        equivalences=list(graph.equivalences),
+        format=graph.format,
+        chained=graph.chained,
+    )

@@ -1,0 +1,423 @@
+"""Numba kernels of the SE(2) pose-graph optimizer (private).
+
+Every kernel takes contiguous arrays and scalars; :mod:`probmap.slam.posegraph` validates inputs
+once and owns the sparsity pattern these kernels write into.
+
+Conventions shared by all kernels
+---------------------------------
+poses : (N, 3) float64
+    ``(x, y, theta)`` of every node in the world frame, metres and radians.
+ei, ej : (E,) int64
+    Node indices of each edge; the measurement is ``x_i^-1 ⊕ x_j``.
+meas : (E, 3) float64
+    Measured relative pose of ``j`` in ``i``'s frame.
+info : (E, 3, 3) float64
+    Information matrices (symmetric positive definite).
+chart : int
+    ``CHART_LOGMAP`` (GTSAM's ``Pose2`` local coordinates, ``Log(m^-1 x_i^-1 x_j)``) or
+    ``CHART_XYT`` (g2o and TORO: ``(dx, dy, dtheta)`` of ``m^-1 x_i^-1 x_j``).
+kernel, scale, robust : int, float, (E,) bool
+    Robust kernel id (``KERNEL_*``), its scale, and which edges it applies to.
+
+Jacobians are taken with respect to ``delta = (R_n xi_t, xi_theta)``: GTSAM's right
+perturbation ``x_n Exp(xi_n)`` with its translation rotated into the world frame. The rotation
+is orthogonal, so ``lambda * I`` damping and the Gauss-Newton step are GTSAM's; the world-frame
+coordinates make ``d t_delta / d t_j`` a plain rotation. :func:`apply_step` is the matching
+retraction (``Exp``, as GTSAM's ``Pose2::retract``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+CHART_LOGMAP = 0
+CHART_XYT = 1
+
+KERNEL_NONE = 0
+KERNEL_HUBER = 1
+KERNEL_CAUCHY = 2
+KERNEL_DCS = 3
+
+_TWO_PI = 2.0 * math.pi
+
+
+@njit(cache=True)
+def wrap(a):  # pragma: no cover - compiled
+    """Angle wrapped to ``[-pi, pi)``."""
+    return a - _TWO_PI * math.floor((a + math.pi) / _TWO_PI)
+
+
+@njit(cache=True)
+def logmap_coeffs(th):  # pragma: no cover - compiled
+    """``a(th) = (th/2) cot(th/2)`` and ``da/dth``: ``V(th)^-1 = [[a, th/2], [-th/2, a]]``.
+
+    Taylor series below 1e-2 rad, where the closed form loses digits to cancellation.
+    """
+    if abs(th) < 1e-2:
+        t2 = th * th
+        a = 1.0 - t2 / 12.0 - t2 * t2 / 720.0 - t2 * t2 * t2 / 30240.0
+        da = -th / 6.0 - th * t2 / 180.0 - th * t2 * t2 / 5040.0
+        return a, da
+    h = 0.5 * th
+    sh = math.sin(h)
+    ch = math.cos(h)
+    a = h * ch / sh
+    da = 0.5 * (ch / sh - h / (sh * sh))
+    return a, da
+
+
+@njit(cache=True)
+def edge_residual(poses, i, j, mx, my, mt, chart, e):  # pragma: no cover - compiled
+    """Residual ``e (3,)`` of one edge (written in place)."""
+    ci = math.cos(poses[i, 2])
+    si = math.sin(poses[i, 2])
+    dx = poses[j, 0] - poses[i, 0]
+    dy = poses[j, 1] - poses[i, 1]
+    # z = R_i^T (t_j - t_i) - t_m, then rotated into the measurement frame
+    zx = ci * dx + si * dy - mx
+    zy = -si * dx + ci * dy - my
+    cm = math.cos(mt)
+    sm = math.sin(mt)
+    tx = cm * zx + sm * zy
+    ty = -sm * zx + cm * zy
+    th = wrap(poses[j, 2] - poses[i, 2] - mt)
+    if chart == CHART_LOGMAP:
+        a, _ = logmap_coeffs(th)
+        b = 0.5 * th
+        e[0] = a * tx + b * ty
+        e[1] = -b * tx + a * ty
+    else:
+        e[0] = tx
+        e[1] = ty
+    e[2] = th
+
+
+@njit(cache=True)
+def edge_linearize(poses, i, j, mx, my, mt, chart, e, A, B):  # pragma: no cover - compiled
+    """Residual ``e (3,)`` and Jacobians ``A = de/dx_i``, ``B = de/dx_j`` (3, 3), in place."""
+    ci = math.cos(poses[i, 2])
+    si = math.sin(poses[i, 2])
+    dx = poses[j, 0] - poses[i, 0]
+    dy = poses[j, 1] - poses[i, 1]
+    ux = ci * dx + si * dy
+    uy = -si * dx + ci * dy
+    zx = ux - mx
+    zy = uy - my
+    cm = math.cos(mt)
+    sm = math.sin(mt)
+    tx = cm * zx + sm * zy
+    ty = -sm * zx + cm * zy
+    th = wrap(poses[j, 2] - poses[i, 2] - mt)
+    # R_im^T = (R_i R_m)^T: d t_delta / d t_j (and minus d / d t_i)
+    cim = math.cos(poses[i, 2] + mt)
+    sim = math.sin(poses[i, 2] + mt)
+    r00 = cim
+    r01 = sim
+    r10 = -sim
+    r11 = cim
+    # d t_delta / d theta_i = R_m^T (u_y, -u_x)
+    gx = cm * uy - sm * ux
+    gy = -sm * uy - cm * ux
+    if chart == CHART_LOGMAP:
+        a, da = logmap_coeffs(th)
+        b = 0.5 * th
+        e[0] = a * tx + b * ty
+        e[1] = -b * tx + a * ty
+        # M = V^-1 = [[a, b], [-b, a]]; dM/dth = [[da, 1/2], [-1/2, da]]
+        m00 = a
+        m01 = b
+        m10 = -b
+        m11 = a
+        hx = da * tx + 0.5 * ty
+        hy = -0.5 * tx + da * ty
+    else:
+        e[0] = tx
+        e[1] = ty
+        m00 = 1.0
+        m01 = 0.0
+        m10 = 0.0
+        m11 = 1.0
+        hx = 0.0
+        hy = 0.0
+    e[2] = th
+    # translation rows: M R_im^T for t_j, -M R_im^T for t_i
+    p00 = m00 * r00 + m01 * r10
+    p01 = m00 * r01 + m01 * r11
+    p10 = m10 * r00 + m11 * r10
+    p11 = m10 * r01 + m11 * r11
+    B[0, 0] = p00
+    B[0, 1] = p01
+    B[1, 0] = p10
+    B[1, 1] = p11
+    B[0, 2] = hx
+    B[1, 2] = hy
+    B[2, 0] = 0.0
+    B[2, 1] = 0.0
+    B[2, 2] = 1.0
+    A[0, 0] = -p00
+    A[0, 1] = -p01
+    A[1, 0] = -p10
+    A[1, 1] = -p11
+    A[0, 2] = m00 * gx + m01 * gy - hx
+    A[1, 2] = m10 * gx + m11 * gy - hy
+    A[2, 0] = 0.0
+    A[2, 1] = 0.0
+    A[2, 2] = -1.0
+
+
+@njit(cache=True)
+def rho_weight(s, kernel, scale):  # pragma: no cover - compiled
+    """Robust cost ``rho(s)`` of a squared Mahalanobis distance ``s`` and its IRLS weight
+    ``w = d rho / d s``. ``rho(s) = s`` without a kernel, so ``0.5 * rho`` is GTSAM's error.
+
+    Huber and Cauchy take ``scale`` in Mahalanobis-distance units (sqrt of ``s``); DCS takes
+    ``Phi = scale`` in ``s`` units (Agarwal et al. 2013: ``w = min(1, 2 Phi / (Phi + s))^2``,
+    whose integral is ``rho = 3 Phi - 4 Phi^2 / (Phi + s)`` above ``Phi``).
+    """
+    if kernel == KERNEL_NONE:
+        return s, 1.0
+    if kernel == KERNEL_HUBER:
+        d = math.sqrt(s)
+        if d <= scale:
+            return s, 1.0
+        return 2.0 * scale * d - scale * scale, scale / d
+    if kernel == KERNEL_CAUCHY:
+        k2 = scale * scale
+        return k2 * math.log1p(s / k2), 1.0 / (1.0 + s / k2)
+    # KERNEL_DCS
+    if s <= scale:
+        return s, 1.0
+    q = scale + s
+    return 3.0 * scale - 4.0 * scale * scale / q, 4.0 * scale * scale / (q * q)
+
+
+@njit(cache=True)
+def mahalanobis(e, info, k):  # pragma: no cover - compiled
+    """``e' info[k] e``."""
+    s = 0.0
+    for r in range(3):
+        for c in range(3):
+            s += e[r] * info[k, r, c] * e[c]
+    return s
+
+
+@njit(cache=True)
+def graph_cost(
+    poses, ei, ej, meas, info, chart, kernel, scale, robust, chi2, weights
+):  # pragma: no cover - compiled
+    """Total cost ``0.5 * sum rho(e' Omega e)``; per-edge ``chi2`` and IRLS ``weights`` in place."""
+    e = np.empty(3)
+    total = 0.0
+    for k in range(ei.shape[0]):
+        edge_residual(poses, ei[k], ej[k], meas[k, 0], meas[k, 1], meas[k, 2], chart, e)
+        s = mahalanobis(e, info, k)
+        chi2[k] = s
+        if robust[k]:
+            r, w = rho_weight(s, kernel, scale)
+        else:
+            r = s
+            w = 1.0
+        weights[k] = w
+        total += r
+    return 0.5 * total
+
+
+@njit(cache=True)
+def _add_block(data, colptr, col0, base, M, upper_only):  # pragma: no cover - compiled
+    """``data`` += the 3x3 block ``M`` whose rows start at entry ``base`` of each of the three
+    scalar columns ``col0 .. col0 + 2`` (only the upper triangle for a diagonal block)."""
+    for c in range(3):
+        p = colptr[col0 + c] + base
+        if upper_only:
+            for r in range(c + 1):
+                data[p + r] += M[r, c]
+        else:
+            for r in range(3):
+                data[p + r] += M[r, c]
+
+
+@njit(cache=True)
+def accumulate_normal_equations(
+    poses,
+    ei,
+    ej,
+    meas,
+    info,
+    chart,
+    kernel,
+    scale,
+    robust,
+    node_index,
+    colptr,
+    diag_base,
+    edge_base,
+    data,
+    rhs,
+):  # pragma: no cover - compiled
+    """Gauss-Newton system ``H = sum w J' Omega J`` (upper triangle, CSC ``data``) and
+    ``rhs = sum w J' Omega e`` (the gradient); returns the cost ``0.5 * sum rho``.
+
+    ``node_index[n]`` is the block row/column of node ``n`` (-1 when held fixed).
+    ``diag_base[c]`` and ``edge_base[k]`` are the offsets, inside each scalar column of block
+    column ``c`` (``max`` of the edge's two blocks), of the diagonal block and of edge ``k``'s
+    off-diagonal block.
+    """
+    data[:] = 0.0
+    rhs[:] = 0.0
+    e = np.empty(3)
+    A = np.empty((3, 3))
+    B = np.empty((3, 3))
+    WA = np.empty((3, 3))
+    WB = np.empty((3, 3))
+    M = np.empty((3, 3))
+    We = np.empty(3)
+    total = 0.0
+    for k in range(ei.shape[0]):
+        i = ei[k]
+        j = ej[k]
+        edge_linearize(poses, i, j, meas[k, 0], meas[k, 1], meas[k, 2], chart, e, A, B)
+        s = mahalanobis(e, info, k)
+        if robust[k]:
+            r, w = rho_weight(s, kernel, scale)
+        else:
+            r = s
+            w = 1.0
+        total += r
+        p = node_index[i]
+        q = node_index[j]
+        # W = w * Omega; WA = W A, WB = W B, We = W e
+        for r0 in range(3):
+            acc = 0.0
+            for c0 in range(3):
+                wrc = w * info[k, r0, c0]
+                acc += wrc * e[c0]
+            We[r0] = acc
+            for c0 in range(3):
+                sa = 0.0
+                sb = 0.0
+                for m in range(3):
+                    wrm = w * info[k, r0, m]
+                    sa += wrm * A[m, c0]
+                    sb += wrm * B[m, c0]
+                WA[r0, c0] = sa
+                WB[r0, c0] = sb
+        if p >= 0:
+            for r0 in range(3):
+                acc = 0.0
+                for m in range(3):
+                    acc += A[m, r0] * We[m]
+                rhs[3 * p + r0] += acc
+                for c0 in range(3):
+                    acc = 0.0
+                    for m in range(3):
+                        acc += A[m, r0] * WA[m, c0]
+                    M[r0, c0] = acc
+            _add_block(data, colptr, 3 * p, diag_base[p], M, True)
+        if q >= 0:
+            for r0 in range(3):
+                acc = 0.0
+                for m in range(3):
+                    acc += B[m, r0] * We[m]
+                rhs[3 * q + r0] += acc
+                for c0 in range(3):
+                    acc = 0.0
+                    for m in range(3):
+                        acc += B[m, r0] * WB[m, c0]
+                    M[r0, c0] = acc
+            _add_block(data, colptr, 3 * q, diag_base[q], M, True)
+        if p >= 0 and q >= 0 and p != q:
+            if p < q:  # block (p, q) = A' W B
+                for r0 in range(3):
+                    for c0 in range(3):
+                        acc = 0.0
+                        for m in range(3):
+                            acc += A[m, r0] * WB[m, c0]
+                        M[r0, c0] = acc
+                _add_block(data, colptr, 3 * q, edge_base[k], M, False)
+            else:  # block (q, p) = B' W A
+                for r0 in range(3):
+                    for c0 in range(3):
+                        acc = 0.0
+                        for m in range(3):
+                            acc += B[m, r0] * WA[m, c0]
+                        M[r0, c0] = acc
+                _add_block(data, colptr, 3 * p, edge_base[k], M, False)
+    return 0.5 * total
+
+
+@njit(cache=True)
+def build_pattern(n_blocks, blk_colptr, blk_rows, colptr, indices):  # pragma: no cover - compiled
+    """Scalar row indices of the upper-triangular CSC pattern of a 3x3-block matrix.
+
+    ``blk_rows[blk_colptr[c]:blk_colptr[c + 1]]`` are the (sorted, strictly upper) off-diagonal
+    block rows of block column ``c``; the diagonal block follows them in every scalar column.
+    ``colptr`` (3 * n_blocks + 1) must already hold the column starts.
+    """
+    for c in range(n_blocks):
+        for k in range(3):
+            p = colptr[3 * c + k]
+            for t in range(blk_colptr[c], blk_colptr[c + 1]):
+                r = blk_rows[t]
+                indices[p] = 3 * r
+                indices[p + 1] = 3 * r + 1
+                indices[p + 2] = 3 * r + 2
+                p += 3
+            for r in range(k + 1):
+                indices[p] = 3 * c + r
+                p += 1
+
+
+@njit(cache=True)
+def apply_step(poses, node_index, delta, out):  # pragma: no cover - compiled
+    """Retraction ``out_n = x_n Exp(xi_n)`` of the free nodes (fixed nodes copied).
+
+    ``delta[3p:3p+3] = (R_n xi_t, xi_theta)`` is the increment with its translation rotated
+    into the world frame, the coordinates of the Jacobians of :func:`edge_linearize`; since
+    planar rotations commute, ``x_n Exp(xi_n)`` moves the translation by ``V(xi_theta)`` times
+    that world-frame translation, ``V(w) = [[sin w / w, -(1 - cos w) / w], [(1 - cos w) / w,
+    sin w / w]]``. Angles are wrapped to ``[-pi, pi)``.
+    """
+    for n in range(poses.shape[0]):
+        p = node_index[n]
+        if p < 0:
+            out[n, 0] = poses[n, 0]
+            out[n, 1] = poses[n, 1]
+            out[n, 2] = poses[n, 2]
+        else:
+            dx = delta[3 * p]
+            dy = delta[3 * p + 1]
+            w = delta[3 * p + 2]
+            if abs(w) < 1e-6:
+                a = 1.0 - w * w / 6.0
+                b = 0.5 * w
+            else:
+                a = math.sin(w) / w
+                b = (1.0 - math.cos(w)) / w
+            out[n, 0] = poses[n, 0] + a * dx - b * dy
+            out[n, 1] = poses[n, 1] + b * dx + a * dy
+            out[n, 2] = wrap(poses[n, 2] + w)
+
+
+@njit(cache=True)
+def propagate_tree(order, parent, parent_dtheta, theta):  # pragma: no cover - compiled
+    """Headings along a spanning tree: ``theta[n] = theta[parent[n]] + parent_dtheta[n]`` in
+    breadth-first ``order`` (roots, ``parent < 0``, keep their ``theta``). No wrapping."""
+    for t in range(order.shape[0]):
+        n = order[t]
+        p = parent[n]
+        if p >= 0:
+            theta[n] = theta[p] + parent_dtheta[n]
+
+
+@njit(cache=True)
+def edge_residuals(poses, ei, ej, meas, chart, out):  # pragma: no cover - compiled
+    """Residual of every edge into ``out (E, 3)``."""
+    e = np.empty(3)
+    for k in range(ei.shape[0]):
+        edge_residual(poses, ei[k], ej[k], meas[k, 0], meas[k, 1], meas[k, 2], chart, e)
+        out[k, 0] = e[0]
+        out[k, 1] = e[1]
+        out[k, 2] = e[2]

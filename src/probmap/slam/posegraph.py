@@ -1,0 +1,1056 @@
+"""SE(2) pose-graph optimization: sparse Levenberg-Marquardt with robust costs.
+
+A pose graph has nodes ``x_n = (x, y, theta)`` (world frame, metres and radians) and edges
+``(i, j, z_ij, Omega_ij)``: a measured pose ``z_ij`` of node ``j`` in the frame of node ``i``
+with a 3x3 information matrix. The optimizer minimises
+
+.. math:: F(x) = \\tfrac12 \\sum_k \\rho_k\\big(e_k^\\top \\Omega_k e_k\\big), \\qquad
+          e_k = \\mathrm{Log}\\big(z_{ij}^{-1} (x_i^{-1} x_j)\\big)
+
+with ``rho(s) = s`` for plain edges. The residual is GTSAM's ``BetweenFactor<Pose2>`` error
+(``Pose2::Logmap``, its default chart), so ``F`` is exactly GTSAM's ``graph.error`` with a
+prior on the first pose (whose term is zero: that pose is held fixed). ``chart="xyt"``
+uses g2o's and TORO's ``(dx, dy, dtheta)`` residual instead.
+
+Levenberg-Marquardt (Madsen, Nielsen and Tingleff, "Methods for non-linear least squares
+problems", 2004, section 3.2): every iteration linearizes all edges with analytic Jacobians
+(a numba kernel writes the 3x3 blocks of ``H = J' W Omega J`` and ``g = J' W Omega e`` straight
+into a fixed compressed-column pattern), solves ``(H + lambda D) delta = -g`` by a sparse
+``LDL'`` factorization whose fill-reducing ordering and elimination tree are computed once per
+graph structure, and accepts the step if the cost falls. The damping follows the gain ratio
+(Nielsen's rule). The gauge is fixed by holding nodes (by default the first) constant.
+
+Robust costs (IRLS weights recomputed at every linearization) down-weight edges whose
+Mahalanobis distance is large: Huber, Cauchy, and dynamic covariance scaling (DCS; Agarwal,
+Tipaldi, Spinello, Stachniss and Burgard, "Robust map optimization using dynamic covariance
+scaling", ICRA 2013). They apply to the edges of a mask, typically the loop closures, so that
+odometry stays quadratic.
+
+Far-off starting headings trap any local method in a poor minimum; :func:`lago_initialization`
+(Carlone et al. 2014) computes a start from two linear least-squares problems (headings, then
+positions) and ``optimize_pose_graph(..., init="lago")`` uses it.
+
+Two tiers: :func:`optimize_pose_graph` and :func:`graph_error` work on arrays;
+:class:`PoseGraph2D` grows a graph node by node and re-optimizes it from its current poses.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Literal, TypeVar
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from probmap.slam import _posegraph_kernels as _k
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+
+__all__ = [
+    "OptimizeResult",
+    "OptimizerConfig",
+    "PoseGraph2D",
+    "edge_residuals",
+    "graph_error",
+    "lago_initialization",
+    "optimize_pose_graph",
+]
+
+RobustKernel = Literal["none", "huber", "cauchy", "dcs"]
+_KERNELS = {
+    "none": _k.KERNEL_NONE,
+    "huber": _k.KERNEL_HUBER,
+    "cauchy": _k.KERNEL_CAUCHY,
+    "dcs": _k.KERNEL_DCS,
+}
+# Default scales: Huber and Cauchy at 95 % asymptotic efficiency for a Gaussian residual
+# (Mahalanobis-distance units); DCS with Phi = 1 as recommended by Agarwal et al. (2013).
+_DEFAULT_SCALE = {"none": 1.0, "huber": 1.345, "cauchy": 2.3849, "dcs": 1.0}
+_CHARTS = {"logmap": _k.CHART_LOGMAP, "xyt": _k.CHART_XYT}
+
+
+@dataclass(frozen=True)
+class OptimizerConfig:
+    """Parameters of the Levenberg-Marquardt pose-graph optimizer.
+
+    Parameters
+    ----------
+    max_iterations : int
+        Most linearizations (outer iterations); each may try several damping values.
+    relative_tolerance : float
+        Converged when an accepted step lowers the cost by less than this fraction of it.
+    absolute_tolerance : float
+        Converged when an accepted step lowers the cost by less than this (cost units).
+    initial_lambda : float
+        Damping of the first iteration, relative to the largest diagonal entry of ``H``
+        (Madsen et al.'s ``tau``).
+    max_lambda : float
+        Relative damping above which LM gives up on decreasing the cost (a minimum to working
+        precision); the result then counts as converged.
+    damping : {"identity", "diagonal"}
+        ``D`` in ``H + lambda D``: the identity (Levenberg) or ``diag(H)`` (Marquardt).
+    robust : {"none", "huber", "cauchy", "dcs"}
+        Robust kernel of the edges selected by the robust mask.
+    robust_scale : float or None
+        Kernel scale: Huber and Cauchy ``k`` in Mahalanobis-distance units (sqrt of
+        ``e' Omega e``), DCS ``Phi`` in ``e' Omega e`` units. ``None`` picks the kernel's
+        default (Huber 1.345, Cauchy 2.3849, DCS 1.0).
+    chart : {"logmap", "xyt"}
+        Residual of an edge: GTSAM's ``Log(z^-1 x_i^-1 x_j)`` or g2o/TORO's
+        ``(dx, dy, dtheta)`` of ``z^-1 x_i^-1 x_j``.
+    """
+
+    max_iterations: int = 100
+    relative_tolerance: float = 1e-6
+    absolute_tolerance: float = 1e-12
+    initial_lambda: float = 1e-9
+    max_lambda: float = 1e10
+    damping: Literal["identity", "diagonal"] = "identity"
+    robust: RobustKernel = "none"
+    robust_scale: float | None = None
+    chart: Literal["logmap", "xyt"] = "logmap"
+
+    def __post_init__(self) -> None:
+        if isinstance(self.max_iterations, bool) or not isinstance(
+            self.max_iterations, (int, np.integer)
+        ):
+            raise ValueError(f"max_iterations must be an integer, got {self.max_iterations!r}")
+        if self.max_iterations < 0:
+            raise ValueError(f"max_iterations must be >= 0, got {self.max_iterations}")
+        for name in ("relative_tolerance", "absolute_tolerance"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {v}")
+        for name in ("initial_lambda", "max_lambda"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a positive finite number, got {v}")
+        if self.max_lambda < self.initial_lambda:
+            raise ValueError(
+                f"max_lambda ({self.max_lambda}) must be >= initial_lambda ({self.initial_lambda})"
+            )
+        if self.damping not in ("identity", "diagonal"):
+            raise ValueError(f"damping must be 'identity' or 'diagonal', got {self.damping!r}")
+        if self.robust not in _KERNELS:
+            raise ValueError(f"robust must be one of {sorted(_KERNELS)}, got {self.robust!r}")
+        if self.chart not in _CHARTS:
+            raise ValueError(f"chart must be one of {sorted(_CHARTS)}, got {self.chart!r}")
+        if self.robust_scale is None:
+            object.__setattr__(self, "robust_scale", _DEFAULT_SCALE[self.robust])
+        elif not (math.isfinite(self.robust_scale) and self.robust_scale > 0):
+            raise ValueError(f"robust_scale must be a positive number, got {self.robust_scale}")
+
+    @property
+    def scale(self) -> float:
+        """The resolved robust scale."""
+        assert self.robust_scale is not None  # resolved in __post_init__
+        return float(self.robust_scale)
+
+
+@dataclass(frozen=True, eq=False)
+class OptimizeResult:
+    """What :func:`optimize_pose_graph` and :meth:`PoseGraph2D.optimize` return.
+
+    Attributes
+    ----------
+    poses : ndarray, shape (N, 3)
+        Optimized poses ``(x, y, theta)``, world frame, metres and radians (angles in
+        ``[-pi, pi)``).
+    initial_error, final_error : float
+        Cost ``0.5 * sum rho(e' Omega e)`` before and after (GTSAM's ``graph.error`` with a
+        prior on the fixed first pose, for plain edges).
+    iterations : int
+        Linearizations performed.
+    seconds : float
+        Wall time of the call.
+    converged : bool
+        True when a tolerance was met (or no step could lower the cost further); False when
+        the iteration cap stopped it.
+    weights : ndarray, shape (E,)
+        Robust (IRLS) weight of every edge at the final poses, in ``(0, 1]``; 1 for
+        quadratic edges. A weight near 0 marks an edge the optimizer treated as an outlier.
+    chi2 : ndarray, shape (E,)
+        ``e' Omega e`` of every edge at the final poses.
+    message : str
+        Why it stopped.
+    """
+
+    poses: FloatArray
+    initial_error: float
+    final_error: float
+    iterations: int
+    seconds: float
+    converged: bool
+    weights: FloatArray
+    chi2: FloatArray
+    message: str
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def _as_poses(poses: ArrayLike) -> FloatArray:
+    arr = np.ascontiguousarray(poses, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"poses must have shape (N, 3) (x, y, theta), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError("poses must be finite")
+    return arr
+
+
+def _as_edges(
+    edges: ArrayLike,
+    measurements: ArrayLike,
+    information: ArrayLike,
+    n_nodes: int,
+) -> tuple[IntArray, IntArray, FloatArray, FloatArray]:
+    e = np.asarray(edges)
+    if e.ndim != 2 or e.shape[1] != 2:
+        raise ValueError(f"edges must have shape (E, 2) (i, j), got {e.shape}")
+    if e.size and not np.issubdtype(e.dtype, np.integer):
+        raise ValueError(f"edges must hold integer node indices, got dtype {e.dtype}")
+    e = e.astype(np.int64)
+    E = e.shape[0]
+    z = np.ascontiguousarray(measurements, dtype=np.float64)
+    if z.shape != (E, 3):
+        raise ValueError(f"measurements must have shape ({E}, 3), got {z.shape}")
+    om = np.ascontiguousarray(information, dtype=np.float64)
+    if om.shape != (E, 3, 3):
+        raise ValueError(f"information must have shape ({E}, 3, 3), got {om.shape}")
+    if E:
+        lo, hi = int(e.min()), int(e.max())
+        if lo < 0 or hi >= n_nodes:
+            raise ValueError(f"edge node indices must lie in [0, {n_nodes}), found {lo}..{hi}")
+        loops = np.flatnonzero(e[:, 0] == e[:, 1])
+        if loops.size:
+            raise ValueError(f"edge {loops[0]} connects node {e[loops[0], 0]} to itself")
+    if not np.all(np.isfinite(z)):
+        raise ValueError("measurements must be finite")
+    _check_information(om)
+    return (
+        np.ascontiguousarray(e[:, 0]),
+        np.ascontiguousarray(e[:, 1]),
+        z,
+        om,
+    )
+
+
+def _check_information(om: FloatArray) -> None:
+    """Raise unless every ``om[k]`` is finite, symmetric and positive semi-definite."""
+    if not np.all(np.isfinite(om)):
+        raise ValueError("information matrices must be finite")
+    if om.shape[0] == 0:
+        return
+    asym = np.abs(om - om.transpose(0, 2, 1)).max(axis=(1, 2))
+    size = np.abs(om).max(axis=(1, 2))
+    bad = np.flatnonzero(asym > 1e-9 * np.maximum(size, 1e-300))
+    if bad.size:
+        raise ValueError(f"information matrix of edge {bad[0]} is not symmetric")
+    low = np.linalg.eigvalsh(om)[:, 0]
+    bad = np.flatnonzero(low < -1e-9 * np.maximum(size, 1e-300))
+    if bad.size:
+        raise ValueError(
+            f"information matrix of edge {bad[0]} is not positive semi-definite "
+            f"(eigenvalue {low[bad[0]]:.3g})"
+        )
+
+
+def _as_mask(robust_mask: ArrayLike | None, n_edges: int) -> BoolArray:
+    if robust_mask is None:
+        return np.ones(n_edges, dtype=np.bool_)
+    m = np.asarray(robust_mask)
+    if m.shape != (n_edges,) or m.dtype != np.bool_:
+        raise ValueError(f"robust_mask must be a boolean array of shape ({n_edges},)")
+    return np.ascontiguousarray(m)
+
+
+def _as_fixed(fixed: Sequence[int] | ArrayLike, n_nodes: int) -> IntArray:
+    f = np.unique(np.asarray(fixed, dtype=np.int64).ravel())
+    if f.size == 0:
+        raise ValueError("at least one node must be fixed (the gauge)")
+    if f[0] < 0 or f[-1] >= n_nodes:
+        raise ValueError(f"fixed node indices must lie in [0, {n_nodes}), got {f.tolist()}")
+    return f
+
+
+# --------------------------------------------------------------------------- linear system
+
+
+class _NormalEquations:
+    """The sparsity pattern of ``H`` (upper triangle, 3x3 blocks of the free nodes) and the
+    sparse factorization reused across iterations (ordering and symbolic analysis once).
+
+    Raises ``ValueError`` when some node is not connected to a fixed node through edges: its
+    pose would be undetermined.
+    """
+
+    def __init__(self, n_nodes: int, ei: IntArray, ej: IntArray, fixed: IntArray) -> None:
+        node_index = np.zeros(n_nodes, dtype=np.int64)
+        node_index[fixed] = -1
+        free = node_index >= 0
+        nf = int(free.sum())
+        node_index[free] = np.arange(nf)
+        _check_connected(n_nodes, ei, ej, fixed)
+        p = node_index[ei]
+        q = node_index[ej]
+        both = (p >= 0) & (q >= 0)
+        lo = np.minimum(p, q)[both]
+        hi = np.maximum(p, q)[both]
+        uniq, inv = np.unique(hi * max(nf, 1) + lo, return_inverse=True)
+        ucol = uniq // max(nf, 1)
+        urow = uniq % max(nf, 1)
+        blk_colptr = np.zeros(nf + 1, dtype=np.int64)
+        np.cumsum(np.bincount(ucol, minlength=nf), out=blk_colptr[1:])
+        nb = np.diff(blk_colptr)
+        counts = (3 * nb[:, None] + np.arange(1, 4)[None, :]).ravel()
+        colptr = np.zeros(3 * nf + 1, dtype=np.int64)
+        np.cumsum(counts, out=colptr[1:])
+        indices = np.empty(int(colptr[-1]), dtype=np.int64)
+        _k.build_pattern(nf, blk_colptr, np.ascontiguousarray(urow), colptr, indices)
+        edge_base = np.full(ei.shape[0], -1, dtype=np.int64)
+        edge_base[both] = 3 * (np.arange(uniq.size) - blk_colptr[ucol])[inv.ravel()]
+        self.n_nodes = n_nodes
+        self.n_free = nf
+        self.node_index = node_index
+        self.colptr = colptr
+        self.indices = indices
+        self.diag_base = np.ascontiguousarray(3 * nb)
+        self.edge_base = edge_base
+        cols = np.arange(3 * nf)
+        self.diag_pos = colptr[cols] + 3 * nb[cols // 3] + cols % 3
+        self.nnz = int(colptr[-1])
+        self._solver: Any = None
+        self._matrix: Any = None
+
+    def solve(self, data: FloatArray, rhs: FloatArray) -> FloatArray:
+        """Solve ``H x = rhs`` for ``H`` given by its upper-triangle ``data`` (positive
+        definite). Raises ``np.linalg.LinAlgError`` if the factorization breaks down."""
+        import qdldl
+        import scipy.sparse as sp
+
+        if self._matrix is None:
+            n = 3 * self.n_free
+            self._matrix = sp.csc_matrix((data.copy(), self.indices, self.colptr), shape=(n, n))
+        A = self._matrix
+        A.data[:] = data
+        try:
+            if self._solver is None:
+                self._solver = qdldl.Solver(A, upper=True)
+            else:
+                self._solver.update(A, upper=True)
+            x = self._solver.solve(rhs)
+        except (ValueError, RuntimeError) as exc:
+            self._solver = None
+            raise np.linalg.LinAlgError(str(exc)) from None
+        if not np.all(np.isfinite(x)):
+            raise np.linalg.LinAlgError("non-finite solution")
+        return np.asarray(x, dtype=np.float64)
+
+
+def _check_connected(n_nodes: int, ei: IntArray, ej: IntArray, fixed: IntArray) -> None:
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    adj = coo_matrix((np.ones(ei.shape[0]), (ei, ej)), shape=(n_nodes, n_nodes))
+    _, labels = connected_components(adj, directed=False)
+    anchored = np.zeros(labels.max() + 1, dtype=bool)
+    anchored[labels[fixed]] = True
+    loose = np.flatnonzero(~anchored[labels])
+    if loose.size:
+        raise ValueError(
+            f"{loose.size} node(s) are not connected to a fixed node (first: node {loose[0]}); "
+            "their poses are undetermined"
+        )
+
+
+# --------------------------------------------------------------------------- LM core
+
+
+def _levenberg_marquardt(
+    poses: FloatArray,
+    ei: IntArray,
+    ej: IntArray,
+    meas: FloatArray,
+    info: FloatArray,
+    robust: BoolArray,
+    system: _NormalEquations,
+    config: OptimizerConfig,
+    max_iterations: int,
+) -> tuple[FloatArray, float, int, bool, str, FloatArray, FloatArray]:
+    """LM on validated contiguous arrays (see the module docstring).
+
+    Returns the poses, final cost, iterations, converged flag, message, and the final
+    per-edge ``chi2`` and IRLS weights.
+    """
+    chart = _CHARTS[config.chart]
+    kernel = _KERNELS[config.robust]
+    E = ei.shape[0]
+    chi2 = np.empty(E)
+    weights = np.empty(E)
+    x = poses.copy()
+    x_try = np.empty_like(x)
+    n3 = 3 * system.n_free
+    data = np.empty(system.nnz)
+    rhs = np.empty(n3)
+    args = (ei, ej, meas, info, chart, kernel, config.scale, robust)
+    pattern = (system.node_index, system.colptr, system.diag_base, system.edge_base)
+
+    def linearize(at: FloatArray) -> float:
+        return float(_k.accumulate_normal_equations(at, *args, *pattern, data, rhs))
+
+    F = linearize(x)
+    iterations = 0
+    converged = False
+    message = "iteration cap reached"
+    if n3 == 0 or E == 0:
+        converged, message = True, "nothing to optimize"
+    elif F == 0.0:
+        converged, message = True, "zero error"
+    diag_pos = system.diag_pos
+    identity = config.damping == "identity"
+    lam = -1.0
+    nu = 2.0
+    while not converged and iterations < max_iterations:
+        iterations += 1
+        diag = data[diag_pos]
+        dmax = float(diag.max())
+        # Levenberg's lambda is relative to the largest curvature, Marquardt's to each one's own
+        D = np.ones(n3) if identity else np.maximum(diag, 1e-12 * dmax)
+        unit = dmax if identity else 1.0
+        if lam < 0:
+            lam = config.initial_lambda * unit
+        lam_cap = config.max_lambda * unit
+        accepted = False
+        gain = 0.0
+        while True:
+            damped = data.copy()
+            damped[diag_pos] += lam * D
+            try:
+                delta = system.solve(damped, -rhs)
+            except np.linalg.LinAlgError:
+                delta = None
+            if delta is not None:
+                _k.apply_step(x, system.node_index, delta, x_try)
+                F_try = float(_k.graph_cost(x_try, *args, chi2, weights))
+                gain = F - F_try
+                if math.isfinite(F_try) and gain > 0.0:
+                    # gain ratio against the model's predicted decrease (Madsen et al. 3.14)
+                    predicted = 0.5 * (lam * float(delta @ (D * delta)) - float(delta @ rhs))
+                    rho = gain / predicted if predicted > 0.0 else 1.0
+                    lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                    nu = 2.0
+                    accepted = True
+                    break
+            lam *= nu
+            nu *= 2.0
+            if lam > lam_cap:
+                break
+        if not accepted:
+            converged, message = True, "no step lowers the cost (damping at its cap)"
+            break
+        x, x_try = x_try, x
+        F_prev = F
+        F = F_try
+        if gain <= config.relative_tolerance * F_prev:
+            converged, message = True, "relative decrease below tolerance"
+        elif gain <= config.absolute_tolerance:
+            converged, message = True, "absolute decrease below tolerance"
+        elif iterations < max_iterations:
+            linearize(x)
+    F = float(_k.graph_cost(x, *args, chi2, weights))
+    return x, F, iterations, converged, message, chi2, weights
+
+
+# --------------------------------------------------------------------------- initialization
+
+
+def _spd_solve(H: object, rhs: FloatArray) -> FloatArray:
+    """Solve a sparse symmetric positive-definite system (full CSC matrix)."""
+    import qdldl
+
+    return np.asarray(qdldl.Solver(H).solve(rhs), dtype=np.float64)
+
+
+def _lago(
+    poses: FloatArray,
+    ei: IntArray,
+    ej: IntArray,
+    meas: FloatArray,
+    info: FloatArray,
+    fixed: IntArray,
+) -> FloatArray:
+    """Linear approximation of the pose graph (LAGO) on validated arrays."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import breadth_first_order
+
+    N = poses.shape[0]
+    # 1. A breadth-first spanning tree from a virtual root joined to every fixed node.
+    root = N
+    rows = np.concatenate([ei, ej, np.full(fixed.size, root)])
+    cols = np.concatenate([ej, ei, fixed])
+    adj = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(N + 1, N + 1))
+    order, pred = breadth_first_order(adj, root, directed=False, return_predecessors=True)
+    order = order[1:]
+    parent = pred[:N].astype(np.int64)
+    parent[fixed] = -1
+    # the edge that joins each tree node to its parent (any of them if parallel)
+    lo = np.minimum(ei, ej)
+    hi = np.maximum(ei, ej)
+    keys = lo * (N + 1) + hi
+    sort = np.argsort(keys, kind="stable")
+    tree = np.flatnonzero(parent >= 0)
+    q = np.minimum(parent[tree], tree) * (N + 1) + np.maximum(parent[tree], tree)
+    k = sort[np.searchsorted(keys, q, sorter=sort)]
+    sign = np.where(ei[k] == parent[tree], 1.0, -1.0)
+    parent_dtheta = np.zeros(N)
+    parent_dtheta[tree] = sign * meas[k, 2]
+    theta_tree = poses[:, 2].copy()
+    _k.propagate_tree(order.astype(np.int64), parent, parent_dtheta, theta_tree)
+
+    # 2. Headings: linear least squares on theta_j - theta_i = z_theta + 2 pi l, the integers
+    #    l fixed by the tree headings, weighted by the marginal information of the heading.
+    ell = np.round((theta_tree[ej] - theta_tree[ei] - meas[:, 2]) / (2.0 * math.pi))
+    r = meas[:, 2] + 2.0 * math.pi * ell - (theta_tree[ej] - theta_tree[ei])
+    w = _heading_information(info)
+    free = np.ones(N, dtype=bool)
+    free[fixed] = False
+    idx = np.cumsum(free) - 1
+    phi = np.zeros(N)
+    phi[free] = _laplacian_solve(ei, ej, w, r, free, idx, 1)[:, 0]
+    theta = theta_tree + phi
+
+    # 3. Positions: linear least squares on t_j - t_i = R(theta_i) z_t, weighted by the
+    #    translational information rotated into the world frame.
+    c = np.cos(theta[ei])
+    s = np.sin(theta[ei])
+    d = np.stack([c * meas[:, 0] - s * meas[:, 1], s * meas[:, 0] + c * meas[:, 1]], axis=1)
+    R = np.stack([np.stack([c, -s], axis=1), np.stack([s, c], axis=1)], axis=1)
+    W = R @ info[:, :2, :2] @ R.transpose(0, 2, 1)
+    # unknown: correction of the given positions, so the residual is d - (t_j - t_i)
+    r2 = d - (poses[ej, :2] - poses[ei, :2])
+    t = poses[:, :2].copy()
+    t[free] += _laplacian_solve(ei, ej, W, r2, free, idx, 2)
+    out = np.empty_like(poses)
+    out[:, :2] = t
+    out[:, 2] = theta - 2.0 * math.pi * np.floor((theta + math.pi) / (2.0 * math.pi))
+    out[fixed] = poses[fixed]
+    return out
+
+
+def _heading_information(info: FloatArray) -> FloatArray:
+    """``1 / Sigma_theta_theta`` of every edge (the heading's marginal information), or
+    ``Omega_theta_theta`` where ``Omega`` is singular."""
+    w = info[:, 2, 2].copy()
+    det = np.linalg.det(info)
+    scale = np.abs(info).max(axis=(1, 2)) ** 3
+    ok = det > 1e-12 * scale
+    if ok.any():
+        w[ok] = 1.0 / np.linalg.inv(info[ok])[:, 2, 2]
+    return w
+
+
+def _laplacian_solve(
+    ei: IntArray,
+    ej: IntArray,
+    W: FloatArray,
+    r: FloatArray,
+    free: BoolArray,
+    idx: IntArray,
+    dim: int,
+) -> FloatArray:
+    """Minimise ``sum_k |u_j - u_i - r_k|^2_{W_k}`` over the free nodes' ``u`` (``dim``-vectors;
+    fixed nodes at 0). ``W`` is ``(E,)`` for ``dim == 1``, ``(E, 2, 2)`` for ``dim == 2``.
+    A ridge of 1e-10 of the largest curvature keeps nodes with too little information
+    solvable (they stay where they were)."""
+    import scipy.sparse as sp
+
+    n = int(free.sum())
+    Wk = W.reshape(-1, 1, 1) if dim == 1 else W
+    rk = r.reshape(-1, dim)
+    pi = np.where(free[ei], idx[ei], -1)
+    pj = np.where(free[ej], idx[ej], -1)
+    Wr = (Wk @ rk[:, :, None])[:, :, 0]
+    g = np.zeros((n, dim))
+    np.add.at(g, pj[pj >= 0], Wr[pj >= 0])
+    np.add.at(g, pi[pi >= 0], -Wr[pi >= 0])
+    a = np.arange(dim)
+    rows_b, cols_b = np.meshgrid(a, a, indexing="ij")
+    R: list[IntArray] = []
+    C: list[IntArray] = []
+    V: list[FloatArray] = []
+    for p, q, sgn in ((pi, pi, 1.0), (pj, pj, 1.0), (pi, pj, -1.0), (pj, pi, -1.0)):
+        m = (p >= 0) & (q >= 0)
+        R.append((dim * p[m, None, None] + rows_b).ravel())
+        C.append((dim * q[m, None, None] + cols_b).ravel())
+        V.append((sgn * Wk[m]).ravel())
+    H = sp.csc_matrix(
+        (np.concatenate(V), (np.concatenate(R), np.concatenate(C))), shape=(dim * n, dim * n)
+    )
+    ridge = 1e-10 * max(float(H.diagonal().max()), 1e-300)
+    H = (H + ridge * sp.identity(dim * n, format="csc")).tocsc()
+    return _spd_solve(H, g.ravel()).reshape(n, dim)
+
+
+def lago_initialization(
+    poses: ArrayLike,
+    edges: ArrayLike,
+    measurements: ArrayLike,
+    information: ArrayLike,
+    *,
+    fixed: Sequence[int] | ArrayLike = (0,),
+) -> FloatArray:
+    """Initial guess by the linear approximation of Carlone et al. (LAGO).
+
+    Carlone, Aragues, Castellanos and Bona, "A fast and accurate approximation for planar pose
+    graph optimization", IJRR 2014: (1) headings along a breadth-first spanning tree fix the
+    multiple of 2 pi of every edge's heading difference; (2) all headings by weighted linear
+    least squares; (3) all positions by linear least squares given those headings. Two sparse
+    solves, no iteration. It ignores robust kernels: a false loop closure pulls it like any
+    other edge, so use it on graphs without outliers (or on their trusted edges).
+
+    Parameters
+    ----------
+    poses : array_like, shape (N, 3)
+        Current poses; only the fixed nodes' poses are used (they anchor the estimate), and
+        nodes whose position information is too weak to determine them keep their position.
+    edges, measurements, information :
+        As for :func:`optimize_pose_graph`.
+    fixed : sequence of int
+        Nodes that keep their poses (the gauge); every node must be connected to one.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        Poses ``(x, y, theta)``, world frame, metres and radians in ``[-pi, pi)``.
+
+    Examples
+    --------
+    A square, with the file's guess far off; LAGO gets it exactly (the loop is consistent):
+
+    >>> import numpy as np
+    >>> z = np.array([[1.0, 0.0, np.pi / 2]] * 4)
+    >>> edges = np.array([[0, 1], [1, 2], [2, 3], [3, 0]])
+    >>> guess = np.zeros((4, 3))
+    >>> np.round(lago_initialization(guess, edges, z, np.tile(np.eye(3), (4, 1, 1))), 9) + 0.0
+    array([[ 0.        ,  0.        ,  0.        ],
+           [ 1.        ,  0.        ,  1.57079633],
+           [ 1.        ,  1.        , -3.14159265],
+           [ 0.        ,  1.        , -1.57079633]])
+    """
+    x = _as_poses(poses)
+    ei, ej, z, om = _as_edges(edges, measurements, information, len(x))
+    f = _as_fixed(fixed, len(x))
+    _check_connected(len(x), ei, ej, f)
+    return _lago(x, ei, ej, z, om, f)
+
+
+# --------------------------------------------------------------------------- function tier
+
+
+def edge_residuals(
+    poses: ArrayLike,
+    edges: ArrayLike,
+    measurements: ArrayLike,
+    *,
+    chart: Literal["logmap", "xyt"] = "logmap",
+) -> FloatArray:
+    """Residual ``e_k`` of every edge (see the module docstring).
+
+    Parameters
+    ----------
+    poses : array_like, shape (N, 3)
+        Node poses ``(x, y, theta)``, world frame, metres and radians.
+    edges : array_like, shape (E, 2), int
+        Node indices ``(i, j)``.
+    measurements : array_like, shape (E, 3)
+        Measured pose of ``j`` in ``i``'s frame.
+    chart : {"logmap", "xyt"}
+        GTSAM's ``Log`` residual or g2o's ``(dx, dy, dtheta)``.
+
+    Returns
+    -------
+    ndarray, shape (E, 3)
+        ``(e_x, e_y, e_theta)`` per edge: metres and radians (angle in ``[-pi, pi)``).
+    """
+    if chart not in _CHARTS:
+        raise ValueError(f"chart must be one of {sorted(_CHARTS)}, got {chart!r}")
+    x = _as_poses(poses)
+    z = np.ascontiguousarray(measurements, dtype=np.float64)
+    n_edges = z.shape[0] if z.ndim == 2 else 0
+    ei, ej, z, _ = _as_edges(edges, z, np.tile(np.eye(3), (n_edges, 1, 1)), len(x))
+    out = np.empty((ei.shape[0], 3))
+    _k.edge_residuals(x, ei, ej, z, _CHARTS[chart], out)
+    return out
+
+
+def graph_error(
+    poses: ArrayLike,
+    edges: ArrayLike,
+    measurements: ArrayLike,
+    information: ArrayLike,
+    config: OptimizerConfig | None = None,
+    *,
+    robust_mask: ArrayLike | None = None,
+) -> float:
+    """Cost ``0.5 * sum_k rho_k(e_k' Omega_k e_k)`` of a pose graph.
+
+    For plain edges this is GTSAM's ``NonlinearFactorGraph.error`` of the same
+    ``BetweenFactor<Pose2>`` edges plus a prior on the first pose at its current value.
+
+    Parameters
+    ----------
+    poses : array_like, shape (N, 3)
+        Node poses ``(x, y, theta)``, world frame, metres and radians.
+    edges : array_like, shape (E, 2), int
+        Node indices ``(i, j)`` of each edge.
+    measurements : array_like, shape (E, 3)
+        Measured pose of ``j`` in ``i``'s frame.
+    information : array_like, shape (E, 3, 3)
+        Information matrices (inverse covariances) of the measurements, in the residual's
+        coordinates.
+    config : OptimizerConfig, optional
+        Its ``robust``, ``robust_scale`` and ``chart`` are used.
+    robust_mask : array_like of bool, shape (E,), optional
+        Edges the robust kernel applies to (default: all).
+
+    Returns
+    -------
+    float
+    """
+    cfg = config or OptimizerConfig()
+    x = _as_poses(poses)
+    ei, ej, z, om = _as_edges(edges, measurements, information, len(x))
+    mask = _as_mask(robust_mask, ei.shape[0])
+    chi2 = np.empty(ei.shape[0])
+    w = np.empty(ei.shape[0])
+    return float(
+        _k.graph_cost(
+            x, ei, ej, z, om, _CHARTS[cfg.chart], _KERNELS[cfg.robust], cfg.scale, mask, chi2, w
+        )
+    )
+
+
+def optimize_pose_graph(
+    poses: ArrayLike,
+    edges: ArrayLike,
+    measurements: ArrayLike,
+    information: ArrayLike,
+    config: OptimizerConfig | None = None,
+    *,
+    fixed: Sequence[int] | ArrayLike = (0,),
+    robust_mask: ArrayLike | None = None,
+    init: Literal["given", "lago"] = "given",
+) -> OptimizeResult:
+    """Optimize an SE(2) pose graph by sparse Levenberg-Marquardt.
+
+    Parameters
+    ----------
+    poses : array_like, shape (N, 3)
+        Initial node poses ``(x, y, theta)``, world frame, metres and radians.
+    edges : array_like, shape (E, 2), int
+        Node indices ``(i, j)`` of each edge (0-based rows of ``poses``, ``i != j``).
+    measurements : array_like, shape (E, 3)
+        Measured pose of node ``j`` in node ``i``'s frame, ``(dx, dy, dtheta)``.
+    information : array_like, shape (E, 3, 3)
+        Symmetric positive semi-definite information matrices.
+    config : OptimizerConfig, optional
+        Iterations, tolerances, damping, robust kernel and residual chart.
+    fixed : sequence of int
+        Nodes held at their initial poses (the gauge); at least one. Every other node must be
+        connected to one of them through edges.
+    robust_mask : array_like of bool, shape (E,), optional
+        Edges the robust kernel applies to, e.g. the loop closures (default: all edges).
+    init : {"given", "lago"}
+        Start from ``poses`` or from :func:`lago_initialization` (recommended for a batch
+        problem whose headings are far off; ``initial_error`` is still that of ``poses``).
+
+    Returns
+    -------
+    OptimizeResult
+
+    Raises
+    ------
+    ValueError
+        Malformed arrays, edges to unknown nodes, self-loops, information matrices that are
+        not symmetric positive semi-definite, or nodes not connected to a fixed node.
+
+    Examples
+    --------
+    A square whose last edge closes the loop, started from a distorted guess:
+
+    >>> import numpy as np
+    >>> z = np.array([[1.0, 0.0, np.pi / 2]] * 4)
+    >>> edges = np.array([[0, 1], [1, 2], [2, 3], [3, 0]])
+    >>> guess = np.array([[0, 0, 0], [1.1, 0.1, 1.5], [1.0, 1.2, 3.0], [-0.1, 0.9, -1.4]])
+    >>> r = optimize_pose_graph(guess, edges, z, np.tile(np.eye(3), (4, 1, 1)))
+    >>> bool(r.converged), round(r.final_error, 12)
+    (True, 0.0)
+    >>> np.round(r.poses[1], 9) + 0.0
+    array([1.        , 0.        , 1.57079633])
+    """
+    t0 = time.perf_counter()
+    cfg = config or OptimizerConfig()
+    if init not in ("given", "lago"):
+        raise ValueError(f"init must be 'given' or 'lago', got {init!r}")
+    x = _as_poses(poses)
+    ei, ej, z, om = _as_edges(edges, measurements, information, len(x))
+    mask = _as_mask(robust_mask, ei.shape[0])
+    f = _as_fixed(fixed, len(x))
+    system = _NormalEquations(len(x), ei, ej, f)
+    chart, kernel = _CHARTS[cfg.chart], _KERNELS[cfg.robust]
+    scratch = np.empty(ei.shape[0]), np.empty(ei.shape[0])
+    F0 = float(_k.graph_cost(x, ei, ej, z, om, chart, kernel, cfg.scale, mask, *scratch))
+    start = _lago(x, ei, ej, z, om, f) if init == "lago" else x
+    out, F, its, conv, msg, chi2, w = _levenberg_marquardt(
+        start, ei, ej, z, om, mask, system, cfg, cfg.max_iterations
+    )
+    return OptimizeResult(out, F0, F, its, time.perf_counter() - t0, conv, w, chi2, msg)
+
+
+# --------------------------------------------------------------------------- class tier
+
+
+class PoseGraph2D:
+    """A growing SE(2) pose graph, re-optimized in place from its current poses.
+
+    Built for incremental SLAM back ends: :meth:`add_node` and :meth:`add_edge` append to
+    arrays with amortized growth, :meth:`optimize` runs Levenberg-Marquardt warm-started from
+    the current poses and keeps the result. The sparsity pattern and the factorization's
+    ordering are rebuilt only when nodes or edges were added since the last optimization.
+
+    Parameters
+    ----------
+    config : OptimizerConfig, optional
+        Optimizer settings; its robust kernel applies to the edges added with
+        ``robust=True`` (typically loop closures), the others stay quadratic.
+    fixed : sequence of int
+        Nodes held fixed (the gauge), by default the first node.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> g = PoseGraph2D()
+    >>> a = g.add_node([0.0, 0.0, 0.0])
+    >>> b = g.add_node([0.9, 0.1, 0.0])
+    >>> g.add_edge(a, b, [1.0, 0.0, 0.0], np.eye(3))
+    0
+    >>> r = g.optimize()
+    >>> np.round(g.poses[1], 9) + 0.0
+    array([1., 0., 0.])
+    """
+
+    def __init__(
+        self, config: OptimizerConfig | None = None, *, fixed: Sequence[int] = (0,)
+    ) -> None:
+        self.config = config or OptimizerConfig()
+        self._fixed = tuple(int(f) for f in fixed)
+        if not self._fixed:
+            raise ValueError("at least one node must be fixed (the gauge)")
+        self._n = 0
+        self._m = 0
+        self._poses = np.zeros((16, 3))
+        self._ij = np.zeros((16, 2), dtype=np.int64)
+        self._z = np.zeros((16, 3))
+        self._info = np.zeros((16, 3, 3))
+        self._robust = np.zeros(16, dtype=np.bool_)
+        self._system: _NormalEquations | None = None
+        self._system_key: tuple[int, int] = (-1, -1)
+
+    # ----------------------------------------------------------------- building
+
+    def __len__(self) -> int:
+        return self._n
+
+    @property
+    def num_nodes(self) -> int:
+        """Number of nodes."""
+        return self._n
+
+    @property
+    def num_edges(self) -> int:
+        """Number of edges."""
+        return self._m
+
+    def add_node(self, pose: ArrayLike) -> int:
+        """Append a node at ``pose (3,)`` ``(x, y, theta)`` (world frame); returns its index."""
+        p = np.asarray(pose, dtype=np.float64)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise ValueError(f"pose must be 3 finite numbers (x, y, theta), got {pose!r}")
+        if self._n == self._poses.shape[0]:
+            self._poses = _grow(self._poses, self._n)
+        self._poses[self._n] = p
+        self._n += 1
+        return self._n - 1
+
+    def add_edge(
+        self,
+        i: int,
+        j: int,
+        measurement: ArrayLike,
+        information: ArrayLike,
+        *,
+        robust: bool = False,
+    ) -> int:
+        """Append an edge: ``measurement (3,)`` is node ``j``'s pose in node ``i``'s frame,
+        ``information (3, 3)`` its information matrix; ``robust`` puts the edge under the
+        config's robust kernel. Returns the edge index."""
+        return int(
+            self.add_edges(
+                [[i, j]],
+                np.asarray(measurement, dtype=np.float64)[None],
+                np.asarray(information, dtype=np.float64)[None],
+                robust=np.array([bool(robust)]),
+            )[0]
+        )
+
+    def add_edges(
+        self,
+        edges: ArrayLike,
+        measurements: ArrayLike,
+        information: ArrayLike,
+        *,
+        robust: bool | ArrayLike = False,
+    ) -> IntArray:
+        """Append ``K`` edges at once (``edges (K, 2)``, ``measurements (K, 3)``,
+        ``information (K, 3, 3)``, ``robust`` a bool or ``(K,)`` bools); returns their
+        indices ``(K,)``."""
+        e = np.asarray(edges)
+        K = e.shape[0] if e.ndim == 2 else -1
+        ei, ej, z, om = _as_edges(e, measurements, information, self._n)
+        rb = np.broadcast_to(np.asarray(robust, dtype=np.bool_), (K,))
+        while self._m + K > self._ij.shape[0]:
+            cap = self._m
+            self._ij = _grow(self._ij, cap)
+            self._z = _grow(self._z, cap)
+            self._info = _grow(self._info, cap)
+            self._robust = _grow(self._robust, cap)
+        s = slice(self._m, self._m + K)
+        self._ij[s, 0] = ei
+        self._ij[s, 1] = ej
+        self._z[s] = z
+        self._info[s] = 0.5 * (om + om.transpose(0, 2, 1))
+        self._robust[s] = rb
+        self._m += K
+        return np.arange(s.start, s.stop, dtype=np.int64)
+
+    # ----------------------------------------------------------------- state
+
+    @property
+    def poses(self) -> FloatArray:
+        """Current poses, ``(N, 3)`` ``(x, y, theta)`` (a copy)."""
+        return self._poses[: self._n].copy()
+
+    @poses.setter
+    def poses(self, value: ArrayLike) -> None:
+        p = _as_poses(value)
+        if p.shape[0] != self._n:
+            raise ValueError(f"poses must have shape ({self._n}, 3), got {p.shape}")
+        self._poses[: self._n] = p
+
+    @property
+    def edges(self) -> IntArray:
+        """Node indices ``(E, 2)`` of the edges (a copy)."""
+        return self._ij[: self._m].copy()
+
+    @property
+    def measurements(self) -> FloatArray:
+        """Edge measurements ``(E, 3)`` (a copy)."""
+        return self._z[: self._m].copy()
+
+    @property
+    def information(self) -> FloatArray:
+        """Edge information matrices ``(E, 3, 3)`` (a copy)."""
+        return self._info[: self._m].copy()
+
+    @property
+    def robust_mask(self) -> BoolArray:
+        """Which edges are under the robust kernel, ``(E,)`` (a copy)."""
+        return self._robust[: self._m].copy()
+
+    def _arrays(self) -> tuple[FloatArray, IntArray, IntArray, FloatArray, FloatArray, BoolArray]:
+        m = self._m
+        return (
+            self._poses[: self._n],
+            np.ascontiguousarray(self._ij[:m, 0]),
+            np.ascontiguousarray(self._ij[:m, 1]),
+            self._z[:m],
+            self._info[:m],
+            self._robust[:m],
+        )
+
+    def error(self) -> float:
+        """Current cost ``0.5 * sum rho(e' Omega e)`` (GTSAM's convention)."""
+        x, ei, ej, z, om, rb = self._arrays()
+        cfg = self.config
+        scratch = np.empty(self._m), np.empty(self._m)
+        return float(
+            _k.graph_cost(
+                x, ei, ej, z, om, _CHARTS[cfg.chart], _KERNELS[cfg.robust], cfg.scale, rb, *scratch
+            )
+        )
+
+    # ----------------------------------------------------------------- optimization
+
+    def _normal_equations(self, ei: IntArray, ej: IntArray) -> _NormalEquations:
+        key = (self._n, self._m)
+        if self._system is None or self._system_key != key:
+            fixed = _as_fixed(self._fixed, self._n)
+            self._system = _NormalEquations(self._n, ei, ej, fixed)
+            self._system_key = key
+        return self._system
+
+    def initialize(self) -> None:
+        """Replace the poses of the free nodes by :func:`lago_initialization`'s estimate."""
+        x, ei, ej, z, om, _ = self._arrays()
+        fixed = _as_fixed(self._fixed, self._n)
+        _check_connected(self._n, ei, ej, fixed)
+        self._poses[: self._n] = _lago(x, ei, ej, z, om, fixed)
+
+    def optimize(self, max_iterations: int | None = None) -> OptimizeResult:
+        """Levenberg-Marquardt from the current poses; the optimized poses replace them.
+
+        Parameters
+        ----------
+        max_iterations : int, optional
+            Overrides ``config.max_iterations`` for this call.
+
+        Returns
+        -------
+        OptimizeResult
+            ``poses`` is a copy of the new poses.
+        """
+        t0 = time.perf_counter()
+        its = self.config.max_iterations if max_iterations is None else int(max_iterations)
+        if its < 0:
+            raise ValueError(f"max_iterations must be >= 0, got {its}")
+        x, ei, ej, z, om, rb = self._arrays()
+        if self._n == 0:
+            raise ValueError("the graph has no nodes")
+        system = self._normal_equations(ei, ej)
+        cfg = self.config
+        scratch = np.empty(self._m), np.empty(self._m)
+        F0 = float(
+            _k.graph_cost(
+                x, ei, ej, z, om, _CHARTS[cfg.chart], _KERNELS[cfg.robust], cfg.scale, rb, *scratch
+            )
+        )
+        out, F, n_it, conv, msg, chi2, w = _levenberg_marquardt(
+            x, ei, ej, z, om, rb, system, cfg, its
+        )
+        self._poses[: self._n] = out
+        return OptimizeResult(out.copy(), F0, F, n_it, time.perf_counter() - t0, conv, w, chi2, msg)
+
+
+_Arr = TypeVar("_Arr", bound=NDArray[Any])
+
+
+def _grow(a: _Arr, used: int) -> _Arr:
+    """A copy of ``a`` with twice the rows (at least 16), the first ``used`` rows kept."""
+    out = np.zeros((max(2 * a.shape[0], 16), *a.shape[1:]), dtype=a.dtype)
+    out[:used] = a[:used]
+    return out  # type: ignore[return-value]  # same dtype and rank as ``a``

@@ -1,0 +1,609 @@
+"""SE(2) pose-graph optimizer: residuals and LM against GTSAM, the closed form of a linear
+problem, analytic Jacobians against numerical ones, every numba kernel against a numpy
+reference, robust kernels against a false loop closure, LAGO, and the class tier against the
+function tier."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from probmap.geometry.se2 import between, compose, inverse, wrap_angle
+from probmap.slam import _posegraph_kernels as K
+from probmap.slam.posegraph import (
+    OptimizerConfig,
+    PoseGraph2D,
+    _NormalEquations,
+    edge_residuals,
+    graph_error,
+    lago_initialization,
+    optimize_pose_graph,
+)
+
+# --------------------------------------------------------------------------- references
+
+
+def ref_logmap(d: np.ndarray) -> np.ndarray:
+    """Pose2 logarithm (Lynch & Park, Modern Robotics 3.3.3.2), straight from the formula."""
+    x, y, th = d[..., 0], d[..., 1], wrap_angle(d[..., 2])
+    small = np.abs(th) < 1e-9
+    ths = np.where(small, 1.0, th)
+    # V^-1 = (th / 2) [[cot(th/2), 1], [-1, cot(th/2)]]
+    a = np.where(small, 1.0, 0.5 * ths / np.tan(0.5 * ths))
+    b = 0.5 * th
+    return np.stack([a * x + b * y, -b * x + a * y, th], axis=-1)
+
+
+def ref_residuals(poses, edges, z, chart="logmap"):
+    """``z^-1 (x_i^-1 x_j)`` by the geometry module, then the chart."""
+    d = compose(inverse(z), between(poses[edges[:, 0]], poses[edges[:, 1]]))
+    d[..., 2] = wrap_angle(d[..., 2])
+    return ref_logmap(d) if chart == "logmap" else d
+
+
+def ref_rho_weight(s, kernel, k):
+    if kernel == "none":
+        return s, np.ones_like(s)
+    if kernel == "huber":
+        d = np.sqrt(s)
+        return np.where(d <= k, s, 2 * k * d - k * k), np.where(
+            d <= k, 1.0, k / np.maximum(d, 1e-300)
+        )
+    if kernel == "cauchy":
+        return k * k * np.log(1 + s / (k * k)), 1 / (1 + s / (k * k))
+    return np.where(s <= k, s, 3 * k - 4 * k * k / (k + s)), np.minimum(1, 2 * k / (k + s)) ** 2
+
+
+def ref_cost(poses, edges, z, info, kernel="none", k=1.0, mask=None, chart="logmap"):
+    e = ref_residuals(poses, edges, z, chart)
+    s = np.einsum("ki,kij,kj->k", e, info, e)
+    rho, w = ref_rho_weight(s, kernel, k)
+    m = np.ones(len(s), bool) if mask is None else mask
+    return 0.5 * float(np.where(m, rho, s).sum()), np.where(m, w, 1.0)
+
+
+def retract(poses, delta):
+    """``x Exp(xi)`` with ``delta = (R xi_t, xi_theta)`` (the kernels' coordinates)."""
+    out = poses.copy()
+    for n, dl in enumerate(delta):
+        c, s = math.cos(poses[n, 2]), math.sin(poses[n, 2])
+        xi = np.array([c * dl[0] + s * dl[1], -s * dl[0] + c * dl[1], dl[2]])
+        w = xi[2]
+        V = (
+            np.eye(2)
+            if abs(w) < 1e-12
+            else np.array([[math.sin(w), -(1 - math.cos(w))], [1 - math.cos(w), math.sin(w)]]) / w
+        )
+        t = V @ xi[:2]
+        out[n] = compose(poses[n], np.array([t[0], t[1], w]))
+    out[:, 2] = wrap_angle(out[:, 2])
+    return out
+
+
+def numeric_jacobian(poses, edges, z, chart, h=1e-6):
+    """Central differences of the reference residuals through the retraction."""
+    E, N = len(edges), len(poses)
+    J = np.zeros((3 * E, 3 * N))
+    for n in range(N):
+        for c in range(3):
+            d = np.zeros((N, 3))
+            d[n, c] = h
+            ep = ref_residuals(retract(poses, d), edges, z, chart)
+            em = ref_residuals(retract(poses, -d), edges, z, chart)
+            diff = ep - em
+            diff[:, 2] = wrap_angle(diff[:, 2])
+            J[:, 3 * n + c] = (diff / (2 * h)).ravel()
+    return J
+
+
+def random_graph(rng, n=12, extra=10, noise=0.05):
+    """A random walk with odometry and random loop closures, noisy measurements and a noisy
+    start; information matrices random SPD."""
+    truth = np.zeros((n, 3))
+    for i in range(1, n):
+        truth[i] = compose(
+            truth[i - 1], [rng.uniform(0.5, 1.5), rng.normal(0, 0.3), rng.normal(0, 0.8)]
+        )
+    pairs = [(i, i + 1) for i in range(n - 1)]
+    while len(pairs) < n - 1 + extra:
+        i, j = sorted(rng.choice(n, 2, replace=False))
+        if j != i + 1:
+            pairs.append((int(i), int(j)))
+    edges = np.array(pairs)
+    z = between(truth[edges[:, 0]], truth[edges[:, 1]]) + rng.normal(0, noise, (len(edges), 3))
+    A = rng.normal(size=(len(edges), 3, 3))
+    info = A @ A.transpose(0, 2, 1) + 3 * np.eye(3)
+    start = truth + rng.normal(0, 0.2, truth.shape)
+    start[0] = truth[0]
+    return truth, start, edges, z, info
+
+
+# --------------------------------------------------------------------------- residuals & Jacobians
+
+
+@pytest.mark.parametrize("chart", ["logmap", "xyt"])
+def test_residual_kernel_matches_reference(chart):
+    rng = np.random.default_rng(1)
+    poses = rng.normal(0, 3, (30, 3))
+    poses[:, 2] = rng.uniform(-np.pi, np.pi, 30)
+    edges = rng.integers(0, 30, (200, 2))
+    edges = edges[edges[:, 0] != edges[:, 1]]
+    z = rng.normal(0, 2, (len(edges), 3))
+    z[:5, 2] = 0.0
+    z[5:10] = between(poses[edges[5:10, 0]], poses[edges[5:10, 1]])  # zero residual
+    got = edge_residuals(poses, edges, z, chart=chart)
+    want = ref_residuals(poses, edges, z, chart)
+    dth = wrap_angle(got[:, 2] - want[:, 2])
+    assert np.allclose(got[:, :2], want[:, :2], rtol=0, atol=1e-9) and np.abs(dth).max() < 1e-12
+
+
+@pytest.mark.parametrize("chart", ["logmap", "xyt"])
+@pytest.mark.parametrize("scale", [1e-5, 0.3, 2.0, 3.1])
+def test_analytic_jacobians_match_numerical(chart, scale):
+    rng = np.random.default_rng(int(scale * 1000))
+    for _ in range(5):
+        poses = rng.normal(0, 2, (2, 3))
+        z = between(poses[0], poses[1]) + rng.normal(0, scale, 3)  # residual angle ~ scale
+        e = np.empty(3)
+        A = np.empty((3, 3))
+        B = np.empty((3, 3))
+        K.edge_linearize(
+            poses, 0, 1, *z, K.CHART_LOGMAP if chart == "logmap" else K.CHART_XYT, e, A, B
+        )
+        if abs(e[2]) > 3.0:  # too close to the wrap for central differences
+            continue
+        J = numeric_jacobian(poses, np.array([[0, 1]]), z[None], chart)
+        assert np.allclose(np.hstack([A, B]), J, rtol=1e-6, atol=1e-6)
+
+
+def test_error_equals_gtsam_graph_error():
+    gtsam = pytest.importorskip("gtsam")
+    rng = np.random.default_rng(2)
+    truth, start, edges, z, info = random_graph(rng, n=15, extra=12, noise=0.3)
+    start[:, 2] = rng.uniform(-np.pi, np.pi, len(start))  # far-off headings: large residuals
+    g = gtsam.NonlinearFactorGraph()
+    v = gtsam.Values()
+    for n, p in enumerate(start):
+        v.insert(n, gtsam.Pose2(*p))
+    for (i, j), zz, om in zip(edges, z, info, strict=True):
+        g.add(
+            gtsam.BetweenFactorPose2(
+                int(i), int(j), gtsam.Pose2(*zz), gtsam.noiseModel.Gaussian.Information(om)
+            )
+        )
+    prior = gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-8]))
+    g.add(gtsam.PriorFactorPose2(0, gtsam.Pose2(*start[0]), prior))
+    ours = graph_error(start, edges, z, info)
+    assert ours == pytest.approx(g.error(v), rel=1e-12)
+
+
+# --------------------------------------------------------------------------- kernels vs numpy
+
+
+@pytest.mark.parametrize("kernel", ["none", "huber", "cauchy", "dcs"])
+def test_normal_equations_kernel_matches_dense_reference(kernel):
+    rng = np.random.default_rng(3)
+    truth, start, edges, z, info = random_graph(rng, n=10, extra=15, noise=0.4)
+    edges = np.vstack([edges, edges[:3]])  # parallel edges share a block
+    z = np.vstack([z, z[:3] + 0.1])
+    info = np.concatenate([info, info[:3]])
+    mask = rng.random(len(edges)) < 0.6
+    fixed = np.array([0, 4])
+    cfg = OptimizerConfig(robust=kernel, robust_scale=1.5)
+    s = _NormalEquations(len(start), edges[:, 0].copy(), edges[:, 1].copy(), fixed)
+    data = np.empty(s.nnz)
+    rhs = np.empty(3 * s.n_free)
+    F = K.accumulate_normal_equations(
+        start, edges[:, 0].copy(), edges[:, 1].copy(), z, info, K.CHART_LOGMAP,
+        {"none": 0, "huber": 1, "cauchy": 2, "dcs": 3}[kernel], cfg.scale, mask,
+        s.node_index, s.colptr, s.diag_base, s.edge_base, data, rhs,
+    )  # fmt: skip
+    import scipy.sparse as sp
+
+    U = sp.csc_matrix((data, s.indices, s.colptr), shape=(3 * s.n_free,) * 2).toarray()
+    assert np.allclose(U, np.triu(U))  # upper triangle only
+    H = U + np.triu(U, 1).T
+    # reference: dense J' W J, W = blockdiag(w_k Omega_k), J by numerical differentiation
+    J = numeric_jacobian(start, edges, z, "logmap")
+    F_ref, w = ref_cost(start, edges, z, info, kernel, cfg.scale, mask)
+    e = ref_residuals(start, edges, z).ravel()
+    W = np.zeros((len(e), len(e)))
+    for k in range(len(edges)):
+        W[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = w[k] * info[k]
+    free = np.setdiff1d(np.arange(len(start)), fixed)
+    cols = (3 * free[:, None] + np.arange(3)).ravel()
+    H_ref = (J.T @ W @ J)[np.ix_(cols, cols)]
+    b_ref = (J.T @ W @ e)[cols]
+    assert F == pytest.approx(F_ref, rel=1e-12)
+    assert np.allclose(H, H_ref, rtol=1e-6, atol=1e-6 * np.abs(H_ref).max())
+    assert np.allclose(rhs, b_ref, rtol=1e-6, atol=1e-6 * np.abs(b_ref).max())
+
+
+@pytest.mark.parametrize("kernel", ["none", "huber", "cauchy", "dcs"])
+def test_cost_kernel_and_weights_match_reference(kernel):
+    rng = np.random.default_rng(4)
+    _, start, edges, z, info = random_graph(rng, n=20, extra=20, noise=1.0)
+    mask = rng.random(len(edges)) < 0.5
+    chi2 = np.empty(len(edges))
+    w = np.empty(len(edges))
+    code = {"none": 0, "huber": 1, "cauchy": 2, "dcs": 3}[kernel]
+    F = K.graph_cost(
+        start, edges[:, 0].copy(), edges[:, 1].copy(), z, info, 0, code, 2.0, mask, chi2, w
+    )
+    F_ref, w_ref = ref_cost(start, edges, z, info, kernel, 2.0, mask)
+    assert F == pytest.approx(F_ref, rel=1e-12) and np.allclose(w, w_ref, rtol=1e-12)
+
+
+@pytest.mark.parametrize("kernel", ["huber", "cauchy", "dcs"])
+def test_weight_is_derivative_of_rho(kernel):
+    for s in [0.01, 0.5, 0.99, 1.7, 4.0, 30.0, 1e4]:
+        h = 1e-6 * s
+        rp, _ = K.rho_weight(s + h, {"huber": 1, "cauchy": 2, "dcs": 3}[kernel], 1.3)
+        rm, _ = K.rho_weight(s - h, {"huber": 1, "cauchy": 2, "dcs": 3}[kernel], 1.3)
+        _, w = K.rho_weight(s, {"huber": 1, "cauchy": 2, "dcs": 3}[kernel], 1.3)
+        assert w == pytest.approx((rp - rm) / (2 * h), rel=1e-5)
+
+
+def test_apply_step_kernel_is_the_exp_retraction():
+    rng = np.random.default_rng(5)
+    poses = rng.normal(0, 2, (8, 3))
+    node_index = np.array([-1, 0, 1, 2, -1, 3, 4, 5])
+    delta = rng.normal(0, 0.7, 18)
+    delta[2] = 1e-9  # the series branch
+    out = np.empty_like(poses)
+    K.apply_step(poses, node_index, delta, out)
+    d = np.zeros((8, 3))
+    d[node_index >= 0] = delta.reshape(-1, 3)
+    want = retract(poses, d)
+    assert np.allclose(out[:, :2], want[:, :2], atol=1e-12)
+    assert np.abs(wrap_angle(out[:, 2] - want[:, 2])).max() < 1e-12
+    assert np.array_equal(out[[0, 4]], poses[[0, 4]])
+
+
+def test_propagate_tree_kernel_matches_loop():
+    rng = np.random.default_rng(6)
+    n = 50
+    parent = np.array([-1] + [int(rng.integers(0, i)) for i in range(1, n)])
+    order = np.arange(n)  # parents precede children
+    dth = rng.normal(0, 1, n)
+    theta = rng.normal(0, 1, n)
+    want = theta.copy()
+    for i in range(1, n):
+        want[i] = want[parent[i]] + dth[i]
+    K.propagate_tree(order, parent, dth, theta)
+    assert np.allclose(theta, want, rtol=0, atol=1e-12)
+
+
+# --------------------------------------------------------------------------- LM
+
+
+def test_linear_problem_matches_closed_form():
+    """Poses on the x axis with measurements along x and diagonal information: headings and
+    y stay 0 (their gradient vanishes and H decouples), so LM must return the weighted linear
+    least-squares solution of the x coordinates, computed here with numpy."""
+    rng = np.random.default_rng(7)
+    n = 25
+    pairs = [(i, i + 1) for i in range(n - 1)] + [
+        tuple(sorted(rng.choice(n, 2, replace=False))) for _ in range(30)
+    ]
+    edges = np.array(pairs)
+    dx = rng.normal(1.0, 0.5, len(edges)) * (edges[:, 1] - edges[:, 0])
+    z = np.stack([dx, np.zeros(len(edges)), np.zeros(len(edges))], axis=1)
+    wx = rng.uniform(1, 50, len(edges))
+    info = np.zeros((len(edges), 3, 3))
+    info[:, 0, 0] = wx
+    info[:, 1, 1] = rng.uniform(1, 50, len(edges))
+    info[:, 2, 2] = rng.uniform(1, 50, len(edges))
+    start = np.zeros((n, 3))
+    start[:, 0] = np.arange(n) * 0.7
+    # closed form: minimise sum w (x_j - x_i - dx)^2 with x_0 = 0
+    A = np.zeros((len(edges), n))
+    A[np.arange(len(edges)), edges[:, 1]] = 1.0
+    A[np.arange(len(edges)), edges[:, 0]] = -1.0
+    sw = np.sqrt(wx)
+    x_free, *_ = np.linalg.lstsq(A[:, 1:] * sw[:, None], dx * sw, rcond=None)
+    r = optimize_pose_graph(start, edges, z, info)
+    assert r.converged
+    assert np.allclose(r.poses[1:, 0], x_free, rtol=0, atol=1e-9)
+    assert np.abs(r.poses[:, 1:]).max() < 1e-12
+    resid = A[:, 1:] @ x_free - dx
+    assert r.final_error == pytest.approx(0.5 * float(wx @ resid**2), rel=1e-9)
+
+
+def test_consistent_graph_reaches_zero_error_from_noisy_start():
+    rng = np.random.default_rng(8)
+    truth, start, edges, z, info = random_graph(rng, n=30, extra=20, noise=0.0)
+    r = optimize_pose_graph(start, edges, z, info)
+    assert r.converged and r.final_error < 1e-16
+    assert np.allclose(r.poses[:, :2], truth[:, :2], atol=1e-8)
+    assert np.abs(wrap_angle(r.poses[:, 2] - truth[:, 2])).max() < 1e-8
+    assert r.initial_error > 1.0 and np.all(r.weights == 1.0)
+
+
+def _gtsam_optimize(gtsam, start, edges, z, info):
+    g = gtsam.NonlinearFactorGraph()
+    v = gtsam.Values()
+    for n, p in enumerate(start):
+        v.insert(n, gtsam.Pose2(*p))
+    for (i, j), zz, om in zip(edges, z, info, strict=True):
+        g.add(
+            gtsam.BetweenFactorPose2(
+                int(i), int(j), gtsam.Pose2(*zz), gtsam.noiseModel.Gaussian.Information(om)
+            )
+        )
+    prior = gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-8]))
+    g.add(gtsam.PriorFactorPose2(0, gtsam.Pose2(*start[0]), prior))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setRelativeErrorTol(1e-12)
+    params.setAbsoluteErrorTol(1e-14)
+    res = gtsam.LevenbergMarquardtOptimizer(g, v, params).optimize()
+    return g.error(res), np.array(
+        [
+            [res.atPose2(n).x(), res.atPose2(n).y(), res.atPose2(n).theta()]
+            for n in range(len(start))
+        ]
+    )
+
+
+def test_lm_matches_gtsam_on_a_random_graph():
+    gtsam = pytest.importorskip("gtsam")
+    rng = np.random.default_rng(9)
+    truth, start, edges, z, info = random_graph(rng, n=40, extra=30, noise=0.05)
+    F_g, poses_g = _gtsam_optimize(gtsam, start, edges, z, info)
+    r = optimize_pose_graph(start, edges, z, info)
+    assert r.converged
+    assert r.final_error == pytest.approx(F_g, rel=1e-6)
+    assert np.allclose(r.poses[:, :2], poses_g[:, :2], atol=1e-5)
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("name", ["pose2example.txt", "noisyToyGraph.txt", "w100.graph"])
+def test_lm_matches_gtsam_on_small_standard_graphs(shared_data, name):
+    """GTSAM's default LM on GTSAM's own example graphs: the same final error to 1e-6."""
+    gtsam = pytest.importorskip("gtsam")
+    from probmap.datasets.g2o import pose_graph_arrays, read_pose_graph
+
+    path = shared_data(f"pose-graphs/{name}")
+    a = pose_graph_arrays(read_pose_graph(path))
+    fmt = (
+        gtsam.NoiseFormat.NoiseFormatAUTO
+        if name.endswith(".graph")
+        else gtsam.NoiseFormat.NoiseFormatG2O
+    )
+    g, v = gtsam.load2D(str(path), None, 0, False, True, fmt)
+    g.add(
+        gtsam.PriorFactorPose2(
+            0, v.atPose2(0), gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-8]))
+        )
+    )
+    opt = gtsam.LevenbergMarquardtOptimizer(g, v, gtsam.LevenbergMarquardtParams())
+    F_g = g.error(opt.optimize())
+    r = optimize_pose_graph(a.poses, a.edges, a.measurements, a.information)
+    assert graph_error(a.poses, a.edges, a.measurements, a.information) == pytest.approx(
+        g.error(v), rel=1e-12
+    )
+    assert r.converged and r.final_error == pytest.approx(F_g, rel=1e-6)
+
+
+@pytest.mark.realdata
+def test_lago_start_beats_gtsam_where_gtsam_hits_its_cap(shared_data):
+    """INTEL_P_toro: GTSAM's default LM stops at 100 iterations at 35485.4 (data README)."""
+    from probmap.datasets.g2o import pose_graph_arrays, read_pose_graph
+
+    a = pose_graph_arrays(read_pose_graph(shared_data("pose-graphs/INTEL_P_toro.graph")))
+    r = optimize_pose_graph(a.poses, a.edges, a.measurements, a.information, init="lago")
+    assert r.initial_error == pytest.approx(2.90748e6, rel=1e-5)
+    assert r.converged and r.final_error < 200.0 < 35485.4
+
+
+# --------------------------------------------------------------------------- robust costs
+
+
+def _loop_with_false_closure(false_closure=True):
+    """A 61-pose loop (a 7.5 m square, 0.5 m steps) with odometry noise of 2 mm and 0.5 mrad
+    per step, true loop closures (sigma 3 cm, 0.6 deg) where the loop meets itself, and one
+    false closure, as confident as the true ones, that puts pose 45 (the opposite corner,
+    10.6 m away) 1 m ahead of pose 15."""
+    rng = np.random.default_rng(10)
+    steps = []
+    for _ in range(4):
+        steps += [[0.5, 0.0, 0.0]] * 14 + [[0.5, 0.0, np.pi / 2]]
+    truth = np.zeros((61, 3))
+    for i, s in enumerate(steps):
+        truth[i + 1] = compose(truth[i], s)
+    sigma = np.array([0.002, 0.002, 0.0005])
+    edges = np.array([(i, i + 1) for i in range(60)] + [(0, 60), (1, 59), (2, 58), (58, 0)])
+    z = between(truth[edges[:, 0]], truth[edges[:, 1]])
+    z[:60] += rng.normal(0, sigma, (60, 3))
+    info = np.concatenate(
+        [np.tile(np.diag(sigma**-2.0), (60, 1, 1)), np.tile(np.diag([1e3, 1e3, 1e4]), (4, 1, 1))]
+    )
+    if false_closure:
+        edges = np.vstack([edges, [15, 45]])
+        z = np.vstack([z, [1.0, 0.0, 0.0]])
+        info = np.concatenate([info, np.diag([1e3, 1e3, 1e4])[None]])
+    closure = np.zeros(len(edges), bool)
+    closure[60:] = True
+    start = np.zeros_like(truth)
+    for i in range(60):
+        start[i + 1] = compose(start[i], z[i])
+    return truth, start, edges, z, info, closure
+
+
+def _aligned_error(poses, truth):
+    return float(np.linalg.norm(poses[:, :2] - truth[:, :2], axis=1).max())
+
+
+@pytest.mark.parametrize("kernel", ["cauchy", "dcs", "huber"])
+def test_robust_kernel_rejects_a_false_loop_closure(kernel):
+    truth, start, edges, z, info, closure = _loop_with_false_closure()
+    clean = optimize_pose_graph(start, edges[:-1], z[:-1], info[:-1])  # without the outlier
+    plain = optimize_pose_graph(start, edges, z, info)
+    cfg = OptimizerConfig(robust=kernel)
+    r = optimize_pose_graph(start, edges, z, info, cfg, robust_mask=closure)
+    assert _aligned_error(clean.poses, truth) < 0.04  # what the noise allows
+    assert _aligned_error(plain.poses, truth) > 1.0  # least squares bends the loop by metres
+    assert _aligned_error(r.poses, truth) < 0.05  # the robust cost does not
+    # and it lands on the outlier-free solution (Huber, not redescending, keeps a pull)
+    assert _aligned_error(r.poses, clean.poses) < (0.01 if kernel == "huber" else 0.001)
+    assert r.weights[-1] < 0.01 and np.all(r.weights[60:-1] > 0.9)
+    assert np.all(r.weights[:60] == 1.0)  # odometry stays quadratic
+
+
+def test_robust_kernel_on_all_edges_still_finds_the_loop():
+    truth, start, edges, z, info, _ = _loop_with_false_closure()
+    r = optimize_pose_graph(start, edges, z, info, OptimizerConfig(robust="cauchy"))
+    assert _aligned_error(r.poses, truth) < 0.05
+
+
+# --------------------------------------------------------------------------- LAGO
+
+
+def test_lago_is_exact_on_a_consistent_graph_and_wraps_headings():
+    rng = np.random.default_rng(11)
+    truth, _, edges, z, info = random_graph(rng, n=40, extra=25, noise=0.0)
+    got = lago_initialization(np.zeros_like(truth), edges, z, info)
+    assert np.allclose(got[:, :2], truth[:, :2], atol=1e-8)
+    assert np.abs(wrap_angle(got[:, 2] - truth[:, 2])).max() < 1e-9
+    assert np.all((got[:, 2] >= -np.pi) & (got[:, 2] < np.pi))
+
+
+def test_lago_start_finds_the_optimum_from_random_headings():
+    rng = np.random.default_rng(12)
+    truth, start, edges, z, info = random_graph(rng, n=60, extra=40, noise=0.02)
+    start[1:, 2] = rng.uniform(-np.pi, np.pi, len(start) - 1)
+    best = optimize_pose_graph(truth, edges, z, info)
+    r = optimize_pose_graph(start, edges, z, info, init="lago")
+    assert r.final_error == pytest.approx(best.final_error, rel=1e-6)
+    assert r.initial_error == pytest.approx(graph_error(start, edges, z, info))
+
+
+def test_lago_keeps_several_fixed_nodes():
+    rng = np.random.default_rng(13)
+    truth, start, edges, z, info = random_graph(rng, n=20, extra=10, noise=0.0)
+    got = lago_initialization(truth, edges, z, info, fixed=[0, 7])
+    assert np.array_equal(got[[0, 7]], truth[[0, 7]])
+    assert np.allclose(got[:, :2], truth[:, :2], atol=1e-8)
+
+
+# --------------------------------------------------------------------------- class tier
+
+
+def test_class_matches_function_tier_and_grows():
+    rng = np.random.default_rng(14)
+    truth, start, edges, z, info = random_graph(rng, n=80, extra=60, noise=0.03)
+    mask = edges[:, 1] != edges[:, 0] + 1
+    cfg = OptimizerConfig(robust="cauchy")
+    g = PoseGraph2D(cfg)
+    for p in start:
+        g.add_node(p)
+    for (i, j), zz, om, m in zip(edges, z, info, mask, strict=True):
+        g.add_edge(int(i), int(j), zz, om, robust=bool(m))
+    assert (g.num_nodes, g.num_edges) == (80, len(edges))
+    assert g.error() == pytest.approx(graph_error(start, edges, z, info, cfg, robust_mask=mask))
+    r1 = g.optimize()
+    r2 = optimize_pose_graph(start, edges, z, info, cfg, robust_mask=mask)
+    assert r1.final_error == pytest.approx(r2.final_error, rel=1e-12)
+    assert np.array_equal(g.poses, r1.poses) and np.array_equal(g.robust_mask, mask)
+    assert g.error() == pytest.approx(r1.final_error)
+    # warm start: a second call has nothing left to do
+    r3 = g.optimize()
+    assert r3.iterations <= 2 and r3.final_error <= r1.final_error * (1 + 1e-12)
+
+
+def test_class_incremental_optimization():
+    """Add nodes and edges, optimize every 20 nodes, as a SLAM front end would."""
+    rng = np.random.default_rng(15)
+    truth, _, edges, z, info = random_graph(rng, n=100, extra=0, noise=0.01)
+    g = PoseGraph2D()
+    g.add_node(truth[0])
+    for i in range(1, 100):
+        g.add_node(compose(g.poses[i - 1], z[i - 1]))
+        g.add_edge(i - 1, i, z[i - 1], info[i - 1])
+        if i % 10 == 0 and i >= 20:  # a loop closure to a node 20 back
+            j = i - 20
+            g.add_edge(j, i, between(truth[j], truth[i]), np.eye(3) * 100.0)
+        if i % 20 == 0:
+            r = g.optimize()
+            assert r.converged and r.final_error <= r.initial_error
+    assert g.num_nodes == 100 and g.edges.shape == (g.num_edges, 2)
+
+
+def test_class_validation():
+    g = PoseGraph2D()
+    with pytest.raises(ValueError, match="no nodes"):
+        g.optimize()
+    a = g.add_node([0, 0, 0])
+    b = g.add_node([1, 0, 0])
+    with pytest.raises(ValueError, match="pose must be"):
+        g.add_node([0, 0])
+    with pytest.raises(ValueError, match="lie in"):
+        g.add_edge(a, 5, [1, 0, 0], np.eye(3))
+    with pytest.raises(ValueError, match="itself"):
+        g.add_edge(a, a, [1, 0, 0], np.eye(3))
+    with pytest.raises(ValueError, match="not connected"):
+        g.optimize()
+    g.add_edge(a, b, [1, 0, 0], np.eye(3))
+    g.poses = np.array([[0, 0, 0], [2, 0, 0]])
+    assert g.optimize().final_error < 1e-20
+
+
+# --------------------------------------------------------------------------- validation
+
+
+@pytest.mark.parametrize(
+    ("kw", "match"),
+    [
+        ({"max_iterations": -1}, "max_iterations"),
+        ({"max_iterations": 2.5}, "max_iterations"),
+        ({"relative_tolerance": float("nan")}, "relative_tolerance"),
+        ({"initial_lambda": 0.0}, "initial_lambda"),
+        ({"initial_lambda": 1.0, "max_lambda": 0.5}, "max_lambda"),
+        ({"robust": "tukey"}, "robust"),
+        ({"robust": "huber", "robust_scale": -1.0}, "robust_scale"),
+        ({"damping": "none"}, "damping"),
+        ({"chart": "expmap"}, "chart"),
+    ],
+)
+def test_config_validation(kw, match):
+    with pytest.raises(ValueError, match=match):
+        OptimizerConfig(**kw)
+
+
+def test_config_resolves_default_scales():
+    assert OptimizerConfig(robust="huber").scale == 1.345
+    assert OptimizerConfig(robust="dcs").scale == 1.0
+    assert OptimizerConfig(robust="cauchy", robust_scale=3.0).scale == 3.0
+
+
+def test_function_tier_validation():
+    poses = np.zeros((3, 3))
+    edges = np.array([[0, 1], [1, 2]])
+    z = np.zeros((2, 3))
+    info = np.tile(np.eye(3), (2, 1, 1))
+    with pytest.raises(ValueError, match=r"poses must have shape"):
+        optimize_pose_graph(np.zeros((3, 2)), edges, z, info)
+    with pytest.raises(ValueError, match="integer"):
+        optimize_pose_graph(poses, edges.astype(float), z, info)
+    with pytest.raises(ValueError, match="measurements must have shape"):
+        optimize_pose_graph(poses, edges, z[:1], info)
+    bad = info.copy()
+    bad[1, 0, 1] = 0.5
+    with pytest.raises(ValueError, match="edge 1 is not symmetric"):
+        optimize_pose_graph(poses, edges, z, bad)
+    bad = info.copy()
+    bad[0] = np.diag([1.0, -1.0, 1.0])
+    with pytest.raises(ValueError, match="edge 0 is not positive semi-definite"):
+        optimize_pose_graph(poses, edges, z, bad)
+    with pytest.raises(ValueError, match="at least one node must be fixed"):
+        optimize_pose_graph(poses, edges, z, info, fixed=[])
+    with pytest.raises(ValueError, match="robust_mask"):
+        optimize_pose_graph(poses, edges, z, info, robust_mask=[1, 0])
+    with pytest.raises(ValueError, match="init"):
+        optimize_pose_graph(poses, edges, z, info, init="chordal")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="not connected"):
+        optimize_pose_graph(np.zeros((4, 3)), edges, z, info)
+    r = optimize_pose_graph(poses, edges, z, info, fixed=[0, 1, 2])
+    assert r.converged and r.iterations == 0 and r.message == "nothing to optimize"

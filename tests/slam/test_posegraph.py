@@ -20,6 +20,7 @@ from probmap.slam.posegraph import (
     graph_error,
     lago_initialization,
     optimize_pose_graph,
+    write_pose_graph_g2o,
 )
 
 # --------------------------------------------------------------------------- references
@@ -262,18 +263,109 @@ def test_apply_step_kernel_is_the_exp_retraction():
     assert np.array_equal(out[[0, 4]], poses[[0, 4]])
 
 
-def test_propagate_tree_kernel_matches_loop():
+def test_spanning_tree_kernel_matches_python_bfs():
     rng = np.random.default_rng(6)
-    n = 50
-    parent = np.array([-1] + [int(rng.integers(0, i)) for i in range(1, n)])
-    order = np.arange(n)  # parents precede children
-    dth = rng.normal(0, 1, n)
-    theta = rng.normal(0, 1, n)
-    want = theta.copy()
-    for i in range(1, n):
-        want[i] = want[parent[i]] + dth[i]
-    K.propagate_tree(order, parent, dth, theta)
-    assert np.allclose(theta, want, rtol=0, atol=1e-12)
+    n = 60
+    pairs = [(int(rng.integers(0, i)), i) for i in range(1, 50)]  # a tree over 0..49
+    pairs += [tuple(int(v) for v in rng.choice(50, 2, replace=False)) for _ in range(30)]
+    pairs += [(55, 56), (57, 55)]  # a second component, anchored by a fixed node
+    edges = np.array(pairs)
+    dth = rng.normal(0, 1, len(edges))
+    fixed = np.array([0, 56])
+    theta = np.full(n, 7.0)
+    theta[fixed] = [0.3, -1.0]
+    reached = K.spanning_tree(n, edges[:, 0].copy(), edges[:, 1].copy(), dth, fixed, theta)
+    # reference: the same breadth-first order (fixed nodes first, edges in adjacency order)
+    adj: dict[int, list[tuple[int, int]]] = {v: [] for v in range(n)}
+    for k, (i, j) in enumerate(edges):
+        adj[int(i)].append((k, int(j)))
+        adj[int(j)].append((k, int(i)))
+    for v in adj:
+        adj[v].sort()
+    want = np.full(n, np.nan)
+    want[fixed] = [0.3, -1.0]
+    queue = list(fixed)
+    while queue:
+        u = queue.pop(0)
+        for k, v in adj[u]:
+            if np.isnan(want[v]):
+                want[v] = want[u] + (dth[k] if edges[k, 0] == u else -dth[k])
+                queue.append(v)
+    assert reached == int(np.isfinite(want).sum()) == 53
+    assert np.array_equal(np.isnan(theta), np.isnan(want))
+    assert np.allclose(theta[~np.isnan(want)], want[~np.isnan(want)], rtol=0, atol=1e-12)
+
+
+def test_check_information_kernel_matches_eigenvalues():
+    rng = np.random.default_rng(16)
+    mats = []
+    for _ in range(300):
+        A = rng.normal(size=(3, rng.integers(1, 4)))
+        M = A @ A.T  # PSD, often singular
+        if rng.random() < 0.4:
+            M = M - rng.uniform(0.01, 1) * np.eye(3)  # often indefinite
+        mats.append(M)
+    for M in mats:
+        got = K.check_information(M[None], 1e-9)
+        low = np.linalg.eigvalsh(M)[0]
+        psd = low >= -1e-9 * np.abs(M).max()
+        assert (got[1] == 0) == psd, (M, low)
+    sym = np.eye(3)[None].copy()
+    sym[0, 0, 1] = 1e-3
+    assert tuple(K.check_information(sym, 1e-9)) == (0, 2)
+    nan = np.eye(3)[None].copy()
+    nan[0, 2, 2] = np.nan
+    assert tuple(K.check_information(np.concatenate([np.eye(3)[None], nan]), 1e-9)) == (1, 1)
+
+
+@pytest.mark.parametrize("stage", [0, 1])
+def test_lago_assembly_kernel_matches_dense_reference(stage):
+    import scipy.sparse as sp
+
+    rng = np.random.default_rng(17)
+    truth, start, edges, z, info = random_graph(rng, n=12, extra=10, noise=0.3)
+    fixed = np.array([0, 5])
+    theta = rng.normal(0, 3, len(start))
+    s = _NormalEquations(len(start), edges[:, 0].copy(), edges[:, 1].copy(), fixed)
+    data = np.empty(s.nnz)
+    rhs = np.empty(3 * s.n_free)
+    K.assemble_lago(
+        stage, start, theta, edges[:, 0].copy(), edges[:, 1].copy(), z, info,
+        s.node_index, s.colptr, s.diag_base, s.edge_base, data, rhs,
+    )  # fmt: skip
+    U = sp.csc_matrix((data, s.indices, s.colptr), shape=(3 * s.n_free,) * 2).toarray()
+    H = U + np.triu(U, 1).T
+    # dense reference: J' W J and J' W r of the stage's linear residuals u_j - u_i - r
+    n = len(start)
+    dim, lo = (1, 2) if stage == 0 else (2, 0)
+    J = np.zeros((dim * len(edges), dim * n))
+    W = np.zeros((dim * len(edges),) * 2)
+    r = np.zeros(dim * len(edges))
+    for k, (i, j) in enumerate(edges):
+        rows = slice(dim * k, dim * k + dim)
+        J[rows, dim * j : dim * j + dim] = np.eye(dim)
+        J[rows, dim * i : dim * i + dim] = -np.eye(dim)
+        if stage == 0:
+            w = 1.0 / np.linalg.inv(info[k])[2, 2]
+            diff = theta[j] - theta[i]
+            ell = np.round((diff - z[k, 2]) / (2 * np.pi))
+            W[rows, rows] = w
+            r[rows] = z[k, 2] + 2 * np.pi * ell - diff
+        else:
+            c, sn = np.cos(theta[i]), np.sin(theta[i])
+            R = np.array([[c, -sn], [sn, c]])
+            W[rows, rows] = R @ info[k][:2, :2] @ R.T
+            r[rows] = R @ z[k, :2] - (start[j, :2] - start[i, :2])
+    free = np.setdiff1d(np.arange(n), fixed)
+    cols = (dim * free[:, None] + np.arange(dim)).ravel()
+    H_ref = (J.T @ W @ J)[np.ix_(cols, cols)]
+    g_ref = (J.T @ W @ r)[cols]
+    idx = (3 * np.arange(len(free))[:, None] + lo + np.arange(dim)).ravel()
+    assert np.allclose(H[np.ix_(idx, idx)], H_ref, rtol=1e-10, atol=1e-9)
+    assert np.allclose(rhs[idx], g_ref, rtol=1e-10, atol=1e-9)
+    other = np.setdiff1d(np.arange(3 * len(free)), idx)
+    assert np.array_equal(H[np.ix_(other, other)], np.eye(other.size))
+    assert np.all(H[np.ix_(other, idx)] == 0) and np.all(rhs[other] == 0)
 
 
 # --------------------------------------------------------------------------- LM
@@ -607,3 +699,17 @@ def test_function_tier_validation():
         optimize_pose_graph(np.zeros((4, 3)), edges, z, info)
     r = optimize_pose_graph(poses, edges, z, info, fixed=[0, 1, 2])
     assert r.converged and r.iterations == 0 and r.message == "nothing to optimize"
+
+
+def test_write_pose_graph_g2o_round_trip(tmp_path):
+    from probmap.datasets.g2o import pose_graph_arrays, read_pose_graph
+
+    rng = np.random.default_rng(18)
+    _, start, edges, z, info = random_graph(rng, n=10, extra=5)
+    out = write_pose_graph_g2o(tmp_path / "g.g2o", start, edges, z, info, ids=np.arange(10) * 2)
+    a = pose_graph_arrays(read_pose_graph(out))
+    assert a.ids.tolist() == list(range(0, 20, 2))
+    assert np.array_equal(a.poses, start) and np.array_equal(a.edges, edges)
+    assert np.array_equal(a.measurements, z)
+    assert np.allclose(a.information, info, rtol=1e-15, atol=0)
+    assert [p.name for p in tmp_path.iterdir()] == ["g.g2o"]

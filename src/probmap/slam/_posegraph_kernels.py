@@ -402,17 +402,6 @@ def apply_step(poses, node_index, delta, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def propagate_tree(order, parent, parent_dtheta, theta):  # pragma: no cover - compiled
-    """Headings along a spanning tree: ``theta[n] = theta[parent[n]] + parent_dtheta[n]`` in
-    breadth-first ``order`` (roots, ``parent < 0``, keep their ``theta``). No wrapping."""
-    for t in range(order.shape[0]):
-        n = order[t]
-        p = parent[n]
-        if p >= 0:
-            theta[n] = theta[p] + parent_dtheta[n]
-
-
-@njit(cache=True)
 def edge_residuals(poses, ei, ej, meas, chart, out):  # pragma: no cover - compiled
     """Residual of every edge into ``out (E, 3)``."""
     e = np.empty(3)
@@ -421,3 +410,193 @@ def edge_residuals(poses, ei, ej, meas, chart, out):  # pragma: no cover - compi
         out[k, 0] = e[0]
         out[k, 1] = e[1]
         out[k, 2] = e[2]
+
+
+@njit(cache=True)
+def check_information(info, rtol):  # pragma: no cover - compiled
+    """First edge whose information matrix is not finite (code 1), not symmetric (2) or not
+    positive semi-definite (3), as ``(k, code)``; ``(-1, 0)`` when all are fine.
+
+    Positive semi-definite: every principal minor ``>= -rtol * scale^order`` (Sylvester's
+    criterion for semi-definiteness needs all of them, not only the leading ones), ``scale``
+    the largest absolute entry.
+    """
+    for k in range(info.shape[0]):
+        M = info[k]
+        scale = 0.0
+        for r in range(3):
+            for c in range(3):
+                v = M[r, c]
+                if not math.isfinite(v):
+                    return k, 1
+                scale = max(scale, abs(v))
+        if scale == 0.0:
+            continue
+        for r in range(3):
+            for c in range(r + 1, 3):
+                if abs(M[r, c] - M[c, r]) > rtol * scale:
+                    return k, 2
+        t1 = -rtol * scale
+        t2 = -rtol * scale * scale
+        t3 = -rtol * scale * scale * scale
+        if M[0, 0] < t1 or M[1, 1] < t1 or M[2, 2] < t1:
+            return k, 3
+        m01 = M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]
+        m02 = M[0, 0] * M[2, 2] - M[0, 2] * M[2, 0]
+        m12 = M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]
+        if m01 < t2 or m02 < t2 or m12 < t2:
+            return k, 3
+        det = (
+            M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1])
+            - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
+            + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0])
+        )
+        if det < t3:
+            return k, 3
+    return -1, 0
+
+
+@njit(cache=True)
+def spanning_tree(n_nodes, ei, ej, dtheta, fixed, theta):  # pragma: no cover - compiled
+    """Breadth-first spanning forest rooted at the ``fixed`` nodes; headings along it.
+
+    ``theta[f]`` of the fixed nodes is read; every node the search reaches gets
+    ``theta[parent] +- dtheta[k]`` (``+`` when its tree edge ``k`` points away from the parent;
+    not wrapped). Unreached nodes (not connected to a fixed node) get NaN. Returns how many
+    nodes were reached.
+    """
+    E = ei.shape[0]
+    # undirected adjacency in CSR form (counting sort of the edge ends)
+    start = np.zeros(n_nodes + 1, dtype=np.int64)
+    for k in range(E):
+        start[ei[k] + 1] += 1
+        start[ej[k] + 1] += 1
+    for v in range(n_nodes):
+        start[v + 1] += start[v]
+    fill = start[:-1].copy()
+    nbr = np.empty(2 * E, dtype=np.int64)
+    for k in range(E):
+        nbr[fill[ei[k]]] = k
+        fill[ei[k]] += 1
+        nbr[fill[ej[k]]] = k
+        fill[ej[k]] += 1
+    seen = np.zeros(n_nodes, dtype=np.bool_)
+    queue = np.empty(n_nodes, dtype=np.int64)
+    head = 0
+    tail = 0
+    for f in fixed:
+        if not seen[f]:
+            seen[f] = True
+            queue[tail] = f
+            tail += 1
+    while head < tail:
+        u = queue[head]
+        head += 1
+        for t in range(start[u], start[u + 1]):
+            k = nbr[t]
+            if ei[k] == u:
+                v = ej[k]
+                d = dtheta[k]
+            else:
+                v = ei[k]
+                d = -dtheta[k]
+            if not seen[v]:
+                seen[v] = True
+                theta[v] = theta[u] + d
+                queue[tail] = v
+                tail += 1
+    for v in range(n_nodes):
+        if not seen[v]:
+            theta[v] = np.nan
+    return tail
+
+
+@njit(cache=True)
+def _add_laplacian_block(
+    data, rhs, colptr, diag_base, edge_base, k, p, q, M, g, lo, dim
+):  # pragma: no cover - compiled
+    """Add the edge term ``|u_q - u_p - r|^2_M`` of a linear least-squares problem on the
+    ``dim`` coordinates starting at ``lo`` of each node's 3-block: ``M`` to the diagonal blocks,
+    ``-M`` to the off-diagonal one, ``-g`` and ``+g`` (``g = M r``) to the right-hand side."""
+    for c in range(dim):
+        if p >= 0:
+            rhs[3 * p + lo + c] -= g[c]
+        if q >= 0:
+            rhs[3 * q + lo + c] += g[c]
+        for r in range(dim):
+            if r <= c:  # the upper triangle of the diagonal blocks
+                if p >= 0:
+                    data[colptr[3 * p + lo + c] + diag_base[p] + lo + r] += M[r, c]
+                if q >= 0:
+                    data[colptr[3 * q + lo + c] + diag_base[q] + lo + r] += M[r, c]
+            if p >= 0 and q >= 0:
+                col = max(p, q)
+                data[colptr[3 * col + lo + c] + edge_base[k] + lo + r] -= M[r, c]
+
+
+@njit(cache=True)
+def assemble_lago(
+    stage, poses, theta, ei, ej, meas, info, node_index, colptr, diag_base, edge_base, data, rhs
+):  # pragma: no cover - compiled
+    """Normal equations of LAGO's two linear stages in the optimizer's block pattern.
+
+    ``stage == 0`` (headings): unknown ``phi = theta - theta_tree`` with ``theta`` the tree
+    headings; each edge adds ``w (phi_j - phi_i - r)^2`` with ``r = z_theta + 2 pi l -
+    (theta_j - theta_i)``, ``l`` the integer that brings the tree's heading difference closest
+    to ``z_theta``, and ``w = 1 / Sigma_theta_theta`` (the heading's marginal information;
+    ``Omega_theta_theta`` when the translational block is singular).
+    ``stage == 1`` (positions): unknown the correction of ``poses[:, :2]``; each edge adds
+    ``|d - (t_j - t_i)|^2_W`` with ``d = R(theta_i) z_t`` and ``W = R(theta_i) Omega_tt
+    R(theta_i)'``.
+    The coordinates a stage does not solve for get a unit diagonal and a zero right-hand
+    side, so their solution is 0.
+    """
+    data[:] = 0.0
+    rhs[:] = 0.0
+    M = np.zeros((2, 2))
+    g = np.zeros(2)
+    two_pi = 2.0 * math.pi
+    for k in range(ei.shape[0]):
+        i = ei[k]
+        j = ej[k]
+        p = node_index[i]
+        q = node_index[j]
+        O = info[k]
+        if stage == 0:
+            m2 = O[0, 0] * O[1, 1] - O[0, 1] * O[1, 0]
+            w = O[2, 2]
+            if m2 > 1e-12 * (O[0, 0] * O[1, 1] + 1e-300):
+                det = (
+                    O[0, 0] * (O[1, 1] * O[2, 2] - O[1, 2] * O[2, 1])
+                    - O[0, 1] * (O[1, 0] * O[2, 2] - O[1, 2] * O[2, 0])
+                    + O[0, 2] * (O[1, 0] * O[2, 1] - O[1, 1] * O[2, 0])
+                )
+                w = det / m2
+            diff = theta[j] - theta[i]
+            ell = math.floor((diff - meas[k, 2]) / two_pi + 0.5)
+            r = meas[k, 2] + two_pi * ell - diff
+            M[0, 0] = w
+            g[0] = w * r
+            _add_laplacian_block(data, rhs, colptr, diag_base, edge_base, k, p, q, M, g, 2, 1)
+        else:
+            c = math.cos(theta[i])
+            s = math.sin(theta[i])
+            dx = c * meas[k, 0] - s * meas[k, 1] - (poses[j, 0] - poses[i, 0])
+            dy = s * meas[k, 0] + c * meas[k, 1] - (poses[j, 1] - poses[i, 1])
+            # W = R O_tt R'
+            a00 = O[0, 0]
+            a01 = 0.5 * (O[0, 1] + O[1, 0])
+            a11 = O[1, 1]
+            M[0, 0] = c * c * a00 - 2.0 * c * s * a01 + s * s * a11
+            M[1, 1] = s * s * a00 + 2.0 * c * s * a01 + c * c * a11
+            M[0, 1] = c * s * (a00 - a11) + (c * c - s * s) * a01
+            M[1, 0] = M[0, 1]
+            g[0] = M[0, 0] * dx + M[0, 1] * dy
+            g[1] = M[1, 0] * dx + M[1, 1] * dy
+            _add_laplacian_block(data, rhs, colptr, diag_base, edge_base, k, p, q, M, g, 0, 2)
+    # unit diagonal for the coordinates this stage does not solve
+    lo = 0 if stage == 0 else 2
+    hi = 2 if stage == 0 else 3
+    for p in range(diag_base.shape[0]):
+        for c in range(lo, hi):
+            data[colptr[3 * p + c] + diag_base[p] + c] = 1.0

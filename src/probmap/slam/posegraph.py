@@ -37,9 +37,11 @@ Two tiers: :func:`optimize_pose_graph` and :func:`graph_error` work on arrays;
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal, TypeVar
 
 import numpy as np
@@ -59,6 +61,7 @@ __all__ = [
     "graph_error",
     "lago_initialization",
     "optimize_pose_graph",
+    "write_pose_graph_g2o",
 ]
 
 RobustKernel = Literal["none", "huber", "cauchy", "dcs"]
@@ -242,22 +245,13 @@ def _as_edges(
 
 def _check_information(om: FloatArray) -> None:
     """Raise unless every ``om[k]`` is finite, symmetric and positive semi-definite."""
-    if not np.all(np.isfinite(om)):
-        raise ValueError("information matrices must be finite")
-    if om.shape[0] == 0:
-        return
-    asym = np.abs(om - om.transpose(0, 2, 1)).max(axis=(1, 2))
-    size = np.abs(om).max(axis=(1, 2))
-    bad = np.flatnonzero(asym > 1e-9 * np.maximum(size, 1e-300))
-    if bad.size:
-        raise ValueError(f"information matrix of edge {bad[0]} is not symmetric")
-    low = np.linalg.eigvalsh(om)[:, 0]
-    bad = np.flatnonzero(low < -1e-9 * np.maximum(size, 1e-300))
-    if bad.size:
-        raise ValueError(
-            f"information matrix of edge {bad[0]} is not positive semi-definite "
-            f"(eigenvalue {low[bad[0]]:.3g})"
-        )
+    k, code = _k.check_information(om, 1e-9)
+    if code == 1:
+        raise ValueError(f"information matrix of edge {k} is not finite")
+    if code == 2:
+        raise ValueError(f"information matrix of edge {k} is not symmetric")
+    if code == 3:
+        raise ValueError(f"information matrix of edge {k} is not positive semi-definite")
 
 
 def _as_mask(robust_mask: ArrayLike | None, n_edges: int) -> BoolArray:
@@ -353,15 +347,11 @@ class _NormalEquations:
 
 
 def _check_connected(n_nodes: int, ei: IntArray, ej: IntArray, fixed: IntArray) -> None:
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    adj = coo_matrix((np.ones(ei.shape[0]), (ei, ej)), shape=(n_nodes, n_nodes))
-    _, labels = connected_components(adj, directed=False)
-    anchored = np.zeros(labels.max() + 1, dtype=bool)
-    anchored[labels[fixed]] = True
-    loose = np.flatnonzero(~anchored[labels])
-    if loose.size:
+    """Raise unless every node is connected to a fixed node through edges."""
+    theta = np.zeros(n_nodes)
+    reached = _k.spanning_tree(n_nodes, ei, ej, np.zeros(ei.shape[0]), fixed, theta)
+    if reached < n_nodes:
+        loose = np.flatnonzero(np.isnan(theta))
         raise ValueError(
             f"{loose.size} node(s) are not connected to a fixed node (first: node {loose[0]}); "
             "their poses are undetermined"
@@ -469,131 +459,41 @@ def _levenberg_marquardt(
 # --------------------------------------------------------------------------- initialization
 
 
-def _spd_solve(H: object, rhs: FloatArray) -> FloatArray:
-    """Solve a sparse symmetric positive-definite system (full CSC matrix)."""
-    import qdldl
-
-    return np.asarray(qdldl.Solver(H).solve(rhs), dtype=np.float64)
-
-
 def _lago(
     poses: FloatArray,
     ei: IntArray,
     ej: IntArray,
     meas: FloatArray,
     info: FloatArray,
-    fixed: IntArray,
+    system: _NormalEquations,
 ) -> FloatArray:
-    """Linear approximation of the pose graph (LAGO) on validated arrays."""
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import breadth_first_order
-
+    """Linear approximation of the pose graph (LAGO) on validated arrays, solved in the
+    optimizer's block pattern (so its ordering and symbolic factorization serve LM next)."""
     N = poses.shape[0]
-    # 1. A breadth-first spanning tree from a virtual root joined to every fixed node.
-    root = N
-    rows = np.concatenate([ei, ej, np.full(fixed.size, root)])
-    cols = np.concatenate([ej, ei, fixed])
-    adj = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(N + 1, N + 1))
-    order, pred = breadth_first_order(adj, root, directed=False, return_predecessors=True)
-    order = order[1:]
-    parent = pred[:N].astype(np.int64)
-    parent[fixed] = -1
-    # the edge that joins each tree node to its parent (any of them if parallel)
-    lo = np.minimum(ei, ej)
-    hi = np.maximum(ei, ej)
-    keys = lo * (N + 1) + hi
-    sort = np.argsort(keys, kind="stable")
-    tree = np.flatnonzero(parent >= 0)
-    q = np.minimum(parent[tree], tree) * (N + 1) + np.maximum(parent[tree], tree)
-    k = sort[np.searchsorted(keys, q, sorter=sort)]
-    sign = np.where(ei[k] == parent[tree], 1.0, -1.0)
-    parent_dtheta = np.zeros(N)
-    parent_dtheta[tree] = sign * meas[k, 2]
-    theta_tree = poses[:, 2].copy()
-    _k.propagate_tree(order.astype(np.int64), parent, parent_dtheta, theta_tree)
-
-    # 2. Headings: linear least squares on theta_j - theta_i = z_theta + 2 pi l, the integers
-    #    l fixed by the tree headings, weighted by the marginal information of the heading.
-    ell = np.round((theta_tree[ej] - theta_tree[ei] - meas[:, 2]) / (2.0 * math.pi))
-    r = meas[:, 2] + 2.0 * math.pi * ell - (theta_tree[ej] - theta_tree[ei])
-    w = _heading_information(info)
-    free = np.ones(N, dtype=bool)
-    free[fixed] = False
-    idx = np.cumsum(free) - 1
-    phi = np.zeros(N)
-    phi[free] = _laplacian_solve(ei, ej, w, r, free, idx, 1)[:, 0]
-    theta = theta_tree + phi
-
-    # 3. Positions: linear least squares on t_j - t_i = R(theta_i) z_t, weighted by the
-    #    translational information rotated into the world frame.
-    c = np.cos(theta[ei])
-    s = np.sin(theta[ei])
-    d = np.stack([c * meas[:, 0] - s * meas[:, 1], s * meas[:, 0] + c * meas[:, 1]], axis=1)
-    R = np.stack([np.stack([c, -s], axis=1), np.stack([s, c], axis=1)], axis=1)
-    W = R @ info[:, :2, :2] @ R.transpose(0, 2, 1)
-    # unknown: correction of the given positions, so the residual is d - (t_j - t_i)
-    r2 = d - (poses[ej, :2] - poses[ei, :2])
-    t = poses[:, :2].copy()
-    t[free] += _laplacian_solve(ei, ej, W, r2, free, idx, 2)
-    out = np.empty_like(poses)
-    out[:, :2] = t
+    fixed = np.flatnonzero(system.node_index < 0)
+    # 1. headings along a breadth-first spanning tree rooted at the fixed nodes
+    theta = poses[:, 2].copy()
+    _k.spanning_tree(N, ei, ej, np.ascontiguousarray(meas[:, 2]), fixed, theta)
+    out = poses.copy()
+    if system.n_free:
+        data = np.empty(system.nnz)
+        rhs = np.empty(3 * system.n_free)
+        pattern = (system.node_index, system.colptr, system.diag_base, system.edge_base)
+        for stage in (0, 1):
+            # 2. all headings, then 3. all positions, by linear least squares
+            _k.assemble_lago(stage, out, theta, ei, ej, meas, info, *pattern, data, rhs)
+            solved = system.diag_pos.reshape(-1, 3)[:, [2] if stage == 0 else [0, 1]]
+            # a ridge keeps nodes with too little information solvable (they stay put)
+            data[solved] += 1e-10 * max(float(data[solved].max()), 1e-300)
+            u = system.solve(data, rhs).reshape(-1, 3)
+            free = system.node_index >= 0
+            if stage == 0:
+                theta[free] += u[:, 2]
+            else:
+                out[free, :2] += u[:, :2]
     out[:, 2] = theta - 2.0 * math.pi * np.floor((theta + math.pi) / (2.0 * math.pi))
     out[fixed] = poses[fixed]
     return out
-
-
-def _heading_information(info: FloatArray) -> FloatArray:
-    """``1 / Sigma_theta_theta`` of every edge (the heading's marginal information), or
-    ``Omega_theta_theta`` where ``Omega`` is singular."""
-    w = info[:, 2, 2].copy()
-    det = np.linalg.det(info)
-    scale = np.abs(info).max(axis=(1, 2)) ** 3
-    ok = det > 1e-12 * scale
-    if ok.any():
-        w[ok] = 1.0 / np.linalg.inv(info[ok])[:, 2, 2]
-    return w
-
-
-def _laplacian_solve(
-    ei: IntArray,
-    ej: IntArray,
-    W: FloatArray,
-    r: FloatArray,
-    free: BoolArray,
-    idx: IntArray,
-    dim: int,
-) -> FloatArray:
-    """Minimise ``sum_k |u_j - u_i - r_k|^2_{W_k}`` over the free nodes' ``u`` (``dim``-vectors;
-    fixed nodes at 0). ``W`` is ``(E,)`` for ``dim == 1``, ``(E, 2, 2)`` for ``dim == 2``.
-    A ridge of 1e-10 of the largest curvature keeps nodes with too little information
-    solvable (they stay where they were)."""
-    import scipy.sparse as sp
-
-    n = int(free.sum())
-    Wk = W.reshape(-1, 1, 1) if dim == 1 else W
-    rk = r.reshape(-1, dim)
-    pi = np.where(free[ei], idx[ei], -1)
-    pj = np.where(free[ej], idx[ej], -1)
-    Wr = (Wk @ rk[:, :, None])[:, :, 0]
-    g = np.zeros((n, dim))
-    np.add.at(g, pj[pj >= 0], Wr[pj >= 0])
-    np.add.at(g, pi[pi >= 0], -Wr[pi >= 0])
-    a = np.arange(dim)
-    rows_b, cols_b = np.meshgrid(a, a, indexing="ij")
-    R: list[IntArray] = []
-    C: list[IntArray] = []
-    V: list[FloatArray] = []
-    for p, q, sgn in ((pi, pi, 1.0), (pj, pj, 1.0), (pi, pj, -1.0), (pj, pi, -1.0)):
-        m = (p >= 0) & (q >= 0)
-        R.append((dim * p[m, None, None] + rows_b).ravel())
-        C.append((dim * q[m, None, None] + cols_b).ravel())
-        V.append((sgn * Wk[m]).ravel())
-    H = sp.csc_matrix(
-        (np.concatenate(V), (np.concatenate(R), np.concatenate(C))), shape=(dim * n, dim * n)
-    )
-    ridge = 1e-10 * max(float(H.diagonal().max()), 1e-300)
-    H = (H + ridge * sp.identity(dim * n, format="csc")).tocsc()
-    return _spd_solve(H, g.ravel()).reshape(n, dim)
 
 
 def lago_initialization(
@@ -645,8 +545,7 @@ def lago_initialization(
     x = _as_poses(poses)
     ei, ej, z, om = _as_edges(edges, measurements, information, len(x))
     f = _as_fixed(fixed, len(x))
-    _check_connected(len(x), ei, ej, f)
-    return _lago(x, ei, ej, z, om, f)
+    return _lago(x, ei, ej, z, om, _NormalEquations(len(x), ei, ej, f))
 
 
 # --------------------------------------------------------------------------- function tier
@@ -805,11 +704,62 @@ def optimize_pose_graph(
     chart, kernel = _CHARTS[cfg.chart], _KERNELS[cfg.robust]
     scratch = np.empty(ei.shape[0]), np.empty(ei.shape[0])
     F0 = float(_k.graph_cost(x, ei, ej, z, om, chart, kernel, cfg.scale, mask, *scratch))
-    start = _lago(x, ei, ej, z, om, f) if init == "lago" else x
+    start = _lago(x, ei, ej, z, om, system) if init == "lago" else x
     out, F, its, conv, msg, chi2, w = _levenberg_marquardt(
         start, ei, ej, z, om, mask, system, cfg, cfg.max_iterations
     )
     return OptimizeResult(out, F0, F, its, time.perf_counter() - t0, conv, w, chi2, msg)
+
+
+def write_pose_graph_g2o(
+    path: str | os.PathLike[str],
+    poses: ArrayLike,
+    edges: ArrayLike,
+    measurements: ArrayLike,
+    information: ArrayLike,
+    *,
+    ids: ArrayLike | None = None,
+) -> Path:
+    """Write a pose graph given as arrays to ``path`` in g2o format, atomically.
+
+    ``VERTEX_SE2 id x y theta`` per node, ``EDGE_SE2 i j dx dy dtheta`` plus the upper
+    triangle of the information matrix (row by row) per edge, at full precision. (Graphs read
+    from files, with landmarks or ``FIX`` lines, are written by
+    :func:`probmap.datasets.g2o.write_g2o`.)
+
+    Parameters
+    ----------
+    path : path-like
+    poses : array_like, shape (N, 3)
+    edges : array_like, shape (E, 2), int
+        Row indices into ``poses``.
+    measurements : array_like, shape (E, 3)
+    information : array_like, shape (E, 3, 3)
+    ids : array_like of int, shape (N,), optional
+        Vertex ids to write (default ``0 .. N-1``).
+
+    Returns
+    -------
+    Path
+    """
+    from probmap._atomic import atomic_write
+
+    x = _as_poses(poses)
+    ei, ej, z, om = _as_edges(edges, measurements, information, len(x))
+    vid = np.arange(len(x)) if ids is None else np.asarray(ids, dtype=np.int64)
+    if vid.shape != (len(x),):
+        raise ValueError(f"ids must have shape ({len(x)},), got {vid.shape}")
+    iu = np.triu_indices(3)
+    lines = [
+        f"VERTEX_SE2 {int(n)} {p[0]!r} {p[1]!r} {p[2]!r}"
+        for n, p in zip(vid.tolist(), x.tolist(), strict=True)
+    ]
+    upper = om[:, iu[0], iu[1]].tolist()
+    for a, b, zz, u in zip(vid[ei].tolist(), vid[ej].tolist(), z.tolist(), upper, strict=True):
+        lines.append(f"EDGE_SE2 {a} {b} " + " ".join(repr(v) for v in (*zz, *u)))
+    with atomic_write(path, "w") as f:
+        f.write("\n".join(lines) + "\n")
+    return Path(path)
 
 
 # --------------------------------------------------------------------------- class tier
@@ -1007,9 +957,9 @@ class PoseGraph2D:
     def initialize(self) -> None:
         """Replace the poses of the free nodes by :func:`lago_initialization`'s estimate."""
         x, ei, ej, z, om, _ = self._arrays()
-        fixed = _as_fixed(self._fixed, self._n)
-        _check_connected(self._n, ei, ej, fixed)
-        self._poses[: self._n] = _lago(x, ei, ej, z, om, fixed)
+        if self._n == 0:
+            raise ValueError("the graph has no nodes")
+        self._poses[: self._n] = _lago(x, ei, ej, z, om, self._normal_equations(ei, ej))
 
     def optimize(self, max_iterations: int | None = None) -> OptimizeResult:
         """Levenberg-Marquardt from the current poses; the optimized poses replace them.

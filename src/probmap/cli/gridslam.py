@@ -24,74 +24,153 @@ def _table(title: str, rows: list[tuple[str, str]]) -> None:
 
 @slam_app.command("grid")
 def grid_command(
-    log: Path = typer.Argument(..., help="A raw CARMEN log (plain, .gz or .bz2)."),
+    log: Path = typer.Argument(..., help="A raw CARMEN log (plain, .gz or .bz2) or a ROS bag."),
     output: Path = typer.Option(..., "-o", "--output", help="Output prefix (PREFIX.yaml, ...)."),
-    particles: int = typer.Option(30, "--particles", "-n", help="Number of particles."),
-    linear_update: float = typer.Option(
-        0.5, "--linear-update", help="Process a scan after this many metres of travel."
-    ),
-    angular_update: float = typer.Option(
-        0.25, "--angular-update", help="... or after this many radians of rotation."
+    method: str = typer.Option(
+        "graph",
+        "--method",
+        help="graph: submaps, loop closure and pose-graph optimization (default); "
+        "rbpf: Rao-Blackwellized particle filter.",
     ),
     end_time: float | None = typer.Option(
         None, "--end-time", help="Use only the first this many seconds of the log."
     ),
-    seed: int = typer.Option(0, "--seed", help="Random seed."),
+    scan_topic: str | None = typer.Option(
+        None, "--scan-topic", help="ROS bag: the LaserScan topic (default: the only one)."
+    ),
+    odom_topic: str | None = typer.Option(
+        None, "--odom-topic", help="ROS bag: the nav_msgs/Odometry topic (default: the only one)."
+    ),
+    fixed_frame: str | None = typer.Option(
+        None, "--fixed-frame", help="ROS bag: the odometry frame (default: guessed from tf)."
+    ),
+    laser_frame: str | None = typer.Option(
+        None, "--laser-frame", help="ROS bag: the scans' frame (default: their header.frame_id)."
+    ),
+    particles: int = typer.Option(30, "--particles", "-n", help="rbpf: number of particles."),
+    linear_update: float = typer.Option(
+        0.5, "--linear-update", help="rbpf: process a scan after this many metres of travel."
+    ),
+    angular_update: float = typer.Option(
+        0.25, "--angular-update", help="rbpf: ... or after this many radians of rotation."
+    ),
+    seed: int = typer.Option(0, "--seed", help="rbpf: random seed."),
     guard: bool = typer.Option(
-        True, "--guard/--no-guard", help="Keep the odometry along featureless corridors."
+        True, "--guard/--no-guard", help="rbpf: keep the odometry along featureless corridors."
     ),
 ) -> None:
-    """Grid SLAM (RBPF with scan-matching proposal, Grisetti et al. 2007): writes the best
-    particle's map (PREFIX.yaml/.pgm/.npz/.png, as 'probmap map') and PREFIX.trajectory.csv."""
+    """Grid SLAM from a raw log or ROS bag: writes the map (PREFIX.yaml/.pgm/.npz/.png, as
+    'probmap map'), PREFIX.trajectory.csv (robot pose at every scan time) and, for the graph
+    method, the pose graph PREFIX.g2o and PREFIX.slam.png (map, trajectory, loop closures)."""
     with cli_errors():
-        import warnings
-
-        from rich.progress import Progress
-
-        from probmap.grid.io import save_map
-        from probmap.pipelines import check_output_prefix
-        from probmap.slam.gridslam import GridSlamConfig, slam_log, write_trajectory
-
+        if method not in ("graph", "rbpf"):
+            raise ValueError(f"--method must be 'graph' or 'rbpf', got {method!r}")
         if not log.exists():
             raise FileNotFoundError(f"{log}: no such file")
-        prefix = check_output_prefix(output)
-        cfg = GridSlamConfig(
-            particles=particles,
-            linear_update=linear_update,
-            angular_update=angular_update,
-            seed=seed,
-            degeneracy_guard=guard,
-        )
-        with Progress(transient=True) as bar, warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            task = bar.add_task(f"grid SLAM {log.name}", total=None)
+        bag_options = {
+            "scan_topic": scan_topic,
+            "odom_topic": odom_topic,
+            "fixed_frame": fixed_frame,
+            "laser_frame": laser_frame,
+        }
+        if method == "graph":
+            _graph(log, output, end_time, bag_options)
+        else:
+            if any(v is not None for v in bag_options.values()):
+                raise ValueError("--method rbpf reads CARMEN logs only (no bag options)")
+            _rbpf(log, output, particles, linear_update, angular_update, end_time, seed, guard)
 
-            def tick(done: int, total: int) -> None:
-                bar.update(task, completed=done, total=total)
 
-            result = slam_log(log, cfg, end_time=end_time, progress=tick)
-        for w in caught:
-            typer.echo(f"warning: {w.message}", err=True)
-        files = save_map(prefix, result.grid)
-        traj = write_trajectory(f"{prefix}.trajectory.csv", result.times, result.poses)
-        duration = float(result.times[-1] - result.times[0])
-        spec = result.grid.spec
-        rows = [
-            ("scans", f"{len(result.times):,} ({result.processed:,} processed)"),
-            ("particles", f"{particles} ({result.resamples} resamplings)"),
-            ("failed matches", f"{result.failed_matches:,}"),
-            (
-                "map",
-                f"{spec.width} x {spec.height} cells at {spec.resolution:g} m",
-            ),
-            ("map tiles", f"{result.map_bytes / 2**20:.1f} MiB (peak)"),
-            (
-                "time",
-                f"{result.seconds:.1f} s ({duration / max(result.seconds, 1e-9):.1f}x real time)",
-            ),
-        ]
-        rows += [("wrote", str(f)) for f in [*files, traj]]
-        _table("grid SLAM", rows)
+def _graph(log: Path, output: Path, end_time: float | None, bag_options: dict) -> None:
+    import resource
+
+    from rich.progress import Progress
+
+    from probmap.pipelines import check_output_prefix
+    from probmap.pipelines.grid_slam import load_laser_log, run_graph_slam, write_graph_slam
+
+    prefix = check_output_prefix(output)
+    with Progress(transient=True) as bar:
+        task = bar.add_task(f"reading {log.name}", total=None)
+        batch = load_laser_log(log, end_time=end_time, bag_options=bag_options)
+        bar.update(task, description=f"graph SLAM {log.name}")
+
+        def tick(done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total)
+
+        run = run_graph_slam(batch, progress=tick)
+    files = write_graph_slam(prefix, run)
+    spec = run.grid.spec
+    weights = run.closure_weights
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+    rows = [
+        ("scans", f"{len(run.times):,}"),
+        ("nodes", f"{run.nodes:,}"),
+        ("submaps", f"{run.submaps:,}"),
+        (
+            "loop closures",
+            f"{len(weights):,} accepted of {run.searched:,} searched "
+            f"({int((weights >= 0.5).sum()):,} kept by the robust cost)",
+        ),
+        ("map", f"{spec.width} x {spec.height} cells at {spec.resolution:g} m"),
+        ("optimization", f"{run.optimize_seconds:.1f} s"),
+        ("time", f"{run.seconds:.1f} s ({run.real_time_factor:.1f}x real time)"),
+        ("peak memory", f"{rss:.0f} MiB"),
+    ]
+    rows += [("wrote", str(f)) for f in files]
+    _table("grid SLAM (graph)", rows)
+
+
+def _rbpf(
+    log: Path,
+    output: Path,
+    particles: int,
+    linear_update: float,
+    angular_update: float,
+    end_time: float | None,
+    seed: int,
+    guard: bool,
+) -> None:
+    import warnings
+
+    from rich.progress import Progress
+
+    from probmap.grid.io import save_map
+    from probmap.pipelines import check_output_prefix
+    from probmap.slam.gridslam import GridSlamConfig, slam_log, write_trajectory
+
+    prefix = check_output_prefix(output)
+    cfg = GridSlamConfig(
+        particles=particles,
+        linear_update=linear_update,
+        angular_update=angular_update,
+        seed=seed,
+        degeneracy_guard=guard,
+    )
+    with Progress(transient=True) as bar, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        task = bar.add_task(f"grid SLAM {log.name}", total=None)
+
+        def tick(done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total)
+
+        result = slam_log(log, cfg, end_time=end_time, progress=tick)
+    for w in caught:
+        typer.echo(f"warning: {w.message}", err=True)
+    files = save_map(prefix, result.grid)
+    traj = write_trajectory(f"{prefix}.trajectory.csv", result.times, result.poses)
+    duration = float(result.times[-1] - result.times[0])
+    spec = result.grid.spec
+    rows = [
+        ("scans", f"{len(result.times):,} ({result.processed:,} processed)"),
+        ("particles", f"{particles} ({result.resamples} resamplings)"),
+        ("failed matches", f"{result.failed_matches:,}"),
+        ("map", f"{spec.width} x {spec.height} cells at {spec.resolution:g} m"),
+        ("map tiles", f"{result.map_bytes / 2**20:.1f} MiB (peak)"),
+        ("time", f"{result.seconds:.1f} s ({duration / max(result.seconds, 1e-9):.1f}x real time)"),
+    ]
+    rows += [("wrote", str(f)) for f in [*files, traj]]
+    _table("grid SLAM (rbpf)", rows)
 
 
 def match_command(

@@ -457,6 +457,27 @@ def splat_field(lo, threshold, radius, inv_two_sigma2_cells, out):  # pragma: no
 
 
 @njit(cache=True)
+def splat_cells(iys, ixs, radius, inv_two_sigma2_cells, out):  # pragma: no cover - compiled
+    """Raise ``out`` to the match-field kernel of each cell ``(ixs[k], iys[k])`` (cells that
+    became occupied): the incremental twin of :func:`splat_field`, same kernel and same max
+    rule, so splatting new cells onto a field equals recomputing it when no cell was freed."""
+    h, w = out.shape
+    r2 = radius * radius
+    for k in range(iys.shape[0]):
+        iy = iys[k]
+        ix = ixs[k]
+        for y in range(max(iy - radius, 0), min(iy + radius, h - 1) + 1):
+            dy = y - iy
+            for x in range(max(ix - radius, 0), min(ix + radius, w - 1) + 1):
+                dx = x - ix
+                d2 = dx * dx + dy * dy
+                if d2 <= r2:
+                    v = math.exp(-d2 * inv_two_sigma2_cells)
+                    if v > out[y, x]:
+                        out[y, x] = v
+
+
+@njit(cache=True)
 def log_likelihoods(field, ox, oy, res, pts, poses, floor, out):  # pragma: no cover
     """``out[k] = sum_i max(log M(q_i(poses[k])), floor)`` with bilinear ``M``."""
     for k in range(poses.shape[0]):

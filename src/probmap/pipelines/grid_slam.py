@@ -1,0 +1,243 @@
+"""Grid SLAM from a raw laser log or a ROS bag, end to end: read, run graph SLAM (or the RBPF),
+write the map files, the trajectory, the pose graph and a picture.
+
+The core (:mod:`probmap.slam.graph_slam`) never reads or writes files; this module does, and the
+CLI (``probmap slam grid``) only parses options and prints what it returns.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from probmap.grid.occupancy import OccupancyGrid
+
+__all__ = [
+    "GraphSlamRun",
+    "load_laser_log",
+    "run_graph_slam",
+    "slam_graph_log",
+    "write_graph_slam",
+]
+
+
+@dataclass(frozen=True, eq=False)
+class GraphSlamRun:
+    """What a graph-SLAM run produced and did.
+
+    Attributes
+    ----------
+    grid : OccupancyGrid
+        Every scan integrated at its optimized pose (cropped).
+    times : ndarray, shape (S,)
+        Scan timestamps, seconds.
+    poses : ndarray, shape (S, 3)
+        Robot poses at every scan time, map frame (metres, radians).
+    sensor_poses : ndarray, shape (S, 3)
+        Laser poses at every scan time.
+    node_poses : ndarray, shape (N, 3)
+        Optimized laser poses of the pose-graph nodes.
+    node_scans : ndarray, shape (N,)
+        Scan index of each node.
+    closures : ndarray, shape (C, 2)
+        Accepted loop closures as (node, submap anchor node).
+    closure_weights : ndarray, shape (C,)
+        Robust weight of each closure edge after the final optimization (1 = fully trusted).
+    submaps : int
+    searched : int
+        Closure searches (node x submap) run.
+    optimize_seconds, search_seconds, seconds : float
+        Time in the back end, in closure search, and in all (wall, after reading the log).
+    duration : float
+        Log duration (seconds), for the real-time factor.
+    memory_bytes : int
+        Largest memory held by submaps, cached closure grids and stored scans.
+    slam : object
+        The :class:`~probmap.slam.graph_slam.GraphSlam` (its pose graph is written as g2o).
+    """
+
+    grid: OccupancyGrid
+    times: NDArray[np.float64]
+    poses: NDArray[np.float64]
+    sensor_poses: NDArray[np.float64]
+    node_poses: NDArray[np.float64]
+    node_scans: NDArray[np.int64]
+    closures: NDArray[np.int64]
+    closure_weights: NDArray[np.float64]
+    submaps: int
+    searched: int
+    optimize_seconds: float
+    search_seconds: float
+    seconds: float
+    duration: float
+    memory_bytes: int
+    slam: Any
+
+    @property
+    def nodes(self) -> int:
+        """Pose-graph nodes."""
+        return int(len(self.node_scans))
+
+    @property
+    def real_time_factor(self) -> float:
+        """Log duration over wall time."""
+        return self.duration / max(self.seconds, 1e-9)
+
+
+def load_laser_log(
+    path: str | os.PathLike[str],
+    *,
+    end_time: float | None = None,
+    bag_options: dict[str, Any] | None = None,
+    skip_bad_lines: bool = False,
+) -> Any:
+    """Read a raw CARMEN log or a ROS bag into a :class:`~probmap.datasets.records.ScanBatch`
+    whose ``laser_poses`` are the laser's odometry poses and ``robot_poses`` the robot's.
+
+    CARMEN: ``FLASER`` and ``ROBOTLASER1`` lines (scans of different beam counts are kept as
+    they are); the laser pose fields of a raw log are its odometry. ROS bags: the scan topic
+    posed through tf in the odometry frame (topics and frames guessed as ``probmap map`` does).
+    ``end_time`` keeps the first ``end_time`` seconds.
+
+    Raises
+    ------
+    DatasetError
+        Unreadable or malformed input (naming the file and line).
+    ValueError
+        A log without odometry (every pose the same), or fewer than two scans.
+    """
+    from probmap.datasets.carmen import load_scans
+    from probmap.datasets.rosbag import is_bag, load_bag_scans
+
+    if is_bag(path):
+        batch = load_bag_scans(path, dtype=np.float32, **(bag_options or {}))
+    elif bag_options and any(v not in (None, 0) for v in bag_options.values()):
+        raise ValueError(f"{path}: topic/frame options apply to ROS bags only")
+    else:
+        batch = load_scans(
+            path, poses="corrected", dtype=np.float32, skip_bad_lines=skip_bad_lines
+        )
+    if end_time is not None:
+        if not (math.isfinite(end_time) and end_time > 0):
+            raise ValueError(f"end_time must be a positive number of seconds, got {end_time}")
+        t = np.asarray(batch.times)
+        keep = int(np.searchsorted(t, t[0] + end_time, side="right"))
+        from dataclasses import replace
+
+        angles = np.asarray(batch.angles)
+        batch = replace(
+            batch,
+            times=t[:keep],
+            ranges=batch.ranges[:keep],
+            angles=angles if angles.ndim == 1 else angles[:keep],
+            laser_poses=batch.laser_poses[:keep],
+            robot_poses=batch.robot_poses[:keep],
+            beams=batch.beams[:keep],
+        )
+    if len(batch.times) < 2:
+        raise ValueError(f"{path}: graph SLAM needs at least 2 scans, found {len(batch.times)}")
+    laser = np.asarray(batch.laser_poses)
+    if not np.isfinite(laser).all():
+        raise ValueError(f"{path}: the scans' odometry poses are not finite")
+    if np.all(laser == laser[0]):
+        raise ValueError(
+            f"{path}: the log has no odometry (every scan has the same pose); graph SLAM needs "
+            "odometry to predict the motion between scans"
+        )
+    return batch
+
+
+def run_graph_slam(
+    batch: Any,
+    config: Any = None,
+    *,
+    progress: Callable[[int, int], None] | None = None,
+) -> GraphSlamRun:
+    """Run :class:`~probmap.slam.graph_slam.GraphSlam` over a scan batch (see
+    :func:`load_laser_log`) and build the final map."""
+    from probmap.geometry.se2 import between, compose, inverse, wrap_angle
+    from probmap.slam.graph_slam import GraphSlam, GraphSlamConfig
+
+    cfg = config or GraphSlamConfig()
+    t0 = time.perf_counter()
+    times = np.asarray(batch.times, dtype=np.float64)
+    laser = np.asarray(batch.laser_poses, dtype=np.float64)
+    robot = np.asarray(batch.robot_poses, dtype=np.float64)
+    mount = between(robot, laser)  # per scan (constant on every log we know)
+    angles = np.asarray(batch.angles, dtype=np.float64)
+    beams = np.asarray(batch.beams)
+    slam = GraphSlam(cfg, max_range=float(batch.max_range))
+    n = len(times)
+    peak = 0
+    for i in range(n):
+        if angles.ndim == 1:
+            a, r = angles, batch.ranges[i]
+        else:
+            a, r = angles[i, : beams[i]], batch.ranges[i, : beams[i]]
+        slam.add_scan(times[i], r, a, laser[i])
+        if i % 200 == 199 or i == n - 1:
+            peak = max(peak, slam.memory_bytes())
+            if progress is not None:
+                progress(i + 1, n)
+    slam.finish()
+    _, sensor = slam.trajectory()
+    poses = compose(sensor, inverse(mount))
+    poses[:, 2] = wrap_angle(poses[:, 2])
+    grid = slam.map()
+    seconds = time.perf_counter() - t0
+    return GraphSlamRun(
+        grid=grid,
+        times=times,
+        poses=poses,
+        sensor_poses=sensor,
+        node_poses=slam.node_poses(),
+        node_scans=np.asarray(slam.node_scan, dtype=np.int64),
+        closures=slam.closure_edges(),
+        closure_weights=slam.closure_weights(),
+        submaps=len(slam.submaps),
+        searched=slam.searched,
+        optimize_seconds=slam.optimize_seconds,
+        search_seconds=slam.search_seconds,
+        seconds=seconds,
+        duration=float(times[-1] - times[0]),
+        memory_bytes=peak,
+        slam=slam,
+    )
+
+
+def slam_graph_log(
+    path: str | os.PathLike[str],
+    config: Any = None,
+    *,
+    end_time: float | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    bag_options: dict[str, Any] | None = None,
+) -> GraphSlamRun:
+    """:func:`load_laser_log` then :func:`run_graph_slam`."""
+    batch = load_laser_log(path, end_time=end_time, bag_options=bag_options)
+    return run_graph_slam(batch, config, progress=progress)
+
+
+def write_graph_slam(prefix: str | os.PathLike[str], run: GraphSlamRun) -> list[Path]:
+    """Write ``PREFIX.yaml/.pgm/.npz/.png`` (the map), ``PREFIX.trajectory.csv`` (robot pose
+    at every scan time), ``PREFIX.g2o`` (the optimized pose graph, laser poses) and
+    ``PREFIX.slam.png`` (map, trajectory and accepted closures, axes in metres), each
+    atomically. Returns the paths written."""
+    from probmap.grid.io import save_map
+    from probmap.slam.gridslam import write_trajectory
+    from probmap.viz.grid_slam import save_graph_slam_figure
+
+    prefix = Path(prefix)
+    files = list(save_map(prefix, run.grid))
+    files.append(write_trajectory(f"{prefix}.trajectory.csv", run.times, run.poses))
+    files.append(run.slam.write_g2o(f"{prefix}.g2o"))
+    files.append(save_graph_slam_figure(f"{prefix}.slam.png", run, title=prefix.name))
+    return files

@@ -1,0 +1,630 @@
+"""Graph SLAM for laser logs: local SLAM on submaps, verified loop closures and a sparse
+pose-graph back end (Hess, Kohler, Rapp and Andor, "Real-Time Loop Closure in 2D LIDAR SLAM",
+ICRA 2016; Kuemmerle et al. 2009 for the graph of relations; Probabilistic Robotics ch. 11 for
+the full-SLAM view).
+
+Per scan that passes the motion filter (the sensor moved ``min_distance`` metres or turned
+``min_rotation`` radians since the last node, odometry):
+
+1. **Local SLAM.** The odometry increment predicts the pose; the scan is matched against the
+   older of the two active submaps (correlative search on the nearest-cell score, then
+   Gauss-Newton on the bilinear match field: :mod:`probmap.slam.scan_matching`), and inserted
+   into both active submaps (:mod:`probmap.slam.submaps`).
+2. **Pose graph.** The scan becomes a node. Its edges: to the previous node and to the anchor
+   of every submap it was inserted into, with the relative poses local SLAM measured.
+3. **Loop closure.** The node's scan is searched against the finished submaps near its current
+   estimate within a window that grows with the distance travelled since the last accepted
+   closure, and every ``wide_search_every`` nodes within a wide window. The search is exact over
+   the window (branch and bound over multi-resolution max-grids, :mod:`probmap.slam.
+   loop_closure`) and refined by Gauss-Newton; a match scoring at least ``closure_min_score`` is
+   added as an edge under a robust cost (dynamic covariance scaling by default), so a wrong one
+   is down-weighted instead of bending the map.
+4. **Optimization** every ``optimize_every`` nodes and after a closure that moves the estimate
+   (Levenberg-Marquardt on the sparse normal equations, :mod:`probmap.slam.posegraph`), warm
+   started from the last solution.
+
+The final map re-integrates every scan at its optimized pose (Table 9.1, once-per-scan rule).
+Poses of the sensor are estimated; the caller composes the mounting offset.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from probmap.geometry.se2 import between, compose, inverse, wrap_angle
+from probmap.grid.occupancy import InverseSensorModel, OccupancyGrid
+from probmap.slam.scan_matching import (
+    MatcherConfig,
+    correlative_search,
+    normal_equations,
+    refine,
+    scan_points,
+)
+from probmap.slam.submaps import Submap
+
+__all__ = ["GraphSlam", "GraphSlamConfig", "LoopClosure"]
+
+
+def _local_matcher() -> MatcherConfig:
+    return MatcherConfig(
+        sigma=0.05,
+        linear_window=0.15,
+        linear_step=0.025,
+        angular_window=0.1,
+        angular_step=0.01,
+        iterations=10,
+        usable_range=30.0,
+        beam_skip=1,
+    )
+
+
+@dataclass(frozen=True)
+class GraphSlamConfig:
+    """Parameters of :class:`GraphSlam`. One configuration for every log: none of them is tuned
+    to one building (see the README for the assumptions they make).
+
+    Parameters
+    ----------
+    resolution : float
+        Cell side of submaps and of the final map, metres.
+    min_distance, min_rotation : float
+        Motion filter: a scan becomes a node once the odometry moved this far (metres) or turned
+        this much (radians) since the last node.
+    submap_scans : int
+        Nodes per submap; a new submap starts every ``submap_scans // 2`` nodes, so each node
+        is in two submaps.
+    matcher : MatcherConfig
+        Local scan-to-submap matcher (search window around the odometry prediction, match field
+        width, usable range).
+    field_radius : int
+        Cells beyond which the match field is 0.
+    min_match_score : float
+        Least mean match score (0..1) for local SLAM to trust a match; below it the odometry
+        prediction is kept.
+    local_sd : tuple of float
+        Standard deviations ``(metres, radians)`` of the local-SLAM edges (node to previous node
+        and node to submap anchor).
+    closure_sd : tuple of float
+        Standard deviations ``(metres, radians)`` of a loop-closure edge.
+    closure_min_score : float
+        Least branch-and-bound score (mean match field over the scan's endpoints) of a closure.
+    wide_min_score : float
+        Least score of a closure found by the wide search.
+    closure_window : tuple of float
+        ``(metres, radians)``: half-widths of the closure search window right after a closure.
+    window_growth : tuple of float
+        Growth of those half-widths per metre travelled since the last accepted closure.
+    max_window : tuple of float
+        Largest half-widths of the regular search.
+    wide_window : tuple of float
+        Half-widths of the wide search.
+    wide_search_every : int
+        Nodes between wide searches (0 = never).
+    closure_every : int
+        Search closures for every ``closure_every``-th node.
+    closure_candidates : int
+        Finished submaps searched per node: the nearest ones whose extent the window reaches.
+    closure_points : int
+        Endpoints used by the closure search (the scan is subsampled evenly to this many).
+    robust : str
+        Robust cost of closure edges: ``"dcs"``, ``"cauchy"``, ``"huber"`` or ``"none"``.
+    robust_scale : float
+        Its scale (``Phi`` of DCS, the kernel width of Cauchy and Huber, in units of the
+        whitened error).
+    optimize_every : int
+        Nodes between optimizations.
+    final_iterations : int
+        Largest number of Levenberg-Marquardt iterations of the final optimization.
+    p_hit, p_miss : float
+        Inverse sensor model of submaps and of the final map.
+    max_clear_range : float
+        Distance (metres) up to which a no-return reading clears the final map.
+    grid_cache : int
+        Finished submaps whose match field and max-grids are kept in memory (least recently
+        used first out).
+    """
+
+    resolution: float = 0.05
+    min_distance: float = 0.2
+    min_rotation: float = 0.1
+    submap_scans: int = 40
+    matcher: MatcherConfig = field(default_factory=_local_matcher)
+    field_radius: int = 3
+    min_match_score: float = 0.25
+    local_sd: tuple[float, float] = (0.02, 0.005)
+    closure_sd: tuple[float, float] = (0.05, 0.01)
+    closure_min_score: float = 0.55
+    wide_min_score: float = 0.65
+    closure_window: tuple[float, float] = (0.5, 0.1)
+    window_growth: tuple[float, float] = (0.05, 0.005)
+    max_window: tuple[float, float] = (4.0, 0.35)
+    wide_window: tuple[float, float] = (7.0, 0.52)
+    wide_search_every: int = 50
+    closure_every: int = 1
+    closure_candidates: int = 3
+    closure_points: int = 90
+    robust: str = "dcs"
+    robust_scale: float = 1.0
+    optimize_every: int = 50
+    final_iterations: int = 50
+    p_hit: float = 0.7
+    p_miss: float = 0.4
+    max_clear_range: float = 10.0
+    grid_cache: int = 24
+
+    def __post_init__(self) -> None:
+        positive = ("resolution", "robust_scale")
+        for name in positive:
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a positive number, got {v}")
+        for name in ("min_distance", "min_rotation", "max_clear_range"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be >= 0, got {v}")
+        for name in ("min_match_score", "closure_min_score", "wide_min_score"):
+            v = getattr(self, name)
+            if not 0.0 <= v <= 1.0:
+                raise ValueError(f"{name} must lie in [0, 1], got {v}")
+        for name in ("local_sd", "closure_sd"):
+            v = getattr(self, name)
+            if len(v) != 2 or not all(math.isfinite(x) and x > 0 for x in v):
+                raise ValueError(f"{name} must be two positive numbers, got {v}")
+        for name in ("closure_window", "window_growth", "max_window", "wide_window"):
+            v = getattr(self, name)
+            if len(v) != 2 or not all(math.isfinite(x) and x >= 0 for x in v):
+                raise ValueError(f"{name} must be two numbers >= 0, got {v}")
+        if self.submap_scans < 2:
+            raise ValueError(f"submap_scans must be >= 2, got {self.submap_scans}")
+        for name in ("wide_search_every", "optimize_every", "final_iterations"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        for name in (
+            "closure_every",
+            "closure_candidates",
+            "closure_points",
+            "grid_cache",
+            "field_radius",
+        ):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.robust not in ("dcs", "cauchy", "huber", "none"):
+            raise ValueError(f"robust must be dcs, cauchy, huber or none, got {self.robust!r}")
+        if not 0.0 < self.p_miss < 0.5 < self.p_hit < 1.0:
+            raise ValueError(f"need 0 < p_miss < 0.5 < p_hit < 1, got {self.p_miss}, {self.p_hit}")
+
+
+@dataclass(frozen=True)
+class LoopClosure:
+    """An accepted loop closure: node ``node`` seen in submap ``submap`` (anchor node
+    ``anchor``) at ``pose`` (sensor pose in the submap frame) with branch-and-bound ``score``;
+    ``wide`` when the wide search found it."""
+
+    node: int
+    submap: int
+    anchor: int
+    pose: tuple[float, float, float]
+    score: float
+    wide: bool
+
+
+def _information(sd: tuple[float, float]) -> NDArray[np.float64]:
+    return np.diag([1.0 / sd[0] ** 2, 1.0 / sd[0] ** 2, 1.0 / sd[1] ** 2])
+
+
+class GraphSlam:
+    """Graph SLAM with submaps and loop closure, one scan at a time.
+
+    Parameters
+    ----------
+    config : GraphSlamConfig, optional
+    max_range : float
+        Sensor maximum range (metres); readings at or beyond it are "no return".
+
+    Examples
+    --------
+    >>> slam = GraphSlam(GraphSlamConfig(), max_range=80.0)  # doctest: +SKIP
+    >>> for t, r, a, odo in scans:  # doctest: +SKIP
+    ...     slam.add_scan(t, r, a, odo)
+    >>> slam.optimize(); grid = slam.map()  # doctest: +SKIP
+    """
+
+    def __init__(self, config: GraphSlamConfig | None = None, *, max_range: float) -> None:
+        self.config = cfg = config or GraphSlamConfig()
+        if not max_range > 0:
+            raise ValueError(f"max_range must be > 0 m, got {max_range}")
+        self.max_range = float(max_range)
+        self.graph = _GraphStore()
+        self._model = InverseSensorModel(cfg.p_hit, cfg.p_miss, max_clear_range=0.0)
+        self._local_info = _information(cfg.local_sd)
+        self._closure_info = _information(cfg.closure_sd)
+        # per node
+        self.local: list[NDArray[np.float64]] = []  # local-SLAM poses (drifting frame)
+        self.node_scan: list[int] = []  # scan index of each node
+        self._node_points: list[NDArray[np.float64]] = []  # closure endpoints, sensor frame
+        self._node_range: list[float] = []
+        # per scan
+        self.scan_times: list[float] = []
+        self.scan_odometry: list[NDArray[np.float64]] = []
+        self.scan_node: list[int] = []  # last node at or before each scan
+        self._ranges: list[NDArray[np.float32]] = []
+        self._angles: list[NDArray[np.float64]] = []
+        self.submaps: list[Submap] = []
+        self.active: list[Submap] = []
+        self.closures: list[LoopClosure] = []
+        self.searched = 0
+        self.failed_matches = 0
+        self.optimizations = 0
+        self.optimize_seconds = 0.0
+        self.search_seconds = 0.0
+        self._last_node_odometry: NDArray[np.float64] | None = None
+        self._since_optimize = 0
+        self._travel_since_closure = 0.0
+        self._pending_correction = False
+        self._cache: OrderedDict[int, Any] = OrderedDict()
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def nodes(self) -> int:
+        """Pose-graph nodes so far."""
+        return len(self.local)
+
+    def node_poses(self) -> NDArray[np.float64]:
+        """Current estimates of the nodes' sensor poses, shape (N, 3), map frame."""
+        return np.asarray(self.graph.poses, dtype=np.float64).reshape(-1, 3).copy()
+
+    # ------------------------------------------------------------------ steps
+    def add_scan(
+        self, time_s: float, ranges: ArrayLike, angles: ArrayLike, odometry: ArrayLike
+    ) -> bool:
+        """Process one scan; returns whether it became a pose-graph node.
+
+        Parameters
+        ----------
+        time_s : float
+            Timestamp, seconds.
+        ranges : array_like, shape (B,)
+            Ranges, metres (NaN, zero and negative readings are ignored).
+        angles : array_like, shape (B,)
+            Beam angles in the sensor frame, radians (may differ from scan to scan).
+        odometry : array_like, shape (3,)
+            The sensor's odometry pose (robot odometry composed with the mounting offset).
+        """
+        r = np.asarray(ranges, dtype=np.float64)
+        a = np.asarray(angles, dtype=np.float64)
+        odo = np.asarray(odometry, dtype=np.float64)
+        if r.ndim != 1 or a.shape != r.shape:
+            raise ValueError(f"ranges {r.shape} and angles {a.shape} must be 1-D of equal length")
+        if odo.shape != (3,) or not np.isfinite(odo).all():
+            raise ValueError(f"odometry must be 3 finite numbers, got {odo.tolist()}")
+        if not np.isfinite(a).all():
+            raise ValueError("angles must be finite")
+        scan = len(self.scan_times)
+        self.scan_times.append(float(time_s))
+        self.scan_odometry.append(odo.copy())
+        self._ranges.append(r.astype(np.float32))
+        self._angles.append(a)
+        cfg = self.config
+        if self._last_node_odometry is not None:
+            u = between(self._last_node_odometry, odo)
+            if (
+                math.hypot(u[0], u[1]) < cfg.min_distance
+                and abs(float(wrap_angle(u[2]))) < cfg.min_rotation
+            ):
+                self.scan_node.append(len(self.local) - 1)
+                return False
+        self._add_node(scan, r, a, odo)
+        self.scan_node.append(len(self.local) - 1)
+        return True
+
+    def _add_node(self, scan: int, r: NDArray, a: NDArray, odo: NDArray) -> None:
+        cfg = self.config
+        m = cfg.matcher
+        pts = scan_points(r, a, self.max_range, m.usable_range, m.beam_skip)
+        k = len(self.local)
+        if k == 0:
+            local = odo.copy()
+            self.graph.add_node(local)
+        else:
+            assert self._last_node_odometry is not None
+            u = between(self._last_node_odometry, odo)
+            prev = self.local[k - 1]
+            predicted = compose(prev, u)
+            local = self._match_local(pts, predicted)
+            rel = between(prev, local)
+            poses = self.graph.poses
+            self.graph.add_node(compose(poses[k - 1], rel))
+            self.graph.add_edge(k - 1, k, rel, self._local_info)
+            self._travel_since_closure += float(np.hypot(rel[0], rel[1]))
+        self._last_node_odometry = odo.copy()
+        self.local.append(local)
+        self.node_scan.append(scan)
+        # submaps: start a new one every submap_scans // 2 nodes
+        half = max(cfg.submap_scans // 2, 1)
+        if not self.active or self.active[-1].size >= half:
+            sm = Submap(
+                len(self.submaps), k, cfg.resolution, m.sigma, cfg.field_radius, self._model
+            )
+            self.submaps.append(sm)
+            self.active.append(sm)
+        with np.errstate(invalid="ignore"):  # submaps hold what the matcher uses
+            r_sub = np.where(r < m.usable_range, r, np.nan)
+        for sm in self.active:
+            in_sub = between(self.local[sm.anchor], local)
+            sm.insert(k, in_sub, r_sub, a, self.max_range)
+            if sm.anchor != k and sm.anchor != k - 1:
+                self.graph.add_edge(sm.anchor, k, in_sub, self._local_info)
+        while self.active and self.active[0].size >= cfg.submap_scans:
+            self.active.pop(0).finish()
+        # closure endpoints: an even subsample of the scan
+        step = max(1, math.ceil(len(pts) / cfg.closure_points))
+        cpts = np.ascontiguousarray(pts[::step])
+        self._node_points.append(cpts)
+        self._node_range.append(float(np.hypot(cpts[:, 0], cpts[:, 1]).max(initial=0.0)))
+        if k > 0 and k % cfg.closure_every == 0:
+            self._search_closures(k)
+        self._since_optimize += 1
+        if cfg.optimize_every and (
+            self._since_optimize >= cfg.optimize_every or self._pending_correction
+        ):
+            self.optimize()
+
+    def _match_local(self, pts: NDArray, predicted: NDArray) -> NDArray[np.float64]:
+        """Scan-to-submap matching around the odometry prediction (local-SLAM frame)."""
+        cfg = self.config
+        m = cfg.matcher
+        sm = self.active[0]
+        if pts.shape[0] < 10 or sm.size == 0:
+            self.failed_matches += 1
+            return predicted
+        anchor = self.local[sm.anchor]
+        guess = between(anchor, predicted)
+        fld = sm.field()
+        best, _ = correlative_search(fld, pts, guess, m)
+        pose, _, _ = refine(fld, pts, best, m.iterations, (m.linear_step, m.angular_step))
+        score, _, _ = normal_equations(fld, pts, pose)
+        if score / pts.shape[0] < cfg.min_match_score:
+            self.failed_matches += 1
+            return predicted
+        out = compose(anchor, pose)
+        out[2] = float(wrap_angle(out[2]))
+        return out
+
+    # ------------------------------------------------------------------ loop closure
+    def _grids(self, sm: Submap) -> tuple[Any, Any]:
+        """The finished submap's match field and max-grids (LRU cache)."""
+        from probmap.slam.loop_closure import PrecomputedGrids
+
+        hit = self._cache.get(sm.index)
+        if hit is not None:
+            self._cache.move_to_end(sm.index)
+            return hit
+        fld = sm.field()
+        sm.release()
+        grids = PrecomputedGrids.from_field(fld)
+        self._cache[sm.index] = (fld, grids)
+        while len(self._cache) > self.config.grid_cache:
+            self._cache.popitem(last=False)
+        return fld, grids
+
+    def _search_closures(self, k: int) -> None:
+        from probmap.slam.loop_closure import branch_and_bound_search
+
+        cfg = self.config
+        finished = [sm for sm in self.submaps if sm.finished and k not in sm.nodes]
+        if not finished:
+            return
+        t0 = time.perf_counter()
+        poses = self.graph.poses
+        xk = poses[k]
+        pts = self._node_points[k]
+        if pts.shape[0] < 10:
+            return
+        d = self._travel_since_closure
+        lin = min(cfg.closure_window[0] + cfg.window_growth[0] * d, cfg.max_window[0])
+        ang = min(cfg.closure_window[1] + cfg.window_growth[1] * d, cfg.max_window[1])
+        wide = bool(cfg.wide_search_every) and k % cfg.wide_search_every == 0
+        if wide:
+            lin, ang = max(lin, cfg.wide_window[0]), max(ang, cfg.wide_window[1])
+        min_score = cfg.wide_min_score if wide else cfg.closure_min_score
+        accepted = False
+        near: list[tuple[float, Submap]] = []
+        for sm in finished:
+            centre = compose(poses[sm.anchor], np.array([*sm.centre, 0.0]))
+            dist = math.hypot(centre[0] - xk[0], centre[1] - xk[1])
+            if dist <= lin + sm.radius:
+                near.append((dist, sm))
+        near.sort(key=lambda t: t[0])
+        for _, sm in near[: cfg.closure_candidates]:
+            anchor = poses[sm.anchor]
+            guess = between(anchor, xk)
+            fld, grids = self._grids(sm)
+            self.searched += 1
+            found = branch_and_bound_search(
+                grids, pts, guess, linear_window=lin, angular_window=ang, min_score=min_score
+            )
+            if found is None:
+                continue
+            full = self._full_points(k)
+            m = cfg.matcher
+            pose, _, _ = refine(
+                fld, full, found.pose, m.iterations, (m.linear_step, m.angular_step)
+            )
+            score, _, _ = normal_equations(fld, full, pose)
+            if score / max(full.shape[0], 1) < cfg.min_match_score:
+                continue
+            self.graph.add_edge(sm.anchor, k, pose, self._closure_info, robust=True)
+            self.closures.append(
+                LoopClosure(k, sm.index, sm.anchor, tuple(map(float, pose)), found.score, wide)
+            )
+            accepted = True
+            implied = compose(anchor, pose)
+            if (
+                math.hypot(implied[0] - xk[0], implied[1] - xk[1]) > 0.1
+                or abs(float(wrap_angle(implied[2] - xk[2]))) > 0.02
+            ):
+                self._pending_correction = True
+        if accepted:
+            self._travel_since_closure = 0.0
+        self.search_seconds += time.perf_counter() - t0
+
+    def _full_points(self, k: int) -> NDArray[np.float64]:
+        m = self.config.matcher
+        s = self.node_scan[k]
+        return scan_points(
+            self._ranges[s].astype(np.float64), self._angles[s], self.max_range, m.usable_range,
+            m.beam_skip,
+        )  # fmt: skip
+
+    # ------------------------------------------------------------------ back end
+    def optimize(self, max_iterations: int | None = None) -> Any:
+        """Optimize the pose graph (Levenberg-Marquardt, warm start from the current estimates;
+        closure edges under the robust cost)."""
+        from probmap.slam.posegraph import OptimizerConfig
+
+        cfg = self.config
+        t0 = time.perf_counter()
+        its = max_iterations if max_iterations is not None else 10
+        opt = OptimizerConfig(max_iterations=its, robust=cfg.robust, robust_scale=cfg.robust_scale)
+        result = self.graph.optimize(opt)
+        self.optimize_seconds += time.perf_counter() - t0
+        self.optimizations += 1
+        self._since_optimize = 0
+        self._pending_correction = False
+        return result
+
+    def closure_weights(self) -> NDArray[np.float64]:
+        """Robust weight (0..1] of every accepted closure after the last optimization."""
+        return self.graph.weights()[self.graph.robust_mask()]
+
+    def write_g2o(self, path: str) -> Any:
+        """Write the optimized pose graph (laser poses; closures included) as g2o, atomically."""
+        from probmap.slam.posegraph import write_pose_graph_g2o
+
+        g = self.graph
+        return write_pose_graph_g2o(
+            path, g.poses, g.edge_array(), g.measurements(), g.information()
+        )
+
+    def finish(self) -> None:
+        """Final optimization (up to ``final_iterations``)."""
+        if self.nodes > 1:
+            self.optimize(self.config.final_iterations)
+
+    def trajectory(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Times (S,) and sensor poses (S, 3) of every scan: nodes at their optimized poses,
+        scans between nodes composed from the previous node by the odometry increment."""
+        poses = self.node_poses()
+        node = np.asarray(self.scan_node, dtype=np.int64)
+        odo = np.asarray(self.scan_odometry).reshape(-1, 3)
+        base = np.asarray(self.node_scan, dtype=np.int64)[node]
+        out = compose(poses[node], between(odo[base], odo))
+        return np.asarray(self.scan_times), out
+
+    def map(self, *, max_clear_range: float | None = None) -> OccupancyGrid:
+        """Every scan re-integrated at its optimized pose (Table 9.1, once per scan)."""
+        cfg = self.config
+        clear = cfg.max_clear_range if max_clear_range is None else max_clear_range
+        model = InverseSensorModel(cfg.p_hit, cfg.p_miss, max_clear_range=clear)
+        grid = OccupancyGrid(cfg.resolution, model=model)
+        _, poses = self.trajectory()
+        for i, p in enumerate(poses):
+            grid.integrate_scan(p, self._ranges[i], self._angles[i], max_range=self.max_range)
+        return grid.cropped()
+
+    def closure_edges(self) -> NDArray[np.int64]:
+        """Accepted closures as (node, anchor) pairs, shape (C, 2)."""
+        return np.asarray([(c.node, c.anchor) for c in self.closures], dtype=np.int64).reshape(
+            -1, 2
+        )
+
+    def memory_bytes(self) -> int:
+        """Bytes held by submaps, cached grids and stored scans (approximate)."""
+        n = sum(sm.nbytes for sm in self.submaps)
+        for fld, grids in self._cache.values():
+            n += fld.values.nbytes + int(getattr(grids, "nbytes", 0))
+        n += sum(r.nbytes for r in self._ranges)
+        return n
+
+
+class _GraphStore:
+    """Nodes and edges of the growing pose graph in amortised arrays, optimized by
+    :func:`~probmap.slam.posegraph.optimize_pose_graph` with the first node fixed."""
+
+    def __init__(self) -> None:
+        self._x = np.zeros((64, 3))
+        self._n = 0
+        self._e = np.zeros((64, 2), dtype=np.int64)
+        self._z = np.zeros((64, 3))
+        self._om = np.zeros((64, 3, 3))
+        self._robust = np.zeros(64, dtype=bool)
+        self._w = np.ones(64)
+        self._m = 0
+
+    @property
+    def poses(self) -> NDArray[np.float64]:
+        return self._x[: self._n]
+
+    def add_node(self, pose: ArrayLike) -> int:
+        if self._n == len(self._x):
+            self._x = np.concatenate([self._x, np.zeros_like(self._x)])
+        self._x[self._n] = pose
+        self._n += 1
+        return self._n - 1
+
+    def add_edge(self, i: int, j: int, z: ArrayLike, om: ArrayLike, *, robust: bool = False) -> int:
+        if self._m == len(self._e):
+            self._e = np.concatenate([self._e, np.zeros_like(self._e)])
+            self._z = np.concatenate([self._z, np.zeros_like(self._z)])
+            self._om = np.concatenate([self._om, np.zeros_like(self._om)])
+            self._robust = np.concatenate([self._robust, np.zeros_like(self._robust)])
+            self._w = np.concatenate([self._w, np.ones_like(self._w)])
+        m = self._m
+        self._e[m] = (i, j)
+        self._z[m] = z
+        self._om[m] = om
+        self._robust[m] = robust
+        self._m += 1
+        return m
+
+    def edge_array(self) -> NDArray[np.int64]:
+        return self._e[: self._m]
+
+    def measurements(self) -> NDArray[np.float64]:
+        return self._z[: self._m]
+
+    def information(self) -> NDArray[np.float64]:
+        return self._om[: self._m]
+
+    def robust_mask(self) -> NDArray[np.bool_]:
+        return self._robust[: self._m]
+
+    def weights(self) -> NDArray[np.float64]:
+        return self._w[: self._m]
+
+    def optimize(self, config: Any) -> Any:
+        from probmap.slam.posegraph import optimize_pose_graph
+
+        if self._n < 2 or self._m == 0:
+            return None
+        res = optimize_pose_graph(
+            self.poses, self.edge_array(), self.measurements(), self.information(), config,
+            robust_mask=self.robust_mask(),
+        )  # fmt: skip
+        self._x[: self._n] = res.poses
+        self._w[: self._m] = res.weights
+        return res
+
+
+def inverse_mount(poses: ArrayLike, mount: ArrayLike) -> NDArray[np.float64]:
+    """Robot poses from sensor poses and the sensor's mounting pose in the robot frame."""
+    out = compose(np.asarray(poses, dtype=np.float64), inverse(np.asarray(mount, dtype=float)))
+    out[..., 2] = wrap_angle(out[..., 2])
+    return out

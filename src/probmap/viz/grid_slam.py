@@ -1,0 +1,70 @@
+"""Pictures of grid-SLAM results: the map with the trajectory and the accepted loop closures,
+axes in metres (axes first; the caller owns the figure)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["plot_graph_slam", "save_graph_slam_figure"]
+
+
+def plot_graph_slam(ax: Any, run: Any, *, title: str | None = None) -> Any:
+    """Draw ``run.grid`` (occupied black, free white, unknown grey), the robot trajectory
+    ``run.poses``, and each accepted closure as a segment from the node to the anchor of the
+    submap it matched (green: kept by the robust cost, red: down-weighted below 0.5).
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    run : GraphSlamRun
+        From :func:`probmap.pipelines.grid_slam.run_graph_slam`.
+    title : str, optional
+    """
+    grid = run.grid
+    p = np.asarray(grid.probability())
+    seen = np.asarray(grid.observed)
+    img = np.where(seen, 1.0 - p, 0.8)
+    x0, y0 = grid.spec.origin
+    r = grid.spec.resolution
+    h, w = p.shape
+    ax.imshow(
+        img, cmap="gray", vmin=0.0, vmax=1.0, origin="lower", extent=(x0, x0 + w * r, y0, y0 + h * r),
+        interpolation="nearest",
+    )  # fmt: skip
+    ax.plot(run.poses[:, 0], run.poses[:, 1], color="tab:blue", lw=0.5, label="trajectory")
+    nodes = run.node_poses
+    weights = np.asarray(run.closure_weights)
+    for (k, a), wgt in zip(run.closures, weights, strict=True):
+        colour = "tab:green" if wgt >= 0.5 else "tab:red"
+        ax.plot([nodes[k, 0], nodes[a, 0]], [nodes[k, 1], nodes[a, 1]], color=colour, lw=0.4)
+    kept = int(np.sum(weights >= 0.5))
+    ax.plot([], [], color="tab:green", lw=0.8, label=f"loop closures ({kept})")
+    if kept < len(weights):
+        ax.plot([], [], color="tab:red", lw=0.8, label=f"down-weighted ({len(weights) - kept})")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    if title:
+        ax.set_title(title)
+    ax.legend(loc="upper right", fontsize=7)
+    return ax
+
+
+def save_graph_slam_figure(
+    path: str | os.PathLike[str], run: Any, *, title: str | None = None
+) -> Path:
+    """Render :func:`plot_graph_slam` to a PNG (Agg backend, written atomically)."""
+    from matplotlib.figure import Figure
+
+    from probmap._atomic import atomic_write
+
+    path = Path(path)
+    fig = Figure(figsize=(9, 9))
+    plot_graph_slam(fig.add_subplot(), run, title=title)
+    with atomic_write(path, "wb") as f:
+        fig.savefig(f, format="png", dpi=150, bbox_inches="tight")
+    return path

@@ -296,6 +296,29 @@ def test_spanning_tree_kernel_matches_python_bfs():
     assert np.allclose(theta[~np.isnan(want)], want[~np.isnan(want)], rtol=0, atol=1e-12)
 
 
+def test_check_edges_kernel_matches_numpy():
+    rng = np.random.default_rng(23)
+    for _ in range(200):
+        e = rng.integers(-1, 12, (6, 2))
+        z = rng.normal(size=(6, 3))
+        if rng.random() < 0.3:
+            z[rng.integers(6), rng.integers(3)] = np.inf
+        bad = np.stack(
+            [
+                (e < 0).any(axis=1) | (e >= 10).any(axis=1),
+                e[:, 0] == e[:, 1],
+                ~np.isfinite(z).all(axis=1),
+            ],
+            axis=1,
+        )
+        k, code = K.check_edges(e[:, 0].copy(), e[:, 1].copy(), 10, z)
+        rows = np.flatnonzero(bad.any(axis=1))
+        if rows.size == 0:
+            assert (k, code) == (-1, 0)
+        else:
+            assert k == rows[0] and code == 1 + int(np.argmax(bad[rows[0]]))
+
+
 def test_check_information_kernel_matches_eigenvalues():
     rng = np.random.default_rng(16)
     mats = []
@@ -366,6 +389,95 @@ def test_lago_assembly_kernel_matches_dense_reference(stage):
     other = np.setdiff1d(np.arange(3 * len(free)), idx)
     assert np.array_equal(H[np.ix_(other, other)], np.eye(other.size))
     assert np.all(H[np.ix_(other, idx)] == 0) and np.all(rhs[other] == 0)
+
+
+def ref_structure(n_nodes, ei, ej, fixed):
+    """The block pattern by numpy set operations (np.unique), as the kernel's reference."""
+    node_index = np.zeros(n_nodes, dtype=np.int64)
+    node_index[fixed] = -1
+    free = node_index >= 0
+    nf = int(free.sum())
+    node_index[free] = np.arange(nf)
+    p, q = node_index[ei], node_index[ej]
+    both = (p >= 0) & (q >= 0)
+    uniq, inv = np.unique(np.maximum(p, q)[both] * nf + np.minimum(p, q)[both], return_inverse=True)
+    ucol, urow = uniq // nf, uniq % nf
+    blk_colptr = np.concatenate([[0], np.cumsum(np.bincount(ucol, minlength=nf))])
+    nb = np.diff(blk_colptr)
+    colptr = np.concatenate([[0], np.cumsum((3 * nb[:, None] + np.arange(1, 4)).ravel())])
+    indices = []
+    for c in range(nf):
+        for k in range(3):
+            for r in urow[blk_colptr[c] : blk_colptr[c + 1]]:
+                indices += [3 * r, 3 * r + 1, 3 * r + 2]
+            indices += [3 * c + r for r in range(k + 1)]
+    edge_base = np.full(len(ei), -1)
+    edge_base[both] = 3 * (np.arange(uniq.size) - blk_colptr[ucol])[inv.ravel()]
+    cols = np.arange(3 * nf)
+    diag_pos = colptr[cols] + 3 * nb[cols // 3] + cols % 3
+    return node_index, nf, colptr, np.array(indices), 3 * nb, edge_base, diag_pos
+
+
+def test_structure_kernel_matches_numpy_reference():
+    rng = np.random.default_rng(19)
+    _, _, edges, _, _ = random_graph(rng, n=30, extra=40)
+    edges = np.vstack([edges, edges[:5], edges[5:8, ::-1]])  # parallel and reversed edges
+    fixed = np.array([0, 3, 17])
+    got = K.build_structure(30, edges[:, 0].copy(), edges[:, 1].copy(), fixed)
+    want = ref_structure(30, edges[:, 0], edges[:, 1], fixed)
+    assert got[1] == want[1]
+    for a, b in zip(got[:1] + got[2:], want[:1] + want[2:], strict=True):
+        assert np.array_equal(a, b)
+
+
+def test_dense_cholesky_kernel_matches_numpy():
+    rng = np.random.default_rng(20)
+    A = rng.normal(size=(12, 12))
+    H = A @ A.T + 0.1 * np.eye(12)
+    b = rng.normal(size=12)
+    x = np.empty(12)
+    assert K.dense_cholesky_solve(np.triu(H), b, x)  # reads the upper triangle only
+    assert np.allclose(x, np.linalg.solve(H, b), rtol=1e-10)
+    assert not K.dense_cholesky_solve(H - 50 * np.eye(12), b, x)
+
+
+def test_dense_normal_equations_kernel_matches_sparse_kernel():
+    import scipy.sparse as sp
+
+    rng = np.random.default_rng(21)
+    _, start, edges, z, info = random_graph(rng, n=9, extra=8, noise=0.5)
+    ei, ej = edges[:, 0].copy(), edges[:, 1].copy()
+    mask = rng.random(len(edges)) < 0.5
+    s = _NormalEquations(9, ei, ej, np.array([2]))
+    data, rhs = np.empty(s.nnz), np.empty(3 * s.n_free)
+    F = K.accumulate_normal_equations(
+        start, ei, ej, z, info, 0, 3, 1.0, mask, s.node_index, s.colptr, s.diag_base,
+        s.edge_base, data, rhs,
+    )  # fmt: skip
+    H = np.empty((3 * s.n_free,) * 2)
+    g = np.empty(3 * s.n_free)
+    F2 = K.dense_normal_equations(start, ei, ej, z, info, 0, 3, 1.0, mask, s.node_index, H, g)
+    U = sp.csc_matrix((data, s.indices, s.colptr), shape=H.shape).toarray()
+    assert F == pytest.approx(F2, rel=1e-14)
+    assert np.allclose(np.triu(H), U, rtol=1e-12, atol=1e-12) and np.allclose(g, rhs, rtol=1e-12)
+
+
+@pytest.mark.parametrize("kernel", ["none", "dcs"])
+def test_dense_and_sparse_lm_agree(monkeypatch, kernel):
+    import probmap.slam.posegraph as pg
+
+    rng = np.random.default_rng(22)
+    _, start, edges, z, info = random_graph(rng, n=20, extra=15, noise=0.1)
+    mask = edges[:, 1] != edges[:, 0] + 1
+    cfg = OptimizerConfig(robust=kernel)
+    monkeypatch.setattr(pg, "_DENSE_MAX_FREE", 1000)
+    dense = optimize_pose_graph(start, edges, z, info, cfg, robust_mask=mask, init="lago")
+    monkeypatch.setattr(pg, "_DENSE_MAX_FREE", 0)
+    sparse = optimize_pose_graph(start, edges, z, info, cfg, robust_mask=mask, init="lago")
+    assert dense.iterations == sparse.iterations and dense.message == sparse.message
+    assert dense.final_error == pytest.approx(sparse.final_error, rel=1e-9)
+    assert np.allclose(dense.poses, sparse.poses, atol=1e-8)
+    assert np.allclose(dense.weights, sparse.weights, rtol=1e-8)
 
 
 # --------------------------------------------------------------------------- LM
@@ -681,6 +793,8 @@ def test_function_tier_validation():
         optimize_pose_graph(poses, edges.astype(float), z, info)
     with pytest.raises(ValueError, match="measurements must have shape"):
         optimize_pose_graph(poses, edges, z[:1], info)
+    with pytest.raises(ValueError, match="measurement of edge 1 is not finite"):
+        optimize_pose_graph(poses, edges, np.array([[0, 0, 0], [0, np.nan, 0.0]]), info)
     bad = info.copy()
     bad[1, 0, 1] = 0.5
     with pytest.raises(ValueError, match="edge 1 is not symmetric"):

@@ -349,18 +349,67 @@ def accumulate_normal_equations(
 
 
 @njit(cache=True)
-def build_pattern(n_blocks, blk_colptr, blk_rows, colptr, indices):  # pragma: no cover - compiled
-    """Scalar row indices of the upper-triangular CSC pattern of a 3x3-block matrix.
+def build_structure(n_nodes, ei, ej, fixed):  # pragma: no cover - compiled
+    """The upper-triangular CSC pattern of ``H`` in 3x3 blocks of the free nodes.
 
-    ``blk_rows[blk_colptr[c]:blk_colptr[c + 1]]`` are the (sorted, strictly upper) off-diagonal
-    block rows of block column ``c``; the diagonal block follows them in every scalar column.
-    ``colptr`` (3 * n_blocks + 1) must already hold the column starts.
+    Returns ``(node_index, n_free, colptr, indices, diag_base, edge_base, diag_pos)``:
+    ``node_index[n]`` the block of node ``n`` (-1 when fixed, free nodes numbered in order);
+    in every scalar column of block column ``c`` the off-diagonal blocks come first, by
+    increasing block row, then the diagonal block's upper triangle; ``diag_base[c]`` and
+    ``edge_base[k]`` are the offsets, inside each scalar column of the block's column, of the
+    diagonal block and of edge ``k``'s off-diagonal block (-1 when an end is fixed; parallel
+    edges share a block); ``diag_pos`` the positions of the diagonal entries in ``data``.
     """
-    for c in range(n_blocks):
+    node_index = np.zeros(n_nodes, dtype=np.int64)
+    for f in fixed:
+        node_index[f] = -1
+    nf = 0
+    for v in range(n_nodes):
+        if node_index[v] == 0:
+            node_index[v] = nf
+            nf += 1
+    E = ei.shape[0]
+    keys = np.empty(E, dtype=np.int64)
+    which = np.empty(E, dtype=np.int64)
+    m = 0
+    for k in range(E):
+        p = node_index[ei[k]]
+        q = node_index[ej[k]]
+        if p >= 0 and q >= 0:
+            keys[m] = max(p, q) * nf + min(p, q)
+            which[m] = k
+            m += 1
+    order = np.argsort(keys[:m])
+    edge_block = np.full(E, -1, dtype=np.int64)
+    ucol = np.empty(m, dtype=np.int64)
+    urow = np.empty(m, dtype=np.int64)
+    n_blocks = 0
+    last = -1
+    for t in range(m):
+        key = keys[order[t]]
+        if key != last:
+            ucol[n_blocks] = key // nf
+            urow[n_blocks] = key % nf
+            n_blocks += 1
+            last = key
+        edge_block[which[order[t]]] = n_blocks - 1
+    nb = np.zeros(nf, dtype=np.int64)
+    for b in range(n_blocks):
+        nb[ucol[b]] += 1
+    blk_colptr = np.zeros(nf + 1, dtype=np.int64)
+    for c in range(nf):
+        blk_colptr[c + 1] = blk_colptr[c] + nb[c]
+    colptr = np.zeros(3 * nf + 1, dtype=np.int64)
+    for c in range(nf):
+        for k in range(3):
+            colptr[3 * c + k + 1] = colptr[3 * c + k] + 3 * nb[c] + k + 1
+    indices = np.empty(colptr[3 * nf], dtype=np.int64)
+    diag_pos = np.empty(3 * nf, dtype=np.int64)
+    for c in range(nf):
         for k in range(3):
             p = colptr[3 * c + k]
-            for t in range(blk_colptr[c], blk_colptr[c + 1]):
-                r = blk_rows[t]
+            for b in range(blk_colptr[c], blk_colptr[c + 1]):
+                r = urow[b]
                 indices[p] = 3 * r
                 indices[p + 1] = 3 * r + 1
                 indices[p + 2] = 3 * r + 2
@@ -368,6 +417,13 @@ def build_pattern(n_blocks, blk_colptr, blk_rows, colptr, indices):  # pragma: n
             for r in range(k + 1):
                 indices[p] = 3 * c + r
                 p += 1
+            diag_pos[3 * c + k] = colptr[3 * c + k] + 3 * nb[c] + k
+    edge_base = np.full(E, -1, dtype=np.int64)
+    for k in range(E):
+        b = edge_block[k]
+        if b >= 0:
+            edge_base[k] = 3 * (b - blk_colptr[ucol[b]])
+    return node_index, nf, colptr, indices, 3 * nb, edge_base, diag_pos
 
 
 @njit(cache=True)
@@ -410,6 +466,21 @@ def edge_residuals(poses, ei, ej, meas, chart, out):  # pragma: no cover - compi
         out[k, 0] = e[0]
         out[k, 1] = e[1]
         out[k, 2] = e[2]
+
+
+@njit(cache=True)
+def check_edges(ei, ej, n_nodes, meas):  # pragma: no cover - compiled
+    """First edge with a node index outside ``[0, n_nodes)`` (code 1), joining a node to
+    itself (2) or with a non-finite measurement (3), as ``(k, code)``; ``(-1, 0)`` if none."""
+    for k in range(ei.shape[0]):
+        if ei[k] < 0 or ei[k] >= n_nodes or ej[k] < 0 or ej[k] >= n_nodes:
+            return k, 1
+        if ei[k] == ej[k]:
+            return k, 2
+        for c in range(3):
+            if not math.isfinite(meas[k, c]):
+                return k, 3
+    return -1, 0
 
 
 @njit(cache=True)
@@ -600,3 +671,306 @@ def assemble_lago(
     for p in range(diag_base.shape[0]):
         for c in range(lo, hi):
             data[colptr[3 * p + c] + diag_base[p] + c] = 1.0
+
+
+# ----------------------------------------------------------------------------- dense path
+# Graphs with a few free nodes run the whole Levenberg-Marquardt loop in one compiled call on a
+# dense H: the same algorithm as the sparse loop of posegraph.py, without per-iteration Python.
+
+STATUS_CAP = 0
+STATUS_RELATIVE = 1
+STATUS_ABSOLUTE = 2
+STATUS_NO_DECREASE = 3
+STATUS_NOTHING = 4
+STATUS_ZERO = 5
+
+
+@njit(cache=True)
+def dense_cholesky_solve(H, b, x):  # pragma: no cover - compiled
+    """Solve ``H x = b`` by Cholesky (``H`` symmetric, only its upper triangle read).
+
+    Returns False, leaving ``x`` undefined, when a pivot is not positive.
+    """
+    n = H.shape[0]
+    L = np.zeros((n, n))
+    for j in range(n):
+        s = H[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not s > 0.0:
+            return False
+        d = math.sqrt(s)
+        L[j, j] = d
+        for i in range(j + 1, n):
+            t = H[j, i]
+            for k in range(j):
+                t -= L[i, k] * L[j, k]
+            L[i, j] = t / d
+    for i in range(n):
+        t = b[i]
+        for k in range(i):
+            t -= L[i, k] * x[k]
+        x[i] = t / L[i, i]
+    for i in range(n - 1, -1, -1):
+        t = x[i]
+        for k in range(i + 1, n):
+            t -= L[k, i] * x[k]
+        x[i] = t / L[i, i]
+    return True
+
+
+@njit(cache=True)
+def csc_upper_to_dense(data, indices, colptr, out):  # pragma: no cover - compiled
+    """Scatter an upper-triangular CSC matrix into the upper triangle of ``out``."""
+    out[:, :] = 0.0
+    for c in range(out.shape[0]):
+        for t in range(colptr[c], colptr[c + 1]):
+            out[indices[t], c] = data[t]
+
+
+@njit(cache=True)
+def dense_normal_equations(
+    poses, ei, ej, meas, info, chart, kernel, scale, robust, node_index, H, rhs
+):  # pragma: no cover - compiled
+    """Dense ``H`` (upper triangle) and gradient ``rhs``; returns the cost (as
+    :func:`accumulate_normal_equations`)."""
+    H[:, :] = 0.0
+    rhs[:] = 0.0
+    e = np.empty(3)
+    A = np.empty((3, 3))
+    B = np.empty((3, 3))
+    J = np.empty((3, 6))
+    WJ = np.empty((3, 6))
+    total = 0.0
+    for k in range(ei.shape[0]):
+        i = ei[k]
+        j = ej[k]
+        edge_linearize(poses, i, j, meas[k, 0], meas[k, 1], meas[k, 2], chart, e, A, B)
+        s = mahalanobis(e, info, k)
+        if robust[k]:
+            r, w = rho_weight(s, kernel, scale)
+        else:
+            r = s
+            w = 1.0
+        total += r
+        for a in range(3):
+            for c in range(3):
+                J[a, c] = A[a, c]
+                J[a, 3 + c] = B[a, c]
+        for a in range(3):
+            for c in range(6):
+                acc = 0.0
+                for m in range(3):
+                    acc += w * info[k, a, m] * J[m, c]
+                WJ[a, c] = acc
+        p = node_index[i]
+        q = node_index[j]
+        for u in range(6):
+            gu = p if u < 3 else q
+            if gu < 0:
+                continue
+            ru = 3 * gu + u % 3
+            acc = 0.0
+            for m in range(3):
+                acc += WJ[m, u] * e[m]
+            rhs[ru] += acc
+            for v in range(6):
+                gv = p if v < 3 else q
+                if gv < 0:
+                    continue
+                rv = 3 * gv + v % 3
+                if ru > rv:
+                    continue
+                acc = 0.0
+                for m in range(3):
+                    acc += J[m, u] * WJ[m, v]
+                H[ru, rv] += acc
+    return 0.5 * total
+
+
+@njit(cache=True)
+def lm_dense(
+    poses,
+    ei,
+    ej,
+    meas,
+    info,
+    chart,
+    kernel,
+    scale,
+    robust,
+    node_index,
+    n_free,
+    max_iterations,
+    relative_tolerance,
+    absolute_tolerance,
+    initial_lambda,
+    max_lambda,
+    identity_damping,
+    out,
+    chi2,
+    weights,
+):  # pragma: no cover - compiled
+    """Levenberg-Marquardt with Nielsen's damping on a dense system; ``out`` receives the
+    poses. Returns ``(cost, iterations, status)`` with ``status`` one of ``STATUS_*``."""
+    n3 = 3 * n_free
+    H = np.empty((n3, n3))
+    Hd = np.empty((n3, n3))
+    rhs = np.empty(n3)
+    neg = np.empty(n3)
+    delta = np.empty(n3)
+    D = np.ones(n3)
+    x = poses.copy()
+    x_try = poses.copy()
+    F = dense_normal_equations(
+        x, ei, ej, meas, info, chart, kernel, scale, robust, node_index, H, rhs
+    )
+    iterations = 0
+    status = STATUS_CAP
+    if n3 == 0 or ei.shape[0] == 0:
+        status = STATUS_NOTHING
+    elif F == 0.0:
+        status = STATUS_ZERO
+    lam = -1.0
+    nu = 2.0
+    F_try = F
+    while status == STATUS_CAP and iterations < max_iterations:
+        iterations += 1
+        dmax = 0.0
+        for a in range(n3):
+            dmax = max(dmax, H[a, a])
+        for a in range(n3):
+            D[a] = 1.0 if identity_damping else max(H[a, a], 1e-12 * dmax)
+        unit = dmax if identity_damping else 1.0
+        if lam < 0.0:
+            lam = initial_lambda * unit
+        lam_cap = max_lambda * unit
+        accepted = False
+        gain = 0.0
+        for a in range(n3):
+            neg[a] = -rhs[a]
+        while True:
+            Hd[:, :] = H
+            for a in range(n3):
+                Hd[a, a] += lam * D[a]
+            if dense_cholesky_solve(Hd, neg, delta):
+                apply_step(x, node_index, delta, x_try)
+                F_try = graph_cost(
+                    x_try, ei, ej, meas, info, chart, kernel, scale, robust, chi2, weights
+                )
+                gain = F - F_try
+                if math.isfinite(F_try) and gain > 0.0:
+                    dd = 0.0
+                    db = 0.0
+                    for a in range(n3):
+                        dd += delta[a] * D[a] * delta[a]
+                        db += delta[a] * rhs[a]
+                    predicted = 0.5 * (lam * dd - db)
+                    rho = gain / predicted if predicted > 0.0 else 1.0
+                    lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                    nu = 2.0
+                    accepted = True
+                    break
+            lam *= nu
+            nu *= 2.0
+            if lam > lam_cap:
+                break
+        if not accepted:
+            status = STATUS_NO_DECREASE
+            break
+        x[:, :] = x_try
+        F_prev = F
+        F = F_try
+        if gain <= relative_tolerance * F_prev:
+            status = STATUS_RELATIVE
+        elif gain <= absolute_tolerance:
+            status = STATUS_ABSOLUTE
+        elif iterations < max_iterations:
+            dense_normal_equations(
+                x, ei, ej, meas, info, chart, kernel, scale, robust, node_index, H, rhs
+            )
+    out[:, :] = x
+    F = graph_cost(x, ei, ej, meas, info, chart, kernel, scale, robust, chi2, weights)
+    return F, iterations, status
+
+
+@njit(cache=True)
+def _add_ridge(data, diag_pos, lo, hi):  # pragma: no cover - compiled
+    """Add 1e-10 of the largest of the diagonal entries ``lo..hi-1`` of every block to them."""
+    top = 1e-300
+    for t in range(0, diag_pos.shape[0], 3):
+        for c in range(lo, hi):
+            top = max(top, data[diag_pos[t + c]])
+    for t in range(0, diag_pos.shape[0], 3):
+        for c in range(lo, hi):
+            data[diag_pos[t + c]] += 1e-10 * top
+
+
+@njit(cache=True)
+def lago_dense(
+    poses,
+    ei,
+    ej,
+    meas,
+    info,
+    fixed,
+    node_index,
+    colptr,
+    indices,
+    diag_base,
+    edge_base,
+    diag_pos,
+    rerounds,
+    out,
+):  # pragma: no cover - compiled
+    """LAGO (see ``posegraph._lago``, which it mirrors step by step) with dense solves, in one
+    call, for graphs with a few free nodes. Returns False if a solve failed."""  # fmt: skip
+    N = poses.shape[0]
+    n3 = diag_pos.shape[0]
+    theta = poses[:, 2].copy()
+    spanning_tree(N, ei, ej, np.ascontiguousarray(meas[:, 2]), fixed, theta)
+    out[:, :] = poses
+    if n3 > 0:
+        data = np.empty(colptr[n3])
+        rhs = np.empty(n3)
+        u = np.empty(n3)
+        H = np.empty((n3, n3))
+        pattern = (node_index, colptr, diag_base, edge_base)
+        assemble_lago(0, out, theta, ei, ej, meas, info, *pattern, data, rhs)
+        _add_ridge(data, diag_pos, 2, 3)
+        csc_upper_to_dense(data, indices, colptr, H)
+        if not dense_cholesky_solve(H, rhs, u):
+            return False
+        for n in range(N):
+            if node_index[n] >= 0:
+                theta[n] += u[3 * node_index[n] + 2]
+        scratch = np.empty_like(data)
+        for _ in range(rerounds):
+            assemble_lago(0, out, theta, ei, ej, meas, info, *pattern, scratch, rhs)
+            if not dense_cholesky_solve(H, rhs, u):
+                return False
+            step = 0.0
+            for n in range(N):
+                if node_index[n] >= 0:
+                    d = u[3 * node_index[n] + 2]
+                    theta[n] += d
+                    step = max(step, abs(d))
+            if step < 1e-9:
+                break
+        assemble_lago(1, out, theta, ei, ej, meas, info, *pattern, data, rhs)
+        _add_ridge(data, diag_pos, 0, 2)
+        csc_upper_to_dense(data, indices, colptr, H)
+        if not dense_cholesky_solve(H, rhs, u):
+            return False
+        for n in range(N):
+            p = node_index[n]
+            if p >= 0:
+                out[n, 0] += u[3 * p]
+                out[n, 1] += u[3 * p + 1]
+    for n in range(N):
+        out[n, 2] = wrap(theta[n])
+    for f in fixed:
+        out[f, 0] = poses[f, 0]
+        out[f, 1] = poses[f, 1]
+        out[f, 2] = poses[f, 2]
+    return True

@@ -155,6 +155,9 @@ class OptimizerConfig:
         return float(self.robust_scale)
 
 
+_DEFAULT_CONFIG = OptimizerConfig()
+
+
 @dataclass(frozen=True, eq=False)
 class OptimizeResult:
     """What :func:`optimize_pose_graph` and :meth:`PoseGraph2D.optimize` return.
@@ -217,7 +220,6 @@ def _as_edges(
         raise ValueError(f"edges must have shape (E, 2) (i, j), got {e.shape}")
     if e.size and not np.issubdtype(e.dtype, np.integer):
         raise ValueError(f"edges must hold integer node indices, got dtype {e.dtype}")
-    e = e.astype(np.int64)
     E = e.shape[0]
     z = np.ascontiguousarray(measurements, dtype=np.float64)
     if z.shape != (E, 3):
@@ -225,22 +227,17 @@ def _as_edges(
     om = np.ascontiguousarray(information, dtype=np.float64)
     if om.shape != (E, 3, 3):
         raise ValueError(f"information must have shape ({E}, 3, 3), got {om.shape}")
-    if E:
-        lo, hi = int(e.min()), int(e.max())
-        if lo < 0 or hi >= n_nodes:
-            raise ValueError(f"edge node indices must lie in [0, {n_nodes}), found {lo}..{hi}")
-        loops = np.flatnonzero(e[:, 0] == e[:, 1])
-        if loops.size:
-            raise ValueError(f"edge {loops[0]} connects node {e[loops[0], 0]} to itself")
-    if not np.all(np.isfinite(z)):
-        raise ValueError("measurements must be finite")
+    ei = np.ascontiguousarray(e[:, 0], dtype=np.int64)
+    ej = np.ascontiguousarray(e[:, 1], dtype=np.int64)
+    k, code = _k.check_edges(ei, ej, n_nodes, z)
+    if code == 1:
+        raise ValueError(f"edge {k} ({ei[k]}, {ej[k]}): node indices must lie in [0, {n_nodes})")
+    if code == 2:
+        raise ValueError(f"edge {k} connects node {ei[k]} to itself")
+    if code == 3:
+        raise ValueError(f"measurement of edge {k} is not finite")
     _check_information(om)
-    return (
-        np.ascontiguousarray(e[:, 0]),
-        np.ascontiguousarray(e[:, 1]),
-        z,
-        om,
-    )
+    return ei, ej, z, om
 
 
 def _check_information(om: FloatArray) -> None:
@@ -264,15 +261,26 @@ def _as_mask(robust_mask: ArrayLike | None, n_edges: int) -> BoolArray:
 
 
 def _as_fixed(fixed: Sequence[int] | ArrayLike, n_nodes: int) -> IntArray:
-    f = np.unique(np.asarray(fixed, dtype=np.int64).ravel())
+    f = np.ascontiguousarray(np.asarray(fixed, dtype=np.int64).ravel())
     if f.size == 0:
         raise ValueError("at least one node must be fixed (the gauge)")
-    if f[0] < 0 or f[-1] >= n_nodes:
+    if f.min() < 0 or f.max() >= n_nodes:
         raise ValueError(f"fixed node indices must lie in [0, {n_nodes}), got {f.tolist()}")
     return f
 
 
 # --------------------------------------------------------------------------- linear system
+
+# Up to this many free nodes the system is solved densely, the whole LM loop in one kernel
+_DENSE_MAX_FREE = 24
+_MESSAGES = {
+    _k.STATUS_CAP: "iteration cap reached",
+    _k.STATUS_RELATIVE: "relative decrease below tolerance",
+    _k.STATUS_ABSOLUTE: "absolute decrease below tolerance",
+    _k.STATUS_NO_DECREASE: "no step lowers the cost (damping at its cap)",
+    _k.STATUS_NOTHING: "nothing to optimize",
+    _k.STATUS_ZERO: "zero error",
+}
 
 
 class _NormalEquations:
@@ -284,46 +292,41 @@ class _NormalEquations:
     """
 
     def __init__(self, n_nodes: int, ei: IntArray, ej: IntArray, fixed: IntArray) -> None:
-        node_index = np.zeros(n_nodes, dtype=np.int64)
-        node_index[fixed] = -1
-        free = node_index >= 0
-        nf = int(free.sum())
-        node_index[free] = np.arange(nf)
         _check_connected(n_nodes, ei, ej, fixed)
-        p = node_index[ei]
-        q = node_index[ej]
-        both = (p >= 0) & (q >= 0)
-        lo = np.minimum(p, q)[both]
-        hi = np.maximum(p, q)[both]
-        uniq, inv = np.unique(hi * max(nf, 1) + lo, return_inverse=True)
-        ucol = uniq // max(nf, 1)
-        urow = uniq % max(nf, 1)
-        blk_colptr = np.zeros(nf + 1, dtype=np.int64)
-        np.cumsum(np.bincount(ucol, minlength=nf), out=blk_colptr[1:])
-        nb = np.diff(blk_colptr)
-        counts = (3 * nb[:, None] + np.arange(1, 4)[None, :]).ravel()
-        colptr = np.zeros(3 * nf + 1, dtype=np.int64)
-        np.cumsum(counts, out=colptr[1:])
-        indices = np.empty(int(colptr[-1]), dtype=np.int64)
-        _k.build_pattern(nf, blk_colptr, np.ascontiguousarray(urow), colptr, indices)
-        edge_base = np.full(ei.shape[0], -1, dtype=np.int64)
-        edge_base[both] = 3 * (np.arange(uniq.size) - blk_colptr[ucol])[inv.ravel()]
+        node_index, nf, colptr, indices, diag_base, edge_base, diag_pos = _k.build_structure(
+            n_nodes, ei, ej, fixed
+        )
         self.n_nodes = n_nodes
-        self.n_free = nf
+        self.n_free = int(nf)
         self.node_index = node_index
         self.colptr = colptr
         self.indices = indices
-        self.diag_base = np.ascontiguousarray(3 * nb)
+        self.diag_base = diag_base
         self.edge_base = edge_base
-        cols = np.arange(3 * nf)
-        self.diag_pos = colptr[cols] + 3 * nb[cols // 3] + cols % 3
+        self.diag_pos = diag_pos
         self.nnz = int(colptr[-1])
         self._solver: Any = None
         self._matrix: Any = None
+        self._dense: FloatArray = np.empty((0, 0))
 
-    def solve(self, data: FloatArray, rhs: FloatArray) -> FloatArray:
+    def solve(self, data: FloatArray | None, rhs: FloatArray) -> FloatArray:
         """Solve ``H x = rhs`` for ``H`` given by its upper-triangle ``data`` (positive
-        definite). Raises ``np.linalg.LinAlgError`` if the factorization breaks down."""
+        definite); ``data=None`` reuses the last factorization. Raises
+        ``np.linalg.LinAlgError`` if the factorization breaks down."""
+        n = 3 * self.n_free
+        if self.n_free <= _DENSE_MAX_FREE:  # a few nodes: dense Cholesky, no set-up cost
+            if data is not None:
+                self._dense = np.empty((n, n))
+                _k.csc_upper_to_dense(data, self.indices, self.colptr, self._dense)
+            x = np.empty(n)
+            if not _k.dense_cholesky_solve(self._dense, rhs, x):
+                raise np.linalg.LinAlgError("matrix not positive definite")
+            return x
+        if data is None:
+            x = self._solver.solve(rhs)
+            if not np.all(np.isfinite(x)):
+                raise np.linalg.LinAlgError("non-finite solution")
+            return np.asarray(x, dtype=np.float64)
         import qdldl
         import scipy.sparse as sp
 
@@ -382,6 +385,16 @@ def _levenberg_marquardt(
     E = ei.shape[0]
     chi2 = np.empty(E)
     weights = np.empty(E)
+    if system.n_free <= _DENSE_MAX_FREE:
+        out = np.empty_like(poses)
+        F, its, status = _k.lm_dense(
+            poses, ei, ej, meas, info, chart, kernel, config.scale, robust, system.node_index,
+            system.n_free, max_iterations, config.relative_tolerance, config.absolute_tolerance,
+            config.initial_lambda, config.max_lambda, config.damping == "identity",
+            out, chi2, weights,
+        )  # fmt: skip
+        converged = status != _k.STATUS_CAP
+        return out, float(F), int(its), converged, _MESSAGES[int(status)], chi2, weights
     x = poses.copy()
     x_try = np.empty_like(x)
     n3 = 3 * system.n_free
@@ -458,6 +471,9 @@ def _levenberg_marquardt(
 
 # --------------------------------------------------------------------------- initialization
 
+# Re-solves of LAGO's headings with the multiples of 2 pi rounded from the previous estimate
+_LAGO_REROUNDS = 10
+
 
 def _lago(
     poses: FloatArray,
@@ -471,6 +487,15 @@ def _lago(
     optimizer's block pattern (so its ordering and symbolic factorization serve LM next)."""
     N = poses.shape[0]
     fixed = np.flatnonzero(system.node_index < 0)
+    if system.n_free <= _DENSE_MAX_FREE:
+        out = np.empty_like(poses)
+        ok = _k.lago_dense(
+            poses, ei, ej, meas, info, fixed, system.node_index, system.colptr, system.indices,
+            system.diag_base, system.edge_base, system.diag_pos, _LAGO_REROUNDS, out,
+        )  # fmt: skip
+        if not ok:
+            raise np.linalg.LinAlgError("LAGO's linear system is not positive definite")
+        return out
     # 1. headings along a breadth-first spanning tree rooted at the fixed nodes
     theta = poses[:, 2].copy()
     _k.spanning_tree(N, ei, ej, np.ascontiguousarray(meas[:, 2]), fixed, theta)
@@ -479,18 +504,28 @@ def _lago(
         data = np.empty(system.nnz)
         rhs = np.empty(3 * system.n_free)
         pattern = (system.node_index, system.colptr, system.diag_base, system.edge_base)
-        for stage in (0, 1):
-            # 2. all headings, then 3. all positions, by linear least squares
-            _k.assemble_lago(stage, out, theta, ei, ej, meas, info, *pattern, data, rhs)
-            solved = system.diag_pos.reshape(-1, 3)[:, [2] if stage == 0 else [0, 1]]
-            # a ridge keeps nodes with too little information solvable (they stay put)
-            data[solved] += 1e-10 * max(float(data[solved].max()), 1e-300)
-            u = system.solve(data, rhs).reshape(-1, 3)
-            free = system.node_index >= 0
-            if stage == 0:
-                theta[free] += u[:, 2]
-            else:
-                out[free, :2] += u[:, :2]
+        free = system.node_index >= 0
+        # 2. all headings by linear least squares; the multiples of 2 pi come from the tree's
+        #    headings first, then again from the estimate until they settle (the same matrix)
+        _k.assemble_lago(0, out, theta, ei, ej, meas, info, *pattern, data, rhs)
+        solved = system.diag_pos.reshape(-1, 3)[:, 2]
+        # a ridge keeps nodes with too little information solvable (they stay put)
+        data[solved] += 1e-10 * max(float(data[solved].max()), 1e-300)
+        u = system.solve(data, rhs).reshape(-1, 3)
+        theta[free] += u[:, 2]
+        for _ in range(_LAGO_REROUNDS):
+            scratch = np.empty_like(data)
+            _k.assemble_lago(0, out, theta, ei, ej, meas, info, *pattern, scratch, rhs)
+            u = system.solve(None, rhs).reshape(-1, 3)
+            theta[free] += u[:, 2]
+            if np.abs(u[:, 2]).max() < 1e-9:
+                break
+        # 3. all positions by linear least squares given the headings
+        _k.assemble_lago(1, out, theta, ei, ej, meas, info, *pattern, data, rhs)
+        solved2 = system.diag_pos.reshape(-1, 3)[:, :2]
+        data[solved2] += 1e-10 * max(float(data[solved2].max()), 1e-300)
+        u = system.solve(data, rhs).reshape(-1, 3)
+        out[free, :2] += u[:, :2]
     out[:, 2] = theta - 2.0 * math.pi * np.floor((theta + math.pi) / (2.0 * math.pi))
     out[fixed] = poses[fixed]
     return out
@@ -693,7 +728,7 @@ def optimize_pose_graph(
     array([1.        , 0.        , 1.57079633])
     """
     t0 = time.perf_counter()
-    cfg = config or OptimizerConfig()
+    cfg = config or _DEFAULT_CONFIG
     if init not in ("given", "lago"):
         raise ValueError(f"init must be 'given' or 'lago', got {init!r}")
     x = _as_poses(poses)

@@ -122,9 +122,7 @@ def load_laser_log(
     elif bag_options and any(v not in (None, 0) for v in bag_options.values()):
         raise ValueError(f"{path}: topic/frame options apply to ROS bags only")
     else:
-        batch = load_scans(
-            path, poses="corrected", dtype=np.float32, skip_bad_lines=skip_bad_lines
-        )
+        batch = load_scans(path, poses="corrected", dtype=np.float32, skip_bad_lines=skip_bad_lines)
     if end_time is not None:
         if not (math.isfinite(end_time) and end_time > 0):
             raise ValueError(f"end_time must be a positive number of seconds, got {end_time}")

@@ -30,9 +30,11 @@ Poses of the sensor are estimated; the caller composes the mounting offset.
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -237,11 +239,16 @@ class GraphSlam:
     """
 
     def __init__(self, config: GraphSlamConfig | None = None, *, max_range: float) -> None:
+        from probmap.slam.posegraph import OptimizerConfig, PoseGraph2D
+
         self.config = cfg = config or GraphSlamConfig()
         if not max_range > 0:
             raise ValueError(f"max_range must be > 0 m, got {max_range}")
         self.max_range = float(max_range)
-        self.graph = _GraphStore()
+        self.graph = PoseGraph2D(
+            OptimizerConfig(max_iterations=5, robust=cfg.robust, robust_scale=cfg.robust_scale)
+        )
+        self._weights = np.ones(0)
         self._model = InverseSensorModel(cfg.p_hit, cfg.p_miss, max_clear_range=0.0)
         self._local_info = _information(cfg.local_sd)
         self._closure_info = _information(cfg.closure_sd)
@@ -269,6 +276,10 @@ class GraphSlam:
         self._travel_since_closure = 0.0
         self._pending_correction = False
         self._cache: OrderedDict[int, Any] = OrderedDict()
+        self._finished: list[Submap] = []
+        self._fin_anchor: list[int] = []
+        self._fin_centre: list[NDArray[np.float64]] = []
+        self._fin_radius: list[float] = []
 
     # ------------------------------------------------------------------ properties
     @property
@@ -362,7 +373,12 @@ class GraphSlam:
             if sm.anchor != k and sm.anchor != k - 1:
                 self.graph.add_edge(sm.anchor, k, in_sub, self._local_info)
         while self.active and self.active[0].size >= cfg.submap_scans:
-            self.active.pop(0).finish()
+            done = self.active.pop(0)
+            done.finish()
+            self._finished.append(done)
+            self._fin_anchor.append(done.anchor)
+            self._fin_centre.append(done.centre)
+            self._fin_radius.append(done.radius)
         # closure endpoints: an even subsample of the scan
         step = max(1, math.ceil(len(pts) / cfg.closure_points))
         cpts = np.ascontiguousarray(pts[::step])
@@ -418,7 +434,7 @@ class GraphSlam:
         from probmap.slam.loop_closure import branch_and_bound_search
 
         cfg = self.config
-        finished = [sm for sm in self.submaps if sm.finished and k not in sm.nodes]
+        finished = self._finished
         if not finished:
             return
         t0 = time.perf_counter()
@@ -435,13 +451,18 @@ class GraphSlam:
             lin, ang = max(lin, cfg.wide_window[0]), max(ang, cfg.wide_window[1])
         min_score = cfg.wide_min_score if wide else cfg.closure_min_score
         accepted = False
-        near: list[tuple[float, Submap]] = []
-        for sm in finished:
-            centre = compose(poses[sm.anchor], np.array([*sm.centre, 0.0]))
-            dist = math.hypot(centre[0] - xk[0], centre[1] - xk[1])
-            if dist <= lin + sm.radius:
-                near.append((dist, sm))
-        near.sort(key=lambda t: t[0])
+        anchors = np.asarray(self._fin_anchor, dtype=np.int64)
+        local_c = np.asarray(self._fin_centre).reshape(-1, 2)
+        radius = np.asarray(self._fin_radius)
+        pa = poses[anchors]
+        c, s_ = np.cos(pa[:, 2]), np.sin(pa[:, 2])
+        cx = pa[:, 0] + c * local_c[:, 0] - s_ * local_c[:, 1]
+        cy = pa[:, 1] + s_ * local_c[:, 0] + c * local_c[:, 1]
+        dist = np.hypot(cx - xk[0], cy - xk[1])
+        reach = np.flatnonzero(dist <= lin + radius)
+        near = [
+            (float(dist[i]), finished[i]) for i in reach[np.argsort(dist[reach], kind="stable")]
+        ]
         for _, sm in near[: cfg.closure_candidates]:
             anchor = poses[sm.anchor]
             guess = between(anchor, xk)
@@ -466,10 +487,11 @@ class GraphSlam:
             )
             accepted = True
             implied = compose(anchor, pose)
-            if (
-                math.hypot(implied[0] - xk[0], implied[1] - xk[1]) > 0.1
-                or abs(float(wrap_angle(implied[2] - xk[2]))) > 0.02
-            ):
+            # optimize now only when the closure moves the estimate by a good part of the
+            # window the next searches use; smaller corrections wait for the next periodic run
+            moved = math.hypot(implied[0] - xk[0], implied[1] - xk[1])
+            turned = abs(float(wrap_angle(implied[2] - xk[2])))
+            if moved > 0.5 * cfg.closure_window[0] or turned > 0.5 * cfg.closure_window[1]:
                 self._pending_correction = True
         if accepted:
             self._travel_since_closure = 0.0
@@ -485,15 +507,15 @@ class GraphSlam:
 
     # ------------------------------------------------------------------ back end
     def optimize(self, max_iterations: int | None = None) -> Any:
-        """Optimize the pose graph (Levenberg-Marquardt, warm start from the current estimates;
-        closure edges under the robust cost)."""
-        from probmap.slam.posegraph import OptimizerConfig
-
-        cfg = self.config
+        """Optimize the pose graph: Levenberg-Marquardt warm-started from the current
+        estimates (5 iterations unless ``max_iterations``), closure edges under the robust
+        cost. Returns the :class:`~probmap.slam.posegraph.OptimizeResult` (None before there
+        is an edge)."""
+        if self.graph.num_edges == 0:
+            return None
         t0 = time.perf_counter()
-        its = max_iterations if max_iterations is not None else 10
-        opt = OptimizerConfig(max_iterations=its, robust=cfg.robust, robust_scale=cfg.robust_scale)
-        result = self.graph.optimize(opt)
+        result = self.graph.optimize(max_iterations)
+        self._weights = result.weights
         self.optimize_seconds += time.perf_counter() - t0
         self.optimizations += 1
         self._since_optimize = 0
@@ -502,16 +524,17 @@ class GraphSlam:
 
     def closure_weights(self) -> NDArray[np.float64]:
         """Robust weight (0..1] of every accepted closure after the last optimization."""
-        return self.graph.weights()[self.graph.robust_mask()]
+        mask = self.graph.robust_mask
+        w = np.ones(len(mask))
+        w[: len(self._weights)] = self._weights
+        return w[mask]
 
-    def write_g2o(self, path: str) -> Any:
+    def write_g2o(self, path: str | os.PathLike[str]) -> Path:
         """Write the optimized pose graph (laser poses; closures included) as g2o, atomically."""
         from probmap.slam.posegraph import write_pose_graph_g2o
 
         g = self.graph
-        return write_pose_graph_g2o(
-            path, g.poses, g.edge_array(), g.measurements(), g.information()
-        )
+        return write_pose_graph_g2o(path, g.poses, g.edges, g.measurements, g.information)
 
     def finish(self) -> None:
         """Final optimization (up to ``final_iterations``)."""
@@ -529,14 +552,43 @@ class GraphSlam:
         return np.asarray(self.scan_times), out
 
     def map(self, *, max_clear_range: float | None = None) -> OccupancyGrid:
-        """Every scan re-integrated at its optimized pose (Table 9.1, once per scan)."""
+        """Every scan re-integrated at its optimized pose (Table 9.1, once per scan).
+
+        Returns beyond the matcher's ``usable_range`` count as no return (they clear up to
+        ``max_clear_range``), as in the submaps: far returns are the least accurate and would
+        spread the map over a much larger area. The grid is laid out once around every
+        endpoint, so it never grows (and copies) while scans are integrated.
+        """
         cfg = self.config
+        usable = cfg.matcher.usable_range
         clear = cfg.max_clear_range if max_clear_range is None else max_clear_range
+        clear = min(clear, usable, self.max_range)
         model = InverseSensorModel(cfg.p_hit, cfg.p_miss, max_clear_range=clear)
-        grid = OccupancyGrid(cfg.resolution, model=model)
         _, poses = self.trajectory()
+        lo = poses[:, :2].min(axis=0)
+        hi = poses[:, :2].max(axis=0)
+        rows = []
         for i, p in enumerate(poses):
-            grid.integrate_scan(p, self._ranges[i], self._angles[i], max_range=self.max_range)
+            r = self._ranges[i].astype(np.float64)
+            with np.errstate(invalid="ignore"):
+                far = r >= usable
+            r[far] = self.max_range
+            rows.append(r)
+            with np.errstate(invalid="ignore"):
+                hit = np.isfinite(r) & (r > 0) & (r < self.max_range)
+            reach = np.where(hit, r, clear)
+            a = self._angles[i] + p[2]
+            ex = p[0] + reach * np.cos(a)
+            ey = p[1] + reach * np.sin(a)
+            if ex.size:
+                lo = np.minimum(lo, [np.nanmin(ex), np.nanmin(ey)])
+                hi = np.maximum(hi, [np.nanmax(ex), np.nanmax(ey)])
+        from probmap.grid.spec import GridSpec
+
+        spec = GridSpec.around(cfg.resolution, lo[0], hi[0], lo[1], hi[1], margin=4)
+        grid = OccupancyGrid(cfg.resolution, model=model, spec=spec)
+        for i, p in enumerate(poses):
+            grid.integrate_scan(p, rows[i], self._angles[i], max_range=self.max_range)
         return grid.cropped()
 
     def closure_edges(self) -> NDArray[np.int64]:
@@ -552,75 +604,6 @@ class GraphSlam:
             n += fld.values.nbytes + int(getattr(grids, "nbytes", 0))
         n += sum(r.nbytes for r in self._ranges)
         return n
-
-
-class _GraphStore:
-    """Nodes and edges of the growing pose graph in amortised arrays, optimized by
-    :func:`~probmap.slam.posegraph.optimize_pose_graph` with the first node fixed."""
-
-    def __init__(self) -> None:
-        self._x = np.zeros((64, 3))
-        self._n = 0
-        self._e = np.zeros((64, 2), dtype=np.int64)
-        self._z = np.zeros((64, 3))
-        self._om = np.zeros((64, 3, 3))
-        self._robust = np.zeros(64, dtype=bool)
-        self._w = np.ones(64)
-        self._m = 0
-
-    @property
-    def poses(self) -> NDArray[np.float64]:
-        return self._x[: self._n]
-
-    def add_node(self, pose: ArrayLike) -> int:
-        if self._n == len(self._x):
-            self._x = np.concatenate([self._x, np.zeros_like(self._x)])
-        self._x[self._n] = pose
-        self._n += 1
-        return self._n - 1
-
-    def add_edge(self, i: int, j: int, z: ArrayLike, om: ArrayLike, *, robust: bool = False) -> int:
-        if self._m == len(self._e):
-            self._e = np.concatenate([self._e, np.zeros_like(self._e)])
-            self._z = np.concatenate([self._z, np.zeros_like(self._z)])
-            self._om = np.concatenate([self._om, np.zeros_like(self._om)])
-            self._robust = np.concatenate([self._robust, np.zeros_like(self._robust)])
-            self._w = np.concatenate([self._w, np.ones_like(self._w)])
-        m = self._m
-        self._e[m] = (i, j)
-        self._z[m] = z
-        self._om[m] = om
-        self._robust[m] = robust
-        self._m += 1
-        return m
-
-    def edge_array(self) -> NDArray[np.int64]:
-        return self._e[: self._m]
-
-    def measurements(self) -> NDArray[np.float64]:
-        return self._z[: self._m]
-
-    def information(self) -> NDArray[np.float64]:
-        return self._om[: self._m]
-
-    def robust_mask(self) -> NDArray[np.bool_]:
-        return self._robust[: self._m]
-
-    def weights(self) -> NDArray[np.float64]:
-        return self._w[: self._m]
-
-    def optimize(self, config: Any) -> Any:
-        from probmap.slam.posegraph import optimize_pose_graph
-
-        if self._n < 2 or self._m == 0:
-            return None
-        res = optimize_pose_graph(
-            self.poses, self.edge_array(), self.measurements(), self.information(), config,
-            robust_mask=self.robust_mask(),
-        )  # fmt: skip
-        self._x[: self._n] = res.poses
-        self._w[: self._m] = res.weights
-        return res
 
 
 def inverse_mount(poses: ArrayLike, mount: ArrayLike) -> NDArray[np.float64]:

@@ -14,7 +14,6 @@ instead of the whole grid for every submap of a long log).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray

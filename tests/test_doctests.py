@@ -12,6 +12,7 @@ MODULES = [
     "probmap.grid.logodds",
     "probmap.grid.occupancy",
     "probmap.grid.raycast",
+    "probmap.slam.posegraph",
 ]
 
 

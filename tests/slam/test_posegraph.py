@@ -827,3 +827,17 @@ def test_write_pose_graph_g2o_round_trip(tmp_path):
     assert np.array_equal(a.measurements, z)
     assert np.allclose(a.information, info, rtol=1e-15, atol=0)
     assert [p.name for p in tmp_path.iterdir()] == ["g.g2o"]
+
+
+def test_core_module_does_not_import_datasets_pipelines_or_cli():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, probmap.slam.posegraph as pg; import numpy as np; "
+        "pg.optimize_pose_graph(np.zeros((2, 3)), [[0, 1]], [[1.0, 0, 0]], [np.eye(3)], init='lago'); "
+        "print(sorted(m for m in sys.modules if m.startswith(('probmap.datasets', "
+        "'probmap.pipelines', 'probmap.cli'))))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

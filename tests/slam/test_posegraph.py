@@ -391,13 +391,9 @@ def test_lago_assembly_kernel_matches_dense_reference(stage):
     assert np.all(H[np.ix_(other, idx)] == 0) and np.all(rhs[other] == 0)
 
 
-def ref_structure(n_nodes, ei, ej, fixed):
+def ref_structure(ei, ej, node_index):
     """The block pattern by numpy set operations (np.unique), as the kernel's reference."""
-    node_index = np.zeros(n_nodes, dtype=np.int64)
-    node_index[fixed] = -1
-    free = node_index >= 0
-    nf = int(free.sum())
-    node_index[free] = np.arange(nf)
+    nf = int((node_index >= 0).sum())
     p, q = node_index[ei], node_index[ej]
     both = (p >= 0) & (q >= 0)
     uniq, inv = np.unique(np.maximum(p, q)[both] * nf + np.minimum(p, q)[both], return_inverse=True)
@@ -415,69 +411,130 @@ def ref_structure(n_nodes, ei, ej, fixed):
     edge_base[both] = 3 * (np.arange(uniq.size) - blk_colptr[ucol])[inv.ravel()]
     cols = np.arange(3 * nf)
     diag_pos = colptr[cols] + 3 * nb[cols // 3] + cols % 3
-    return node_index, nf, colptr, np.array(indices), 3 * nb, edge_base, diag_pos
+    return colptr, np.array(indices), 3 * nb, edge_base, diag_pos, blk_colptr, urow
 
 
 def test_structure_kernel_matches_numpy_reference():
     rng = np.random.default_rng(19)
     _, _, edges, _, _ = random_graph(rng, n=30, extra=40)
     edges = np.vstack([edges, edges[:5], edges[5:8, ::-1]])  # parallel and reversed edges
-    fixed = np.array([0, 3, 17])
-    got = K.build_structure(30, edges[:, 0].copy(), edges[:, 1].copy(), fixed)
-    want = ref_structure(30, edges[:, 0], edges[:, 1], fixed)
-    assert got[1] == want[1]
-    for a, b in zip(got[:1] + got[2:], want[:1] + want[2:], strict=True):
+    node_index = np.full(30, -1)
+    free = np.setdiff1d(np.arange(30), [0, 3, 17])
+    node_index[free] = rng.permutation(free.size)  # any elimination order
+    got = K.build_structure(edges[:, 0].copy(), edges[:, 1].copy(), node_index)
+    want = ref_structure(edges[:, 0], edges[:, 1], node_index)
+    for a, b in zip(got, want, strict=True):
         assert np.array_equal(a, b)
 
 
-def test_dense_cholesky_kernel_matches_numpy():
-    rng = np.random.default_rng(20)
-    A = rng.normal(size=(12, 12))
-    H = A @ A.T + 0.1 * np.eye(12)
-    b = rng.normal(size=12)
-    x = np.empty(12)
-    assert K.dense_cholesky_solve(np.triu(H), b, x)  # reads the upper triangle only
-    assert np.allclose(x, np.linalg.solve(H, b), rtol=1e-10)
-    assert not K.dense_cholesky_solve(H - 50 * np.eye(12), b, x)
+def test_number_free_nodes_kernel_matches_numpy():
+    fixed = np.array([3, 0, 3, 7])
+    node_index, nf = K.number_free_nodes(10, fixed)
+    want = np.full(10, -1)
+    free = np.setdiff1d(np.arange(10), fixed)
+    want[free] = np.arange(free.size)
+    assert nf == free.size and np.array_equal(node_index, want)
 
 
-def test_dense_normal_equations_kernel_matches_sparse_kernel():
+def ref_etree(blk_colptr, blk_rows):
+    """Elimination tree by definition: parent(j) = the first off-diagonal row of column j of
+    the Cholesky factor, from a dense symbolic elimination."""
+    n = blk_colptr.size - 1
+    S = np.eye(n, dtype=bool)
+    for c in range(n):
+        S[blk_rows[blk_colptr[c] : blk_colptr[c + 1]], c] = True
+    S = S | S.T
+    L = np.zeros((n, n), dtype=bool)
+    for j in range(n):  # column j of L: rows of S[:, j] below j, plus fill from earlier columns
+        col = S[j + 1 :, j].copy()
+        for k in range(j):
+            if L[j, k]:
+                col |= L[j + 1 :, k]
+        L[j + 1 :, j] = col
+    parent = np.array([np.flatnonzero(L[:, j])[0] if L[:, j].any() else -1 for j in range(n)])
+    return parent, L.sum(axis=0)
+
+
+def random_block_system(rng, n_nodes=40, extra=50, fixed=(0,)):
+    _, start, edges, z, info = random_graph(rng, n=n_nodes, extra=extra, noise=0.3)
+    ei, ej = edges[:, 0].copy(), edges[:, 1].copy()
+    s = _NormalEquations(n_nodes, ei, ej, np.array(fixed))
+    data, rhs = np.empty(s.nnz), np.empty(3 * s.n_free)
+    K.accumulate_normal_equations(
+        start, ei, ej, z, info, 0, 0, 1.0, np.ones(len(ei), bool), s.node_index, s.colptr,
+        s.diag_base, s.edge_base, data, rhs,
+    )  # fmt: skip
+    return s, data, rhs
+
+
+@pytest.mark.parametrize("n_nodes", [10, 120])  # natural order and a fill-reducing one
+def test_ldl_symbolic_kernel_matches_dense_elimination(n_nodes):
+    s, _, _ = random_block_system(np.random.default_rng(24), n_nodes=n_nodes, extra=n_nodes)
+    etree, Lp = K.ldl_symbolic(s.blk_colptr, s.blk_rows)
+    parent, counts = ref_etree(s.blk_colptr, s.blk_rows)
+    assert np.array_equal(etree, parent) and np.array_equal(np.diff(Lp), counts)
+
+
+@pytest.mark.parametrize("n_nodes", [10, 120])
+def test_ldl_factor_and_solve_match_numpy(n_nodes):
     import scipy.sparse as sp
 
-    rng = np.random.default_rng(21)
-    _, start, edges, z, info = random_graph(rng, n=9, extra=8, noise=0.5)
-    ei, ej = edges[:, 0].copy(), edges[:, 1].copy()
-    mask = rng.random(len(edges)) < 0.5
-    s = _NormalEquations(9, ei, ej, np.array([2]))
-    data, rhs = np.empty(s.nnz), np.empty(3 * s.n_free)
-    F = K.accumulate_normal_equations(
-        start, ei, ej, z, info, 0, 3, 1.0, mask, s.node_index, s.colptr, s.diag_base,
-        s.edge_base, data, rhs,
+    rng = np.random.default_rng(25)
+    s, data, rhs = random_block_system(rng, n_nodes=n_nodes, extra=n_nodes)
+    n3 = 3 * s.n_free
+    damp = rng.uniform(0.5, 2.0, n3)
+    lam = 0.1
+    nnz = s.Lp[-1]
+    Li, Lx, Dinv = np.empty(nnz, np.int64), np.empty((nnz, 3, 3)), np.empty((s.n_free, 3, 3))
+    ok = K.ldl_factor(
+        data, s.colptr, s.diag_base, s.blk_colptr, s.blk_rows, s.etree, s.Lp, lam, damp, Li,
+        Lx, Dinv,
     )  # fmt: skip
-    H = np.empty((3 * s.n_free,) * 2)
-    g = np.empty(3 * s.n_free)
-    F2 = K.dense_normal_equations(start, ei, ej, z, info, 0, 3, 1.0, mask, s.node_index, H, g)
-    U = sp.csc_matrix((data, s.indices, s.colptr), shape=H.shape).toarray()
-    assert F == pytest.approx(F2, rel=1e-14)
-    assert np.allclose(np.triu(H), U, rtol=1e-12, atol=1e-12) and np.allclose(g, rhs, rtol=1e-12)
+    assert ok
+    U = sp.csc_matrix((data, s.indices, s.colptr), shape=(n3, n3)).toarray()
+    H = U + np.triu(U, 1).T + lam * np.diag(damp)
+    x = np.empty(n3)
+    K.ldl_solve(s.Lp, Li, Lx, Dinv, rhs, x)
+    assert np.allclose(x, np.linalg.solve(H, rhs), rtol=1e-9, atol=1e-12 * np.abs(x).max())
+    # the factors themselves: L D L' = H
+    L = np.eye(n3)
+    for c in range(s.n_free):
+        for q in range(s.Lp[c], s.Lp[c + 1]):
+            L[3 * Li[q] : 3 * Li[q] + 3, 3 * c : 3 * c + 3] = Lx[q]
+    D = np.zeros((n3, n3))
+    for k in range(s.n_free):
+        D[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = np.linalg.inv(Dinv[k])
+    assert np.allclose(L @ D @ L.T, H, rtol=1e-9, atol=1e-9 * np.abs(H).max())
 
 
-@pytest.mark.parametrize("kernel", ["none", "dcs"])
-def test_dense_and_sparse_lm_agree(monkeypatch, kernel):
+def test_ldl_factor_reports_an_indefinite_matrix():
+    s, data, _ = random_block_system(np.random.default_rng(26), n_nodes=8, extra=6)
+    nnz = s.Lp[-1]
+    args = (np.empty(nnz, np.int64), np.empty((nnz, 3, 3)), np.empty((s.n_free, 3, 3)))
+    damp = np.ones(3 * s.n_free)
+    common = (data, s.colptr, s.diag_base, s.blk_colptr, s.blk_rows, s.etree, s.Lp)
+    assert K.ldl_factor(*common, 0.0, damp, *args)
+    assert not K.ldl_factor(*common, -1e6, damp, *args)
+
+
+def test_fill_reducing_order_gives_the_same_solution(monkeypatch):
     import probmap.slam.posegraph as pg
 
     rng = np.random.default_rng(22)
-    _, start, edges, z, info = random_graph(rng, n=20, extra=15, noise=0.1)
+    _, start, edges, z, info = random_graph(rng, n=150, extra=150, noise=0.1)
     mask = edges[:, 1] != edges[:, 0] + 1
-    cfg = OptimizerConfig(robust=kernel)
-    monkeypatch.setattr(pg, "_DENSE_MAX_FREE", 1000)
-    dense = optimize_pose_graph(start, edges, z, info, cfg, robust_mask=mask, init="lago")
-    monkeypatch.setattr(pg, "_DENSE_MAX_FREE", 0)
-    sparse = optimize_pose_graph(start, edges, z, info, cfg, robust_mask=mask, init="lago")
-    assert dense.iterations == sparse.iterations and dense.message == sparse.message
-    assert dense.final_error == pytest.approx(sparse.final_error, rel=1e-9)
-    assert np.allclose(dense.poses, sparse.poses, atol=1e-8)
-    assert np.allclose(dense.weights, sparse.weights, rtol=1e-8)
+    cfg = OptimizerConfig(robust="dcs")
+    ordered = optimize_pose_graph(start, edges, z, info, cfg, robust_mask=mask, init="lago")
+    s_ord = _NormalEquations(150, edges[:, 0].copy(), edges[:, 1].copy(), np.array([0]))
+    monkeypatch.setattr(pg, "_ORDERING_MIN_FREE", 10**9)
+    natural = optimize_pose_graph(start, edges, z, info, cfg, robust_mask=mask, init="lago")
+    assert ordered.iterations == natural.iterations and ordered.message == natural.message
+    assert ordered.final_error == pytest.approx(natural.final_error, rel=1e-9)
+    assert np.allclose(ordered.poses, natural.poses, atol=1e-8)
+    s_nat_lp = K.ldl_symbolic(
+        *K.build_structure(edges[:, 0].copy(), edges[:, 1].copy(), np.arange(150) - 1)[5:]
+    )[1]
+    assert s_ord.Lp[-1] < s_nat_lp[-1]  # the ordering reduces fill
 
 
 # --------------------------------------------------------------------------- LM

@@ -349,17 +349,9 @@ def accumulate_normal_equations(
 
 
 @njit(cache=True)
-def build_structure(n_nodes, ei, ej, fixed):  # pragma: no cover - compiled
-    """The upper-triangular CSC pattern of ``H`` in 3x3 blocks of the free nodes.
-
-    Returns ``(node_index, n_free, colptr, indices, diag_base, edge_base, diag_pos)``:
-    ``node_index[n]`` the block of node ``n`` (-1 when fixed, free nodes numbered in order);
-    in every scalar column of block column ``c`` the off-diagonal blocks come first, by
-    increasing block row, then the diagonal block's upper triangle; ``diag_base[c]`` and
-    ``edge_base[k]`` are the offsets, inside each scalar column of the block's column, of the
-    diagonal block and of edge ``k``'s off-diagonal block (-1 when an end is fixed; parallel
-    edges share a block); ``diag_pos`` the positions of the diagonal entries in ``data``.
-    """
+def number_free_nodes(n_nodes, fixed):  # pragma: no cover - compiled
+    """``node_index`` (-1 for the ``fixed`` nodes, the others numbered in order) and the
+    number of free nodes."""
     node_index = np.zeros(n_nodes, dtype=np.int64)
     for f in fixed:
         node_index[f] = -1
@@ -367,6 +359,26 @@ def build_structure(n_nodes, ei, ej, fixed):  # pragma: no cover - compiled
     for v in range(n_nodes):
         if node_index[v] == 0:
             node_index[v] = nf
+            nf += 1
+    return node_index, nf
+
+
+@njit(cache=True)
+def build_structure(ei, ej, node_index):  # pragma: no cover - compiled
+    """The upper-triangular CSC pattern of ``H`` in 3x3 blocks of the free nodes.
+
+    ``node_index[n]`` is the block (elimination position) of node ``n``, -1 when it is fixed.
+    Returns ``(colptr, indices, diag_base, edge_base, diag_pos, blk_colptr, blk_rows)``: in
+    every scalar column of block column ``c`` the off-diagonal blocks come first, by
+    increasing block row, then the diagonal block's upper triangle; ``diag_base[c]`` and
+    ``edge_base[k]`` are the offsets, inside each scalar column of the block's column, of the
+    diagonal block and of edge ``k``'s off-diagonal block (-1 when an end is fixed; parallel
+    edges share a block); ``diag_pos`` the positions of the diagonal entries in ``data``;
+    ``blk_rows[blk_colptr[c]:blk_colptr[c + 1]]`` the off-diagonal block rows of column ``c``.
+    """
+    nf = 0
+    for v in range(node_index.shape[0]):
+        if node_index[v] >= 0:
             nf += 1
     E = ei.shape[0]
     keys = np.empty(E, dtype=np.int64)
@@ -423,7 +435,7 @@ def build_structure(n_nodes, ei, ej, fixed):  # pragma: no cover - compiled
         b = edge_block[k]
         if b >= 0:
             edge_base[k] = 3 * (b - blk_colptr[ucol[b]])
-    return node_index, nf, colptr, indices, 3 * nb, edge_base, diag_pos
+    return colptr, indices, 3 * nb, edge_base, diag_pos, blk_colptr, urow[:n_blocks].copy()
 
 
 @njit(cache=True)
@@ -673,9 +685,12 @@ def assemble_lago(
             data[colptr[3 * p + c] + diag_base[p] + c] = 1.0
 
 
-# ----------------------------------------------------------------------------- dense path
-# Graphs with a few free nodes run the whole Levenberg-Marquardt loop in one compiled call on a
-# dense H: the same algorithm as the sparse loop of posegraph.py, without per-iteration Python.
+# ----------------------------------------------------------------------------- block LDL'
+# H = L D L' with L unit lower block-triangular and D block diagonal (3x3 blocks), computed row
+# by row as in QDLDL (Stellato, Goulart, Banjac; after Davis's LDL, "Algorithm 849", ACM TOMS
+# 2005), on 3x3 blocks: one index per 27 multiply-adds. The elimination tree and the column
+# counts of L come once per sparsity pattern; each factorization is numeric only. The block
+# ordering (fill-reducing) is the caller's: it numbers the blocks.
 
 STATUS_CAP = 0
 STATUS_RELATIVE = 1
@@ -686,110 +701,178 @@ STATUS_ZERO = 5
 
 
 @njit(cache=True)
-def dense_cholesky_solve(H, b, x):  # pragma: no cover - compiled
-    """Solve ``H x = b`` by Cholesky (``H`` symmetric, only its upper triangle read).
-
-    Returns False, leaving ``x`` undefined, when a pivot is not positive.
-    """
-    n = H.shape[0]
-    L = np.zeros((n, n))
+def ldl_symbolic(blk_colptr, blk_rows):  # pragma: no cover - compiled
+    """Elimination tree ``etree (n,)`` (-1 at roots) and column pointers ``Lp (n + 1,)`` of the
+    strictly lower block triangle of ``L``, from the upper block pattern of ``H``."""
+    n = blk_colptr.shape[0] - 1
+    etree = np.full(n, -1, dtype=np.int64)
+    work = np.full(n, -1, dtype=np.int64)
+    Lnz = np.zeros(n, dtype=np.int64)
     for j in range(n):
-        s = H[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if not s > 0.0:
-            return False
-        d = math.sqrt(s)
-        L[j, j] = d
-        for i in range(j + 1, n):
-            t = H[j, i]
-            for k in range(j):
-                t -= L[i, k] * L[j, k]
-            L[i, j] = t / d
-    for i in range(n):
-        t = b[i]
-        for k in range(i):
-            t -= L[i, k] * x[k]
-        x[i] = t / L[i, i]
-    for i in range(n - 1, -1, -1):
-        t = x[i]
-        for k in range(i + 1, n):
-            t -= L[k, i] * x[k]
-        x[i] = t / L[i, i]
+        work[j] = j
+        for p in range(blk_colptr[j], blk_colptr[j + 1]):
+            i = blk_rows[p]
+            while work[i] != j:
+                if etree[i] == -1:
+                    etree[i] = j
+                Lnz[i] += 1
+                work[i] = j
+                i = etree[i]
+    Lp = np.zeros(n + 1, dtype=np.int64)
+    for j in range(n):
+        Lp[j + 1] = Lp[j] + Lnz[j]
+    return etree, Lp
+
+
+@njit(cache=True)
+def _inverse_spd3(M, out):  # pragma: no cover - compiled
+    """``out = M^-1`` for a symmetric 3x3 ``M`` by Cholesky; False if ``M`` is not positive
+    definite (to working precision)."""
+    a = M[0, 0]
+    if not a > 0.0:
+        return False
+    l00 = math.sqrt(a)
+    l10 = M[1, 0] / l00
+    l20 = M[2, 0] / l00
+    b = M[1, 1] - l10 * l10
+    if not b > 1e-14 * M[1, 1]:
+        return False
+    l11 = math.sqrt(b)
+    l21 = (M[2, 1] - l20 * l10) / l11
+    c = M[2, 2] - l20 * l20 - l21 * l21
+    if not c > 1e-14 * M[2, 2]:
+        return False
+    l22 = math.sqrt(c)
+    # inverse of L (lower), then M^-1 = L^-T L^-1
+    i00 = 1.0 / l00
+    i11 = 1.0 / l11
+    i22 = 1.0 / l22
+    i10 = -l10 * i00 * i11
+    i21 = -l21 * i11 * i22
+    i20 = -(l20 * i00 + l21 * i10) * i22
+    out[0, 0] = i00 * i00 + i10 * i10 + i20 * i20
+    out[1, 1] = i11 * i11 + i21 * i21
+    out[2, 2] = i22 * i22
+    out[0, 1] = out[1, 0] = i10 * i11 + i20 * i21
+    out[0, 2] = out[2, 0] = i20 * i22
+    out[1, 2] = out[2, 1] = i21 * i22
     return True
 
 
 @njit(cache=True)
-def csc_upper_to_dense(data, indices, colptr, out):  # pragma: no cover - compiled
-    """Scatter an upper-triangular CSC matrix into the upper triangle of ``out``."""
-    out[:, :] = 0.0
-    for c in range(out.shape[0]):
-        for t in range(colptr[c], colptr[c + 1]):
-            out[indices[t], c] = data[t]
-
-
-@njit(cache=True)
-def dense_normal_equations(
-    poses, ei, ej, meas, info, chart, kernel, scale, robust, node_index, H, rhs
+def ldl_factor(
+    data, colptr, diag_base, blk_colptr, blk_rows, etree, Lp, lam, damp, Li, Lx, Dinv
 ):  # pragma: no cover - compiled
-    """Dense ``H`` (upper triangle) and gradient ``rhs``; returns the cost (as
-    :func:`accumulate_normal_equations`)."""
-    H[:, :] = 0.0
-    rhs[:] = 0.0
-    e = np.empty(3)
-    A = np.empty((3, 3))
-    B = np.empty((3, 3))
-    J = np.empty((3, 6))
-    WJ = np.empty((3, 6))
-    total = 0.0
-    for k in range(ei.shape[0]):
-        i = ei[k]
-        j = ej[k]
-        edge_linearize(poses, i, j, meas[k, 0], meas[k, 1], meas[k, 2], chart, e, A, B)
-        s = mahalanobis(e, info, k)
-        if robust[k]:
-            r, w = rho_weight(s, kernel, scale)
-        else:
-            r = s
-            w = 1.0
-        total += r
-        for a in range(3):
+    """Numeric ``L D L'`` of ``H + lam * diag(damp)``, ``H`` given by its upper-triangle CSC
+    ``data`` (the optimizer's pattern). Writes ``Li``, ``Lx (nnz, 3, 3)`` and ``Dinv (n, 3, 3)``;
+    returns False when a pivot block is not positive definite."""
+    n = blk_colptr.shape[0] - 1
+    nxt = Lp[:-1].copy()
+    marker = np.zeros(n, dtype=np.bool_)
+    y = np.zeros((n, 3, 3))
+    y_idx = np.empty(n, dtype=np.int64)
+    buf = np.empty(n, dtype=np.int64)
+    Dk = np.empty((3, 3))
+    for k in range(n):
+        # D_k = H_kk (+ damping), symmetric from the stored upper triangle
+        base = diag_base[k]
+        for c in range(3):
+            p0 = colptr[3 * k + c] + base
+            for r in range(c + 1):
+                Dk[r, c] = data[p0 + r]
+                Dk[c, r] = data[p0 + r]
+            Dk[c, c] += lam * damp[3 * k + c]
+        # y = H[0:k, k] scattered, and the rows it reaches in the elimination tree
+        n_y = 0
+        for t in range(blk_colptr[k], blk_colptr[k + 1]):
+            i = blk_rows[t]
+            off = 3 * (t - blk_colptr[k])
             for c in range(3):
-                J[a, c] = A[a, c]
-                J[a, 3 + c] = B[a, c]
-        for a in range(3):
-            for c in range(6):
-                acc = 0.0
-                for m in range(3):
-                    acc += w * info[k, a, m] * J[m, c]
-                WJ[a, c] = acc
-        p = node_index[i]
-        q = node_index[j]
-        for u in range(6):
-            gu = p if u < 3 else q
-            if gu < 0:
-                continue
-            ru = 3 * gu + u % 3
-            acc = 0.0
-            for m in range(3):
-                acc += WJ[m, u] * e[m]
-            rhs[ru] += acc
-            for v in range(6):
-                gv = p if v < 3 else q
-                if gv < 0:
-                    continue
-                rv = 3 * gv + v % 3
-                if ru > rv:
-                    continue
-                acc = 0.0
-                for m in range(3):
-                    acc += J[m, u] * WJ[m, v]
-                H[ru, rv] += acc
-    return 0.5 * total
+                p0 = colptr[3 * k + c] + off
+                for r in range(3):
+                    y[i, r, c] = data[p0 + r]
+            if not marker[i]:
+                marker[i] = True
+                buf[0] = i
+                n_e = 1
+                j = etree[i]
+                while j != -1 and j < k:
+                    if marker[j]:
+                        break
+                    marker[j] = True
+                    buf[n_e] = j
+                    n_e += 1
+                    j = etree[j]
+                while n_e > 0:
+                    n_e -= 1
+                    y_idx[n_y] = buf[n_e]
+                    n_y += 1
+        # eliminate in topological order: y_c is final when reached
+        for t in range(n_y - 1, -1, -1):
+            cidx = y_idx[t]
+            Y = y[cidx]
+            for q in range(Lp[cidx], nxt[cidx]):
+                r = Li[q]
+                L = Lx[q]
+                for a in range(3):
+                    for b in range(3):
+                        y[r, a, b] -= L[a, 0] * Y[0, b] + L[a, 1] * Y[1, b] + L[a, 2] * Y[2, b]
+            q = nxt[cidx]
+            Li[q] = k
+            Dc = Dinv[cidx]
+            for a in range(3):  # L_kc = Y' Dinv_c
+                for b in range(3):
+                    Lx[q, a, b] = Y[0, a] * Dc[0, b] + Y[1, a] * Dc[1, b] + Y[2, a] * Dc[2, b]
+            for a in range(3):  # D_k -= L_kc Y
+                for b in range(3):
+                    Dk[a, b] -= (
+                        Lx[q, a, 0] * Y[0, b] + Lx[q, a, 1] * Y[1, b] + Lx[q, a, 2] * Y[2, b]
+                    )
+            nxt[cidx] += 1
+            y[cidx] = 0.0
+            marker[cidx] = False
+        if not _inverse_spd3(Dk, Dinv[k]):
+            return False
+    return True
 
 
 @njit(cache=True)
-def lm_dense(
+def ldl_solve(Lp, Li, Lx, Dinv, b, x):  # pragma: no cover - compiled
+    """``x = (L D L')^-1 b`` with the factors of :func:`ldl_factor` (``b``, ``x`` of length 3n)."""
+    n = Lp.shape[0] - 1
+    x[:] = b
+    for i in range(n):  # L z = b
+        for q in range(Lp[i], Lp[i + 1]):
+            r = Li[q]
+            for a in range(3):
+                x[3 * r + a] -= (
+                    Lx[q, a, 0] * x[3 * i] + Lx[q, a, 1] * x[3 * i + 1] + Lx[q, a, 2] * x[3 * i + 2]
+                )
+    t = np.empty(3)
+    for i in range(n):  # D w = z
+        for a in range(3):
+            t[a] = (
+                Dinv[i, a, 0] * x[3 * i]
+                + Dinv[i, a, 1] * x[3 * i + 1]
+                + Dinv[i, a, 2] * x[3 * i + 2]
+            )
+        x[3 * i] = t[0]
+        x[3 * i + 1] = t[1]
+        x[3 * i + 2] = t[2]
+    for i in range(n - 1, -1, -1):  # L' x = w
+        for q in range(Lp[i], Lp[i + 1]):
+            r = Li[q]
+            for a in range(3):
+                x[3 * i + a] -= (
+                    Lx[q, 0, a] * x[3 * r] + Lx[q, 1, a] * x[3 * r + 1] + Lx[q, 2, a] * x[3 * r + 2]
+                )
+
+
+# ----------------------------------------------------------------------------- LM and LAGO
+
+
+@njit(cache=True)
+def levenberg_marquardt(
     poses,
     ei,
     ej,
@@ -800,7 +883,13 @@ def lm_dense(
     scale,
     robust,
     node_index,
-    n_free,
+    colptr,
+    diag_base,
+    edge_base,
+    blk_colptr,
+    blk_rows,
+    etree,
+    Lp,
     max_iterations,
     relative_tolerance,
     absolute_tolerance,
@@ -811,20 +900,27 @@ def lm_dense(
     chi2,
     weights,
 ):  # pragma: no cover - compiled
-    """Levenberg-Marquardt with Nielsen's damping on a dense system; ``out`` receives the
-    poses. Returns ``(cost, iterations, status)`` with ``status`` one of ``STATUS_*``."""
-    n3 = 3 * n_free
-    H = np.empty((n3, n3))
-    Hd = np.empty((n3, n3))
+    """Levenberg-Marquardt (Madsen, Nielsen and Tingleff 2004, 3.2) with Nielsen's damping
+    update: linearize, factor ``H + lambda D`` (``D = I`` or ``diag(H)``), step by the
+    retraction, accept if the cost falls (then lower lambda by the gain ratio) or raise lambda
+    and refactor. ``out`` receives the poses; returns ``(cost, iterations, status)``, status
+    one of ``STATUS_*``; ``chi2`` and ``weights`` are those of the final poses."""  # fmt: skip
+    n = blk_colptr.shape[0] - 1
+    n3 = 3 * n
+    data = np.empty(colptr[n3])
     rhs = np.empty(n3)
     neg = np.empty(n3)
     delta = np.empty(n3)
-    D = np.ones(n3)
+    damp = np.ones(n3)
+    Li = np.empty(Lp[n], dtype=np.int64)
+    Lx = np.empty((Lp[n], 3, 3))
+    Dinv = np.empty((n, 3, 3))
     x = poses.copy()
     x_try = poses.copy()
-    F = dense_normal_equations(
-        x, ei, ej, meas, info, chart, kernel, scale, robust, node_index, H, rhs
-    )
+    F = accumulate_normal_equations(
+        x, ei, ej, meas, info, chart, kernel, scale, robust, node_index, colptr, diag_base,
+        edge_base, data, rhs,
+    )  # fmt: skip
     iterations = 0
     status = STATUS_CAP
     if n3 == 0 or ei.shape[0] == 0:
@@ -837,33 +933,38 @@ def lm_dense(
     while status == STATUS_CAP and iterations < max_iterations:
         iterations += 1
         dmax = 0.0
-        for a in range(n3):
-            dmax = max(dmax, H[a, a])
-        for a in range(n3):
-            D[a] = 1.0 if identity_damping else max(H[a, a], 1e-12 * dmax)
+        for p in range(n):
+            for c in range(3):
+                dmax = max(dmax, data[colptr[3 * p + c] + diag_base[p] + c])
+        if not identity_damping:
+            for p in range(n):
+                for c in range(3):
+                    damp[3 * p + c] = max(data[colptr[3 * p + c] + diag_base[p] + c], 1e-12 * dmax)
+        # Levenberg's lambda is relative to the largest curvature, Marquardt's to each one's own
         unit = dmax if identity_damping else 1.0
         if lam < 0.0:
             lam = initial_lambda * unit
         lam_cap = max_lambda * unit
-        accepted = False
-        gain = 0.0
         for a in range(n3):
             neg[a] = -rhs[a]
+        accepted = False
+        gain = 0.0
         while True:
-            Hd[:, :] = H
-            for a in range(n3):
-                Hd[a, a] += lam * D[a]
-            if dense_cholesky_solve(Hd, neg, delta):
+            if ldl_factor(
+                data, colptr, diag_base, blk_colptr, blk_rows, etree, Lp, lam, damp, Li, Lx, Dinv
+            ):
+                ldl_solve(Lp, Li, Lx, Dinv, neg, delta)
                 apply_step(x, node_index, delta, x_try)
                 F_try = graph_cost(
                     x_try, ei, ej, meas, info, chart, kernel, scale, robust, chi2, weights
                 )
                 gain = F - F_try
                 if math.isfinite(F_try) and gain > 0.0:
+                    # gain ratio against the model's predicted decrease (Madsen et al. 3.14)
                     dd = 0.0
                     db = 0.0
                     for a in range(n3):
-                        dd += delta[a] * D[a] * delta[a]
+                        dd += delta[a] * damp[a] * delta[a]
                         db += delta[a] * rhs[a]
                     predicted = 0.5 * (lam * dd - db)
                     rho = gain / predicted if predicted > 0.0 else 1.0
@@ -886,9 +987,10 @@ def lm_dense(
         elif gain <= absolute_tolerance:
             status = STATUS_ABSOLUTE
         elif iterations < max_iterations:
-            dense_normal_equations(
-                x, ei, ej, meas, info, chart, kernel, scale, robust, node_index, H, rhs
-            )
+            accumulate_normal_equations(
+                x, ei, ej, meas, info, chart, kernel, scale, robust, node_index, colptr,
+                diag_base, edge_base, data, rhs,
+            )  # fmt: skip
     out[:, :] = x
     F = graph_cost(x, ei, ej, meas, info, chart, kernel, scale, robust, chi2, weights)
     return F, iterations, status
@@ -907,7 +1009,7 @@ def _add_ridge(data, diag_pos, lo, hi):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def lago_dense(
+def lago(
     poses,
     ei,
     ej,
@@ -916,59 +1018,75 @@ def lago_dense(
     fixed,
     node_index,
     colptr,
-    indices,
     diag_base,
     edge_base,
     diag_pos,
+    blk_colptr,
+    blk_rows,
+    etree,
+    Lp,
     rerounds,
     out,
 ):  # pragma: no cover - compiled
-    """LAGO (see ``posegraph._lago``, which it mirrors step by step) with dense solves, in one
-    call, for graphs with a few free nodes. Returns False if a solve failed."""  # fmt: skip
+    """Linear approximation of the pose graph (LAGO; Carlone, Aragues, Castellanos and Bona,
+    IJRR 2014) in the optimizer's block pattern; ``out`` receives the poses. Returns False if
+    a linear system was not positive definite.
+
+    1. Headings along a breadth-first spanning tree rooted at the fixed nodes.
+    2. All headings by linear least squares, the multiples of 2 pi from the tree's headings;
+       then again with the multiples rounded from the estimate, until the headings settle
+       (at most ``rerounds`` times; the matrix is the same).
+    3. All positions by linear least squares given the headings.
+    A ridge of 1e-10 of the largest curvature keeps nodes with too little information
+    solvable (they stay where they were).
+    """  # fmt: skip
     N = poses.shape[0]
-    n3 = diag_pos.shape[0]
+    n = blk_colptr.shape[0] - 1
+    n3 = 3 * n
     theta = poses[:, 2].copy()
     spanning_tree(N, ei, ej, np.ascontiguousarray(meas[:, 2]), fixed, theta)
     out[:, :] = poses
-    if n3 > 0:
+    if n > 0:
         data = np.empty(colptr[n3])
         rhs = np.empty(n3)
         u = np.empty(n3)
-        H = np.empty((n3, n3))
+        zero = np.zeros(n3)
+        Li = np.empty(Lp[n], dtype=np.int64)
+        Lx = np.empty((Lp[n], 3, 3))
+        Dinv = np.empty((n, 3, 3))
         pattern = (node_index, colptr, diag_base, edge_base)
         assemble_lago(0, out, theta, ei, ej, meas, info, *pattern, data, rhs)
         _add_ridge(data, diag_pos, 2, 3)
-        csc_upper_to_dense(data, indices, colptr, H)
-        if not dense_cholesky_solve(H, rhs, u):
+        if not ldl_factor(
+            data, colptr, diag_base, blk_colptr, blk_rows, etree, Lp, 0.0, zero, Li, Lx, Dinv
+        ):
             return False
-        for n in range(N):
-            if node_index[n] >= 0:
-                theta[n] += u[3 * node_index[n] + 2]
-        scratch = np.empty_like(data)
-        for _ in range(rerounds):
-            assemble_lago(0, out, theta, ei, ej, meas, info, *pattern, scratch, rhs)
-            if not dense_cholesky_solve(H, rhs, u):
-                return False
+        for r in range(rerounds + 1):
+            if r > 0:
+                assemble_lago(0, out, theta, ei, ej, meas, info, *pattern, np.empty_like(data), rhs)
+            ldl_solve(Lp, Li, Lx, Dinv, rhs, u)
             step = 0.0
-            for n in range(N):
-                if node_index[n] >= 0:
-                    d = u[3 * node_index[n] + 2]
-                    theta[n] += d
-                    step = max(step, abs(d))
-            if step < 1e-9:
+            for v in range(N):
+                p = node_index[v]
+                if p >= 0:
+                    theta[v] += u[3 * p + 2]
+                    step = max(step, abs(u[3 * p + 2]))
+            if r > 0 and step < 1e-9:
                 break
         assemble_lago(1, out, theta, ei, ej, meas, info, *pattern, data, rhs)
         _add_ridge(data, diag_pos, 0, 2)
-        csc_upper_to_dense(data, indices, colptr, H)
-        if not dense_cholesky_solve(H, rhs, u):
+        if not ldl_factor(
+            data, colptr, diag_base, blk_colptr, blk_rows, etree, Lp, 0.0, zero, Li, Lx, Dinv
+        ):
             return False
-        for n in range(N):
-            p = node_index[n]
+        ldl_solve(Lp, Li, Lx, Dinv, rhs, u)
+        for v in range(N):
+            p = node_index[v]
             if p >= 0:
-                out[n, 0] += u[3 * p]
-                out[n, 1] += u[3 * p + 1]
-    for n in range(N):
-        out[n, 2] = wrap(theta[n])
+                out[v, 0] += u[3 * p]
+                out[v, 1] += u[3 * p + 1]
+    for v in range(N):
+        out[v, 2] = wrap(theta[v])
     for f in fixed:
         out[f, 0] = poses[f, 0]
         out[f, 1] = poses[f, 1]

@@ -271,8 +271,9 @@ def _as_fixed(fixed: Sequence[int] | ArrayLike, n_nodes: int) -> IntArray:
 
 # --------------------------------------------------------------------------- linear system
 
-# Up to this many free nodes the system is solved densely, the whole LM loop in one kernel
-_DENSE_MAX_FREE = 24
+# Graphs with more free nodes than this get a fill-reducing block ordering (below it, the
+# natural order costs less than computing one)
+_ORDERING_MIN_FREE = 48
 _MESSAGES = {
     _k.STATUS_CAP: "iteration cap reached",
     _k.STATUS_RELATIVE: "relative decrease below tolerance",
@@ -284,8 +285,9 @@ _MESSAGES = {
 
 
 class _NormalEquations:
-    """The sparsity pattern of ``H`` (upper triangle, 3x3 blocks of the free nodes) and the
-    sparse factorization reused across iterations (ordering and symbolic analysis once).
+    """What stays fixed while a graph's structure does: the block ordering of the free nodes
+    (fill-reducing), the upper-triangular CSC pattern of ``H`` in that order, and the
+    elimination tree and column counts of its ``L D L'`` factor.
 
     Raises ``ValueError`` when some node is not connected to a fixed node through edges: its
     pose would be undetermined.
@@ -293,60 +295,42 @@ class _NormalEquations:
 
     def __init__(self, n_nodes: int, ei: IntArray, ej: IntArray, fixed: IntArray) -> None:
         _check_connected(n_nodes, ei, ej, fixed)
-        node_index, nf, colptr, indices, diag_base, edge_base, diag_pos = _k.build_structure(
-            n_nodes, ei, ej, fixed
-        )
+        node_index, nf = _k.number_free_nodes(n_nodes, fixed)
+        if nf > _ORDERING_MIN_FREE:
+            free = node_index >= 0
+            node_index[free] = _fill_reducing_order(nf, node_index[ei], node_index[ej])
+        (
+            self.colptr,
+            self.indices,
+            self.diag_base,
+            self.edge_base,
+            self.diag_pos,
+            self.blk_colptr,
+            self.blk_rows,
+        ) = _k.build_structure(ei, ej, node_index)
+        self.etree, self.Lp = _k.ldl_symbolic(self.blk_colptr, self.blk_rows)
         self.n_nodes = n_nodes
         self.n_free = int(nf)
         self.node_index = node_index
-        self.colptr = colptr
-        self.indices = indices
-        self.diag_base = diag_base
-        self.edge_base = edge_base
-        self.diag_pos = diag_pos
-        self.nnz = int(colptr[-1])
-        self._solver: Any = None
-        self._matrix: Any = None
-        self._dense: FloatArray = np.empty((0, 0))
+        self.fixed = fixed
+        self.nnz = int(self.colptr[-1])
 
-    def solve(self, data: FloatArray | None, rhs: FloatArray) -> FloatArray:
-        """Solve ``H x = rhs`` for ``H`` given by its upper-triangle ``data`` (positive
-        definite); ``data=None`` reuses the last factorization. Raises
-        ``np.linalg.LinAlgError`` if the factorization breaks down."""
-        n = 3 * self.n_free
-        if self.n_free <= _DENSE_MAX_FREE:  # a few nodes: dense Cholesky, no set-up cost
-            if data is not None:
-                self._dense = np.empty((n, n))
-                _k.csc_upper_to_dense(data, self.indices, self.colptr, self._dense)
-            x = np.empty(n)
-            if not _k.dense_cholesky_solve(self._dense, rhs, x):
-                raise np.linalg.LinAlgError("matrix not positive definite")
-            return x
-        if data is None:
-            x = self._solver.solve(rhs)
-            if not np.all(np.isfinite(x)):
-                raise np.linalg.LinAlgError("non-finite solution")
-            return np.asarray(x, dtype=np.float64)
-        import qdldl
-        import scipy.sparse as sp
 
-        if self._matrix is None:
-            n = 3 * self.n_free
-            self._matrix = sp.csc_matrix((data.copy(), self.indices, self.colptr), shape=(n, n))
-        A = self._matrix
-        A.data[:] = data
-        try:
-            if self._solver is None:
-                self._solver = qdldl.Solver(A, upper=True)
-            else:
-                self._solver.update(A, upper=True)
-            x = self._solver.solve(rhs)
-        except (ValueError, RuntimeError) as exc:
-            self._solver = None
-            raise np.linalg.LinAlgError(str(exc)) from None
-        if not np.all(np.isfinite(x)):
-            raise np.linalg.LinAlgError("non-finite solution")
-        return np.asarray(x, dtype=np.float64)
+def _fill_reducing_order(n: int, p: IntArray, q: IntArray) -> IntArray:
+    """Elimination position of each of ``n`` blocks joined by edges ``(p, q)`` (-1 = fixed):
+    multiple minimum degree on the block graph (SuperLU's ``MMD_AT_PLUS_A``, the ordering
+    of a factorization of a diagonally dominant matrix with that pattern)."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+
+    m = (p >= 0) & (q >= 0)
+    r = np.concatenate([p[m], q[m], np.arange(n)])
+    c = np.concatenate([q[m], p[m], np.arange(n)])
+    degree = np.bincount(r, minlength=n).astype(np.float64)
+    v = np.concatenate([np.full(2 * int(m.sum()), -1.0), degree + 1.0])
+    A = sp.csc_matrix((v, (r, c)), shape=(n, n))
+    lu = splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    return np.asarray(lu.perm_c, dtype=np.int64)
 
 
 def _check_connected(n_nodes: int, ei: IntArray, ej: IntArray, fixed: IntArray) -> None:
@@ -375,98 +359,25 @@ def _levenberg_marquardt(
     config: OptimizerConfig,
     max_iterations: int,
 ) -> tuple[FloatArray, float, int, bool, str, FloatArray, FloatArray]:
-    """LM on validated contiguous arrays (see the module docstring).
+    """LM on validated contiguous arrays (:func:`_posegraph_kernels.levenberg_marquardt`).
 
     Returns the poses, final cost, iterations, converged flag, message, and the final
     per-edge ``chi2`` and IRLS weights.
     """
-    chart = _CHARTS[config.chart]
-    kernel = _KERNELS[config.robust]
     E = ei.shape[0]
     chi2 = np.empty(E)
     weights = np.empty(E)
-    if system.n_free <= _DENSE_MAX_FREE:
-        out = np.empty_like(poses)
-        F, its, status = _k.lm_dense(
-            poses, ei, ej, meas, info, chart, kernel, config.scale, robust, system.node_index,
-            system.n_free, max_iterations, config.relative_tolerance, config.absolute_tolerance,
-            config.initial_lambda, config.max_lambda, config.damping == "identity",
-            out, chi2, weights,
-        )  # fmt: skip
-        converged = status != _k.STATUS_CAP
-        return out, float(F), int(its), converged, _MESSAGES[int(status)], chi2, weights
-    x = poses.copy()
-    x_try = np.empty_like(x)
-    n3 = 3 * system.n_free
-    data = np.empty(system.nnz)
-    rhs = np.empty(n3)
-    args = (ei, ej, meas, info, chart, kernel, config.scale, robust)
-    pattern = (system.node_index, system.colptr, system.diag_base, system.edge_base)
-
-    def linearize(at: FloatArray) -> float:
-        return float(_k.accumulate_normal_equations(at, *args, *pattern, data, rhs))
-
-    F = linearize(x)
-    iterations = 0
-    converged = False
-    message = "iteration cap reached"
-    if n3 == 0 or E == 0:
-        converged, message = True, "nothing to optimize"
-    elif F == 0.0:
-        converged, message = True, "zero error"
-    diag_pos = system.diag_pos
-    identity = config.damping == "identity"
-    lam = -1.0
-    nu = 2.0
-    while not converged and iterations < max_iterations:
-        iterations += 1
-        diag = data[diag_pos]
-        dmax = float(diag.max())
-        # Levenberg's lambda is relative to the largest curvature, Marquardt's to each one's own
-        D = np.ones(n3) if identity else np.maximum(diag, 1e-12 * dmax)
-        unit = dmax if identity else 1.0
-        if lam < 0:
-            lam = config.initial_lambda * unit
-        lam_cap = config.max_lambda * unit
-        accepted = False
-        gain = 0.0
-        while True:
-            damped = data.copy()
-            damped[diag_pos] += lam * D
-            try:
-                delta = system.solve(damped, -rhs)
-            except np.linalg.LinAlgError:
-                delta = None
-            if delta is not None:
-                _k.apply_step(x, system.node_index, delta, x_try)
-                F_try = float(_k.graph_cost(x_try, *args, chi2, weights))
-                gain = F - F_try
-                if math.isfinite(F_try) and gain > 0.0:
-                    # gain ratio against the model's predicted decrease (Madsen et al. 3.14)
-                    predicted = 0.5 * (lam * float(delta @ (D * delta)) - float(delta @ rhs))
-                    rho = gain / predicted if predicted > 0.0 else 1.0
-                    lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-                    nu = 2.0
-                    accepted = True
-                    break
-            lam *= nu
-            nu *= 2.0
-            if lam > lam_cap:
-                break
-        if not accepted:
-            converged, message = True, "no step lowers the cost (damping at its cap)"
-            break
-        x, x_try = x_try, x
-        F_prev = F
-        F = F_try
-        if gain <= config.relative_tolerance * F_prev:
-            converged, message = True, "relative decrease below tolerance"
-        elif gain <= config.absolute_tolerance:
-            converged, message = True, "absolute decrease below tolerance"
-        elif iterations < max_iterations:
-            linearize(x)
-    F = float(_k.graph_cost(x, *args, chi2, weights))
-    return x, F, iterations, converged, message, chi2, weights
+    out = np.empty_like(poses)
+    s = system
+    F, its, status = _k.levenberg_marquardt(
+        poses, ei, ej, meas, info, _CHARTS[config.chart], _KERNELS[config.robust], config.scale,
+        robust, s.node_index, s.colptr, s.diag_base, s.edge_base, s.blk_colptr, s.blk_rows,
+        s.etree, s.Lp, max_iterations, config.relative_tolerance, config.absolute_tolerance,
+        config.initial_lambda, config.max_lambda, config.damping == "identity", out, chi2,
+        weights,
+    )  # fmt: skip
+    converged = status != _k.STATUS_CAP
+    return out, float(F), int(its), converged, _MESSAGES[int(status)], chi2, weights
 
 
 # --------------------------------------------------------------------------- initialization
@@ -483,51 +394,16 @@ def _lago(
     info: FloatArray,
     system: _NormalEquations,
 ) -> FloatArray:
-    """Linear approximation of the pose graph (LAGO) on validated arrays, solved in the
-    optimizer's block pattern (so its ordering and symbolic factorization serve LM next)."""
-    N = poses.shape[0]
-    fixed = np.flatnonzero(system.node_index < 0)
-    if system.n_free <= _DENSE_MAX_FREE:
-        out = np.empty_like(poses)
-        ok = _k.lago_dense(
-            poses, ei, ej, meas, info, fixed, system.node_index, system.colptr, system.indices,
-            system.diag_base, system.edge_base, system.diag_pos, _LAGO_REROUNDS, out,
-        )  # fmt: skip
-        if not ok:
-            raise np.linalg.LinAlgError("LAGO's linear system is not positive definite")
-        return out
-    # 1. headings along a breadth-first spanning tree rooted at the fixed nodes
-    theta = poses[:, 2].copy()
-    _k.spanning_tree(N, ei, ej, np.ascontiguousarray(meas[:, 2]), fixed, theta)
-    out = poses.copy()
-    if system.n_free:
-        data = np.empty(system.nnz)
-        rhs = np.empty(3 * system.n_free)
-        pattern = (system.node_index, system.colptr, system.diag_base, system.edge_base)
-        free = system.node_index >= 0
-        # 2. all headings by linear least squares; the multiples of 2 pi come from the tree's
-        #    headings first, then again from the estimate until they settle (the same matrix)
-        _k.assemble_lago(0, out, theta, ei, ej, meas, info, *pattern, data, rhs)
-        solved = system.diag_pos.reshape(-1, 3)[:, 2]
-        # a ridge keeps nodes with too little information solvable (they stay put)
-        data[solved] += 1e-10 * max(float(data[solved].max()), 1e-300)
-        u = system.solve(data, rhs).reshape(-1, 3)
-        theta[free] += u[:, 2]
-        for _ in range(_LAGO_REROUNDS):
-            scratch = np.empty_like(data)
-            _k.assemble_lago(0, out, theta, ei, ej, meas, info, *pattern, scratch, rhs)
-            u = system.solve(None, rhs).reshape(-1, 3)
-            theta[free] += u[:, 2]
-            if np.abs(u[:, 2]).max() < 1e-9:
-                break
-        # 3. all positions by linear least squares given the headings
-        _k.assemble_lago(1, out, theta, ei, ej, meas, info, *pattern, data, rhs)
-        solved2 = system.diag_pos.reshape(-1, 3)[:, :2]
-        data[solved2] += 1e-10 * max(float(data[solved2].max()), 1e-300)
-        u = system.solve(data, rhs).reshape(-1, 3)
-        out[free, :2] += u[:, :2]
-    out[:, 2] = theta - 2.0 * math.pi * np.floor((theta + math.pi) / (2.0 * math.pi))
-    out[fixed] = poses[fixed]
+    """LAGO on validated arrays (:func:`_posegraph_kernels.lago`), in the optimizer's block
+    pattern and ordering."""
+    s = system
+    out = np.empty_like(poses)
+    ok = _k.lago(
+        poses, ei, ej, meas, info, s.fixed, s.node_index, s.colptr, s.diag_base, s.edge_base,
+        s.diag_pos, s.blk_colptr, s.blk_rows, s.etree, s.Lp, _LAGO_REROUNDS, out,
+    )  # fmt: skip
+    if not ok:  # pragma: no cover - the ridge keeps both systems positive definite
+        raise np.linalg.LinAlgError("LAGO's linear system is not positive definite")
     return out
 
 

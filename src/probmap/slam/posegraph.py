@@ -16,9 +16,10 @@ Levenberg-Marquardt (Madsen, Nielsen and Tingleff, "Methods for non-linear least
 problems", 2004, section 3.2): every iteration linearizes all edges with analytic Jacobians
 (a numba kernel writes the 3x3 blocks of ``H = J' W Omega J`` and ``g = J' W Omega e`` straight
 into a fixed compressed-column pattern), solves ``(H + lambda D) delta = -g`` by a sparse
-``LDL'`` factorization whose fill-reducing ordering and elimination tree are computed once per
-graph structure, and accepts the step if the cost falls. The damping follows the gain ratio
-(Nielsen's rule). The gauge is fixed by holding nodes (by default the first) constant.
+block ``L D L'`` factorization (3x3 blocks; the minimum-degree block ordering and the
+elimination tree are computed once per graph structure), and accepts the step if the cost
+falls. The damping follows the gain ratio (Nielsen's rule). The whole loop is one compiled
+call. The gauge is fixed by holding nodes (by default the first) constant.
 
 Robust costs (IRLS weights recomputed at every linearization) down-weight edges whose
 Mahalanobis distance is large: Huber, Cauchy, and dynamic covariance scaling (DCS; Agarwal,

@@ -790,6 +790,9 @@ def test_class_incremental_optimization():
             r = g.optimize()
             assert r.converged and r.final_error <= r.initial_error
     assert g.num_nodes == 100 and g.edges.shape == (g.num_edges, 2)
+    assert np.array_equal(g.pose(7), g.poses[7]) and np.array_equal(g.pose(-1), g.poses[-1])
+    with pytest.raises(IndexError):
+        g.pose(100)
 
 
 def test_class_validation():

@@ -814,6 +814,12 @@ class PoseGraph2D:
             raise ValueError(f"poses must have shape ({self._n}, 3), got {p.shape}")
         self._poses[: self._n] = p
 
+    def pose(self, index: int) -> FloatArray:
+        """The current pose ``(3,)`` of one node (a copy; cheaper than ``poses[index]``)."""
+        if not -self._n <= index < self._n:
+            raise IndexError(f"node {index} out of range for {self._n} nodes")
+        return self._poses[index % self._n].copy()
+
     @property
     def edges(self) -> IntArray:
         """Node indices ``(E, 2)`` of the edges (a copy)."""

@@ -58,6 +58,7 @@ __all__ = [
     "OptimizeResult",
     "OptimizerConfig",
     "PoseGraph2D",
+    "RobustKernel",
     "edge_residuals",
     "graph_error",
     "lago_initialization",
@@ -66,6 +67,7 @@ __all__ = [
 ]
 
 RobustKernel = Literal["none", "huber", "cauchy", "dcs"]
+"""The names ``OptimizerConfig.robust`` takes (for annotating configs that pass one on)."""
 _KERNELS = {
     "none": _k.KERNEL_NONE,
     "huber": _k.KERNEL_HUBER,

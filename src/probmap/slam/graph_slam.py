@@ -98,17 +98,35 @@ class GraphSlamConfig:
     closure_min_score : float
         Least branch-and-bound score (mean match field over the scan's endpoints) of a closure.
     wide_min_score : float
-        Least score of a closure found by the wide search.
+        Least score of a closure searched in a window wider than ``near_window``.
     closure_window : tuple of float
-        ``(metres, radians)``: half-widths of the closure search window right after a closure.
+        ``(metres, radians)``: half-widths of the search window against a submap the node is
+        tied to by local SLAM or a closure (no accumulated travel between them).
     window_growth : tuple of float
-        Growth of those half-widths per metre travelled since the last accepted closure.
+        Growth of those half-widths per metre of travel between the node and the submap along
+        the shortest chain of local-SLAM links and accepted closures (the uncertainty the
+        odometry and scan matching accumulate).
     max_window : tuple of float
-        Largest half-widths of the regular search.
+        Largest half-widths of that window.
     wide_window : tuple of float
-        Half-widths of the wide search.
+        Half-widths of the periodic wide search (at least the submap's own window).
     wide_search_every : int
         Nodes between wide searches (0 = never).
+    near_window : float
+        Windows up to this half-width (metres) are *near* searches: run for up to
+        ``closure_candidates`` submaps per node and accepted on their score alone. Wider
+        (*far*) searches run for one submap every ``far_every`` nodes (the one searched least
+        recently) and must be confirmed by consensus.
+    far_every : int
+        Nodes between far searches.
+    consensus : tuple of float
+        ``(metres, radians)``: a far closure is accepted once ``consensus_checks`` earlier
+        nodes, moved by the correction it implies (the rigid motion from the current estimate
+        to the closure's pose), match the same submap or its neighbours within this window.
+    consensus_nodes : int
+        The earlier nodes checked lie up to this many nodes back.
+    consensus_checks : int
+        Confirmations a far closure needs.
     closure_every : int
         Search closures for every ``closure_every``-th node.
     closure_candidates : int
@@ -143,12 +161,17 @@ class GraphSlamConfig:
     local_sd: tuple[float, float] = (0.02, 0.005)
     closure_sd: tuple[float, float] = (0.05, 0.01)
     closure_min_score: float = 0.55
-    wide_min_score: float = 0.65
+    wide_min_score: float = 0.55
     closure_window: tuple[float, float] = (0.5, 0.1)
-    window_growth: tuple[float, float] = (0.05, 0.005)
-    max_window: tuple[float, float] = (4.0, 0.35)
-    wide_window: tuple[float, float] = (7.0, 0.52)
+    window_growth: tuple[float, float] = (0.15, 0.005)
+    max_window: tuple[float, float] = (20.0, 0.5)
+    wide_window: tuple[float, float] = (20.0, 0.5)
     wide_search_every: int = 50
+    near_window: float = 2.0
+    far_every: int = 1
+    consensus: tuple[float, float] = (0.3, 0.05)
+    consensus_nodes: int = 10
+    consensus_checks: int = 2
     closure_every: int = 1
     closure_candidates: int = 3
     closure_points: int = 90
@@ -159,10 +182,10 @@ class GraphSlamConfig:
     p_hit: float = 0.7
     p_miss: float = 0.4
     max_clear_range: float = 10.0
-    grid_cache: int = 24
+    grid_cache: int = 8
 
     def __post_init__(self) -> None:
-        positive = ("resolution", "robust_scale")
+        positive = ("resolution", "robust_scale", "near_window")
         for name in positive:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
@@ -179,7 +202,7 @@ class GraphSlamConfig:
             v = getattr(self, name)
             if len(v) != 2 or not all(math.isfinite(x) and x > 0 for x in v):
                 raise ValueError(f"{name} must be two positive numbers, got {v}")
-        for name in ("closure_window", "window_growth", "max_window", "wide_window"):
+        for name in ("closure_window", "window_growth", "max_window", "wide_window", "consensus"):
             v = getattr(self, name)
             if len(v) != 2 or not all(math.isfinite(x) and x >= 0 for x in v):
                 raise ValueError(f"{name} must be two numbers >= 0, got {v}")
@@ -207,14 +230,14 @@ class GraphSlamConfig:
 class LoopClosure:
     """An accepted loop closure: node ``node`` seen in submap ``submap`` (anchor node
     ``anchor``) at ``pose`` (sensor pose in the submap frame) with branch-and-bound ``score``;
-    ``wide`` when the wide search found it."""
+    ``far`` when a far search found it (accepted after consensus)."""
 
     node: int
     submap: int
     anchor: int
     pose: tuple[float, float, float]
     score: float
-    wide: bool
+    far: bool
 
 
 def _information(sd: tuple[float, float]) -> NDArray[np.float64]:
@@ -246,7 +269,7 @@ class GraphSlam:
             raise ValueError(f"max_range must be > 0 m, got {max_range}")
         self.max_range = float(max_range)
         self.graph = PoseGraph2D(
-            OptimizerConfig(max_iterations=5, robust=cfg.robust, robust_scale=cfg.robust_scale)
+            OptimizerConfig(max_iterations=5, robust=cfg.robust, robust_scale=cfg.robust_scale)  # type: ignore[arg-type]
         )
         self._weights = np.ones(0)
         self._model = InverseSensorModel(cfg.p_hit, cfg.p_miss, max_clear_range=0.0)
@@ -273,7 +296,15 @@ class GraphSlam:
         self.search_seconds = 0.0
         self._last_node_odometry: NDArray[np.float64] | None = None
         self._since_optimize = 0
-        self._travel_since_closure = 0.0
+        self._travel: list[float] = []  # cumulative path length at each node, metres
+        self._sub_links: list[dict[int, float]] = []  # submap graph: neighbour -> travel
+        self._sub_dist: NDArray[np.float64] | None = None  # travel from the newest submap
+        self._sub_dist_at = 0.0  # node travel when _sub_dist was computed
+        self._last_searched: list[int] = []  # per submap, the last node that searched it
+        self.far_searched = 0  # far searches run
+        self.far_found = 0  # far searches that found a match (before consensus)
+        self.rejected = 0  # far matches that earlier nodes did not confirm
+        self._unguarded: list[int] = []  # confirmed closures awaiting their first optimization
         self._pending_correction = False
         self._cache: OrderedDict[int, Any] = OrderedDict()
         self._finished: list[Submap] = []
@@ -353,8 +384,12 @@ class GraphSlam:
             poses = self.graph.poses
             self.graph.add_node(compose(poses[k - 1], rel))
             self.graph.add_edge(k - 1, k, rel, self._local_info)
-            self._travel_since_closure += float(np.hypot(rel[0], rel[1]))
         self._last_node_odometry = odo.copy()
+        if k:
+            step = float(np.hypot(*between(self.local[k - 1], local)[:2]))
+            self._travel.append(self._travel[-1] + step)
+        else:
+            self._travel.append(0.0)
         self.local.append(local)
         self.node_scan.append(scan)
         # submaps: start a new one every submap_scans // 2 nodes
@@ -363,6 +398,11 @@ class GraphSlam:
             sm = Submap(
                 len(self.submaps), k, cfg.resolution, m.sigma, cfg.field_radius, self._model
             )
+            self._sub_links.append({})
+            self._last_searched.append(-1)
+            if self.submaps:
+                prev = self.submaps[-1]
+                self._link(prev.index, sm.index, self._travel[k] - self._travel[prev.anchor])
             self.submaps.append(sm)
             self.active.append(sm)
         with np.errstate(invalid="ignore"):  # submaps hold what the matcher uses
@@ -430,27 +470,48 @@ class GraphSlam:
             self._cache.popitem(last=False)
         return fld, grids
 
-    def _search_closures(self, k: int) -> None:
-        from probmap.slam.loop_closure import branch_and_bound_search
+    def _link(self, a: int, b: int, travel: float) -> None:
+        """Link submaps ``a`` and ``b`` in the submap graph with the travel between them."""
+        travel = max(float(travel), 0.0)
+        if travel < self._sub_links[a].get(b, math.inf):
+            self._sub_links[a][b] = travel
+            self._sub_links[b][a] = travel
+        self._sub_dist = None
 
+    def _submap_travel(self, k: int) -> NDArray[np.float64]:
+        """Travel (metres) from node ``k`` to each submap along the shortest chain of local
+        links and accepted closures (Dijkstra on the submap graph, cached until it changes)."""
+        import heapq
+
+        newest = self.active[-1]
+        here = self._travel[k]
+        if self._sub_dist is None or len(self._sub_dist) != len(self.submaps):
+            dist = np.full(len(self.submaps), np.inf)
+            dist[newest.index] = 0.0
+            heap = [(0.0, newest.index)]
+            while heap:
+                d, a = heapq.heappop(heap)
+                if d > dist[a]:
+                    continue
+                for b, w in self._sub_links[a].items():
+                    if d + w < dist[b]:
+                        dist[b] = d + w
+                        heapq.heappush(heap, (d + w, b))
+            self._sub_dist = dist
+            self._sub_dist_at = self._travel[newest.anchor]
+        return self._sub_dist + (here - self._sub_dist_at)
+
+    def _search_closures(self, k: int) -> None:
+        """Search node ``k``'s scan against finished submaps (near every node, far every
+        ``far_every`` nodes) and add the closures that pass (far ones after consensus)."""
         cfg = self.config
         finished = self._finished
-        if not finished:
+        if not finished or self._node_points[k].shape[0] < 10:
             return
         t0 = time.perf_counter()
         poses = self.graph.poses
         xk = poses[k]
-        pts = self._node_points[k]
-        if pts.shape[0] < 10:
-            return
-        d = self._travel_since_closure
-        lin = min(cfg.closure_window[0] + cfg.window_growth[0] * d, cfg.max_window[0])
-        ang = min(cfg.closure_window[1] + cfg.window_growth[1] * d, cfg.max_window[1])
-        wide = bool(cfg.wide_search_every) and k % cfg.wide_search_every == 0
-        if wide:
-            lin, ang = max(lin, cfg.wide_window[0]), max(ang, cfg.wide_window[1])
-        min_score = cfg.wide_min_score if wide else cfg.closure_min_score
-        accepted = False
+        idx = np.asarray([sm.index for sm in finished], dtype=np.int64)
         anchors = np.asarray(self._fin_anchor, dtype=np.int64)
         local_c = np.asarray(self._fin_centre).reshape(-1, 2)
         radius = np.asarray(self._fin_radius)
@@ -459,43 +520,140 @@ class GraphSlam:
         cx = pa[:, 0] + c * local_c[:, 0] - s_ * local_c[:, 1]
         cy = pa[:, 1] + s_ * local_c[:, 0] + c * local_c[:, 1]
         dist = np.hypot(cx - xk[0], cy - xk[1])
-        reach = np.flatnonzero(dist <= lin + radius)
-        near = [
-            (float(dist[i]), finished[i]) for i in reach[np.argsort(dist[reach], kind="stable")]
-        ]
-        for _, sm in near[: cfg.closure_candidates]:
-            anchor = poses[sm.anchor]
-            guess = between(anchor, xk)
-            fld, grids = self._grids(sm)
-            self.searched += 1
-            found = branch_and_bound_search(
-                grids, pts, guess, linear_window=lin, angular_window=ang, min_score=min_score
-            )
+        travel = self._submap_travel(k)[idx]
+        lin = np.minimum(cfg.closure_window[0] + cfg.window_growth[0] * travel, cfg.max_window[0])
+        ang = np.minimum(cfg.closure_window[1] + cfg.window_growth[1] * travel, cfg.max_window[1])
+        wide = bool(cfg.wide_search_every) and k % cfg.wide_search_every == 0
+        if wide:
+            lin = np.maximum(lin, cfg.wide_window[0])
+            ang = np.maximum(ang, cfg.wide_window[1])
+        reach = dist <= lin + radius
+        near = np.flatnonzero(reach & (lin <= cfg.near_window))
+        near = near[np.argsort(dist[near], kind="stable")][: cfg.closure_candidates]
+        jobs = [(int(i), False) for i in near]
+        if wide or k % cfg.far_every == 0:
+            far = np.flatnonzero(reach & (lin > cfg.near_window))
+            if far.size:
+                last = np.asarray(self._last_searched)[idx[far]]
+                jobs.append((int(far[np.argmin(last)]), True))
+        for i, is_far in jobs:
+            sm = finished[i]
+            self._last_searched[sm.index] = k
+            min_score = cfg.wide_min_score if is_far else cfg.closure_min_score
+            found = self._match_submap(k, sm, xk, float(lin[i]), float(ang[i]), min_score)
+            self.far_searched += is_far
             if found is None:
                 continue
-            full = self._full_points(k)
-            m = cfg.matcher
-            pose, _, _ = refine(
-                fld, full, found.pose, m.iterations, (m.linear_step, m.angular_step)
-            )
-            score, _, _ = normal_equations(fld, full, pose)
-            if score / max(full.shape[0], 1) < cfg.min_match_score:
+            self.far_found += is_far
+            pose, score = found
+            if not is_far:
+                self._accept(k, sm, pose, score, False)
                 continue
-            self.graph.add_edge(sm.anchor, k, pose, self._closure_info, robust=True)
-            self.closures.append(
-                LoopClosure(k, sm.index, sm.anchor, tuple(map(float, pose)), found.score, wide)
-            )
-            accepted = True
-            implied = compose(anchor, pose)
-            # optimize now only when the closure moves the estimate by a good part of the
-            # window the next searches use; smaller corrections wait for the next periodic run
-            moved = math.hypot(implied[0] - xk[0], implied[1] - xk[1])
-            turned = abs(float(wrap_angle(implied[2] - xk[2])))
-            if moved > 0.5 * cfg.closure_window[0] or turned > 0.5 * cfg.closure_window[1]:
-                self._pending_correction = True
-        if accepted:
-            self._travel_since_closure = 0.0
+            # far: the correction it implies, as a rigid motion of the current estimate
+            implied = compose(poses[sm.anchor], pose)
+            delta = compose(implied, inverse(xk))
+            self._confirm(k, sm, pose, score, delta)
         self.search_seconds += time.perf_counter() - t0
+
+    def _match_submap(
+        self, k: int, sm: Submap, xk: NDArray, lin: float, ang: float, min_score: float
+    ) -> tuple[NDArray[np.float64], float] | None:
+        """Branch and bound of node ``k`` in submap ``sm`` around the current estimate, then
+        Gauss-Newton on the full scan; the pose in the submap frame and the search score."""
+        from probmap.slam.loop_closure import branch_and_bound_search
+
+        cfg = self.config
+        fld, grids = self._grids(sm)
+        self.searched += 1
+        guess = between(self.graph.poses[sm.anchor], xk)
+        found = branch_and_bound_search(
+            grids,
+            self._node_points[k],
+            guess,
+            linear_window=lin,
+            angular_window=ang,
+            min_score=min_score,
+        )
+        if found is None:
+            return None
+        full = self._full_points(k)
+        m = cfg.matcher
+        pose, _, _ = refine(fld, full, found.pose, m.iterations, (m.linear_step, m.angular_step))
+        score, _, _ = normal_equations(fld, full, pose)
+        if score / max(full.shape[0], 1) < cfg.min_match_score:
+            return None
+        return pose, float(found.score)
+
+    def _confirm(
+        self, k: int, sm: Submap, pose: NDArray, score: float, delta: NDArray[np.float64]
+    ) -> None:
+        """Accept a far closure when earlier nodes confirm it: each is moved by the same
+        correction ``delta`` and searched in ``sm`` (and its neighbours) within the small
+        ``consensus`` window; every one that matches there at the near threshold is added
+        too. Without ``consensus_checks`` confirmations the closure is dropped."""
+        cfg = self.config
+        poses = self.graph.poses
+        step = max(1, cfg.consensus_nodes // max(cfg.consensus_checks, 1))
+        confirmed: list[tuple[int, Submap, NDArray, float]] = []
+        for n in range(1, cfg.consensus_checks + 1):
+            j = k - n * step
+            if j < 0:
+                break
+            moved = compose(delta, poses[j])
+            for cand in (sm, *self._neighbours(sm)):
+                guess = between(poses[cand.anchor], moved)
+                found = self._match_submap(
+                    j, cand, moved, cfg.consensus[0], cfg.consensus[1], cfg.wide_min_score
+                )
+                if found is None:
+                    continue
+                d = between(guess, found[0])
+                if math.hypot(d[0], d[1]) <= cfg.consensus[0] and abs(d[2]) <= cfg.consensus[1]:
+                    confirmed.append((j, cand, found[0], found[1]))
+                    break
+        if len(confirmed) < cfg.consensus_checks:
+            self.rejected += 1
+            return
+        # confirmed: the next optimization takes these closures quadratically, so that a
+        # large drift is corrected (a robust kernel would discount them by their size); they
+        # are guarded by the robust cost again from the optimization after it on
+        added = [self._accept(k, sm, pose, score, True)]
+        for j, cand, pj, sj in confirmed:
+            added.append(self._accept(j, cand, pj, sj, True))
+        self.graph.set_robust(added, False)
+        self._unguarded.extend(added)
+        self._pending_correction = True
+
+    def _neighbours(self, sm: Submap) -> list[Submap]:
+        """The finished submaps just before and after ``sm``."""
+        out = []
+        for i in (sm.index - 1, sm.index + 1):
+            if 0 <= i < len(self.submaps) and self.submaps[i].finished:
+                out.append(self.submaps[i])
+        return out
+
+    def _accept(self, k: int, sm: Submap, pose: NDArray, score: float, far: bool) -> int:
+        """Add the closure edge (robust) and link the submaps it ties together; returns the
+        edge index."""
+        cfg = self.config
+        edge = self.graph.add_edge(sm.anchor, k, pose, self._closure_info, robust=True)
+        self.closures.append(
+            LoopClosure(
+                k, sm.index, sm.anchor, (float(pose[0]), float(pose[1]), float(pose[2])), score, far
+            )
+        )
+        for other in self.submaps[-2:]:
+            if k in other.nodes:
+                self._link(sm.index, other.index, self._travel[k] - self._travel[other.anchor])
+        # optimize now only when the closure moves the estimate by a good part of the
+        # near window; smaller corrections wait for the next periodic optimization
+        implied = compose(self.graph.poses[sm.anchor], pose)
+        xk = self.graph.poses[k]
+        moved = math.hypot(implied[0] - xk[0], implied[1] - xk[1])
+        turned = abs(float(wrap_angle(implied[2] - xk[2])))
+        if moved > 0.5 * cfg.closure_window[0] or turned > 0.5 * cfg.closure_window[1]:
+            self._pending_correction = True
+        return edge
 
     def _full_points(self, k: int) -> NDArray[np.float64]:
         m = self.config.matcher
@@ -514,7 +672,10 @@ class GraphSlam:
         if self.graph.num_edges == 0:
             return None
         t0 = time.perf_counter()
-        result = self.graph.optimize(max_iterations)
+        result = self.graph.optimize(max_iterations if not self._unguarded else 20)
+        if self._unguarded:
+            self.graph.set_robust(self._unguarded, True)
+            self._unguarded = []
         self._weights = result.weights
         self.optimize_seconds += time.perf_counter() - t0
         self.optimizations += 1

@@ -772,6 +772,15 @@ class PoseGraph2D:
             )[0]
         )
 
+    def set_robust(self, edges: ArrayLike, robust: bool) -> None:
+        """Put edges ``edges`` (indices) under the robust kernel or take them out of it, e.g.
+        to let verified loop closures pull a drifted estimate quadratically once, then guard
+        them robustly from the next optimization on."""
+        idx = np.asarray(edges, dtype=np.int64).reshape(-1)
+        if idx.size and (idx.min() < 0 or idx.max() >= self._m):
+            raise ValueError(f"edge indices must lie in 0..{self._m - 1}")
+        self._robust[idx] = bool(robust)
+
     def add_edges(
         self,
         edges: ArrayLike,

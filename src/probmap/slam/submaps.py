@@ -81,7 +81,8 @@ class Submap:
         self._cells: NDArray[np.int64] | None = None
         self._points_sum = np.zeros(2)
         self._since_refresh = 0
-        self.radius = 0.0  # largest distance (m) of an occupied cell from the centre
+        self._positions: list[NDArray[np.float64]] = []
+        self.radius = 0.0  # largest distance (m) of an inserted pose from the centre
 
     #: inserts between full recomputations of an active submap's field (cells freed since the
     #: last one keep their old field values until then)
@@ -110,6 +111,7 @@ class Submap:
         grid.integrate_scan(p, r, a, max_range=max_range)
         self.nodes.append(int(node))
         self._points_sum += p[:2]
+        self._positions.append(p[:2].copy())
         self._since_refresh += 1
         if self._field is None:
             return
@@ -170,11 +172,7 @@ class Submap:
         occ = g.log_odds > 0
         self._spec = g.spec
         self._cells = np.flatnonzero(occ).astype(np.int64)
-        if self._cells.size:
-            xy = g.spec.cell_to_world(
-                np.column_stack([self._cells % g.spec.width, self._cells // g.spec.width])
-            )
-            self.radius = float(np.max(np.hypot(*(xy - self.centre).T)))
+        self.radius = float(np.max(np.hypot(*(np.asarray(self._positions) - self.centre).T)))
         self.grid = None
         self._field = None
         self.finished = True

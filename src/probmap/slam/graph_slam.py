@@ -42,6 +42,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from probmap.geometry.se2 import between, compose, inverse, wrap_angle
 from probmap.grid.occupancy import InverseSensorModel, OccupancyGrid
+from probmap.slam.posegraph import RobustKernel
 from probmap.slam.scan_matching import (
     MatcherConfig,
     correlative_search,
@@ -175,7 +176,7 @@ class GraphSlamConfig:
     closure_every: int = 1
     closure_candidates: int = 3
     closure_points: int = 90
-    robust: str = "dcs"
+    robust: RobustKernel = "dcs"
     robust_scale: float = 1.0
     optimize_every: int = 50
     final_iterations: int = 50
@@ -269,7 +270,7 @@ class GraphSlam:
             raise ValueError(f"max_range must be > 0 m, got {max_range}")
         self.max_range = float(max_range)
         self.graph = PoseGraph2D(
-            OptimizerConfig(max_iterations=5, robust=cfg.robust, robust_scale=cfg.robust_scale)  # type: ignore[arg-type]
+            OptimizerConfig(max_iterations=5, robust=cfg.robust, robust_scale=cfg.robust_scale)
         )
         self._weights = np.ones(0)
         self._model = InverseSensorModel(cfg.p_hit, cfg.p_miss, max_clear_range=0.0)
@@ -401,8 +402,8 @@ class GraphSlam:
             self._sub_links.append({})
             self._last_searched.append(-1)
             if self.submaps:
-                prev = self.submaps[-1]
-                self._link(prev.index, sm.index, self._travel[k] - self._travel[prev.anchor])
+                last = self.submaps[-1]
+                self._link(last.index, sm.index, self._travel[k] - self._travel[last.anchor])
             self.submaps.append(sm)
             self.active.append(sm)
         with np.errstate(invalid="ignore"):  # submaps hold what the matcher uses

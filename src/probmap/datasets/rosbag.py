@@ -29,6 +29,7 @@ import os
 import shutil
 import struct
 import tempfile
+import warnings
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -648,6 +649,7 @@ class RosBag:
         self.fixed_frame = None if fixed_frame is None else fixed_frame.lstrip("/")
         self.laser_frame = None if laser_frame is None else laser_frame.lstrip("/")
         self.echo = int(echo)
+        self.scans_outside_tf = 0  # scans dropped for lying outside the tf buffer (last read)
         self.name = self.path.stem if self.path.suffix == ".bag" else self.path.name
         self._count: int | None = None
         self._base: str | None = None
@@ -821,6 +823,7 @@ class RosBag:
     ) -> Iterator[tuple[list[_RawScan], FloatArray, FloatArray]]:
         """Scans with their laser and robot poses, ``chunk`` at a time (one tf lookup each)."""
         self._base = None
+        self.scans_outside_tf = 0
         with _open_reader(self.path) as reader:
             scan_conns = self._pick(reader, self.scan_topic, SCAN_TYPES, "scan")
             if scan_conns is None:
@@ -842,12 +845,57 @@ class RosBag:
                         base = raw.frame
                 buf.append(raw)
                 if len(buf) >= chunk:
-                    yield buf, *self._poses(tf, fixed, base, buf, topic)
+                    yield self._posed(tf, fixed, base, buf, topic)
                     buf = []
             if buf:
-                yield buf, *self._poses(tf, fixed, base, buf, topic)
+                yield self._posed(tf, fixed, base, buf, topic)
             if fixed:
                 self.resolved_frames = (fixed, base, laser)
+            if self.scans_outside_tf:
+                warnings.warn(
+                    f"{self.path}: dropped {self.scans_outside_tf} scan(s) stamped before the "
+                    "first or after the last transform of their frame (tf is not extrapolated)",
+                    UserWarning,
+                    stacklevel=3,
+                )
+
+    def _posed(
+        self, tf: TfBuffer, fixed: str, base: str, scans: list[_RawScan], topic: str
+    ) -> tuple[list[_RawScan], FloatArray, FloatArray]:
+        """:meth:`_poses` of a chunk; scans stamped outside the tf buffer at either end of the
+        bag (a scan after the last odometry message, say) are dropped and counted."""
+        try:
+            return (scans, *self._poses(tf, fixed, base, scans, topic))
+        except BagError:
+            kept, laser, robot = [], [], []
+            for raw in scans:
+                try:
+                    lp, rp = self._poses(tf, fixed, base, [raw], topic)
+                except BagError:
+                    continue
+                kept.append(raw)
+                laser.append(lp)
+                robot.append(rp)
+            dropped = len(scans) - len(kept)
+            first, last = self._tf_span(tf, fixed, base)
+            kept_ids = {id(r) for r in kept}
+            inside = [r for r in scans if first <= r.time <= last and id(r) not in kept_ids]
+            if not kept or inside:
+                raise  # not an edge-of-bag gap: report the first failure as it is
+            self.scans_outside_tf += dropped
+            return kept, np.concatenate(laser), np.concatenate(robot)
+
+    @staticmethod
+    def _tf_span(tf: TfBuffer, fixed: str, base: str) -> tuple[float, float]:
+        """Times covered by every moving link between ``fixed`` and ``base``."""
+        lo, hi = -math.inf, math.inf
+        for frame in (fixed, base):
+            try:
+                a, b = tf.time_range(frame)
+            except (KeyError, ValueError):
+                continue
+            lo, hi = max(lo, a), min(hi, b)
+        return lo, hi
 
     def _poses(
         self, tf: TfBuffer, fixed: str, base: str, scans: list[_RawScan], topic: str
@@ -916,6 +964,7 @@ class RosBag:
             As iteration: no scan topic, no pose source, an empty scan topic.
         """
         self._base = None
+        self.scans_outside_tf = 0
         with _open_reader(self.path) as reader:
             scan_conns = self._pick(reader, self.scan_topic, SCAN_TYPES, "scan")
             if scan_conns is None:

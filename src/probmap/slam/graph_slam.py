@@ -13,12 +13,17 @@ Per scan that passes the motion filter (the sensor moved ``min_distance`` metres
 2. **Pose graph.** The scan becomes a node. Its edges: to the previous node and to the anchor
    of every submap it was inserted into, with the relative poses local SLAM measured.
 3. **Loop closure.** The node's scan is searched against the finished submaps near its current
-   estimate within a window that grows with the distance travelled since the last accepted
-   closure, and every ``wide_search_every`` nodes within a wide window. The search is exact over
-   the window (branch and bound over multi-resolution max-grids, :mod:`probmap.slam.
-   loop_closure`) and refined by Gauss-Newton; a match scoring at least ``closure_min_score`` is
-   added as an edge under a robust cost (dynamic covariance scaling by default), so a wrong one
-   is down-weighted instead of bending the map.
+   estimate, each within a window that grows with the travel between the node and the submap
+   along the shortest chain of local-SLAM links and accepted closures (the drift that can have
+   accumulated between them), and every ``wide_search_every`` nodes within a wide window. The
+   search is exact over the window (branch and bound over multi-resolution max-grids,
+   :mod:`probmap.slam.loop_closure`) and refined by Gauss-Newton. A *near* match (small
+   window) scoring at least ``closure_min_score`` is added as an edge under a robust cost
+   (dynamic covariance scaling by default), so a wrong one is down-weighted instead of bending
+   the map. A *far* match (wide window) must be confirmed: earlier nodes, moved by the
+   correction it implies, must match the same part of the map within a small window; the
+   confirmed closures then act quadratically for one optimization (a robust kernel would
+   discount a large correction by its very size) and robustly after it.
 4. **Optimization** every ``optimize_every`` nodes and after a closure that moves the estimate
    (Levenberg-Marquardt on the sparse normal equations, :mod:`probmap.slam.posegraph`), warm
    started from the last solution.

@@ -38,7 +38,7 @@ import math
 import os
 import time
 from collections import OrderedDict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -96,6 +96,13 @@ class GraphSlamConfig:
     min_match_score : float
         Least mean match score (0..1) for local SLAM to trust a match; below it the odometry
         prediction is kept.
+    recover_score : float
+        Below this mean match score local SLAM searches again in ``recover_window`` around the
+        prediction and keeps that match if it scores clearly better (odometry off by more than
+        the matcher's window: wheel slip, late timestamps).
+    recover_window : tuple of float
+        ``(metres, radians)``: half-widths of that second search (at twice the matcher's
+        steps).
     local_sd : tuple of float
         Standard deviations ``(metres, radians)`` of the local-SLAM edges (node to previous node
         and node to submap anchor).
@@ -164,6 +171,8 @@ class GraphSlamConfig:
     matcher: MatcherConfig = field(default_factory=_local_matcher)
     field_radius: int = 3
     min_match_score: float = 0.25
+    recover_score: float = 0.4
+    recover_window: tuple[float, float] = (0.6, 0.35)
     local_sd: tuple[float, float] = (0.02, 0.005)
     closure_sd: tuple[float, float] = (0.05, 0.01)
     closure_min_score: float = 0.55
@@ -200,7 +209,7 @@ class GraphSlamConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be >= 0, got {v}")
-        for name in ("min_match_score", "closure_min_score", "wide_min_score"):
+        for name in ("min_match_score", "recover_score", "closure_min_score", "wide_min_score"):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"{name} must lie in [0, 1], got {v}")
@@ -208,7 +217,10 @@ class GraphSlamConfig:
             v = getattr(self, name)
             if len(v) != 2 or not all(math.isfinite(x) and x > 0 for x in v):
                 raise ValueError(f"{name} must be two positive numbers, got {v}")
-        for name in ("closure_window", "window_growth", "max_window", "wide_window", "consensus"):
+        for name in (
+            "closure_window", "window_growth", "max_window", "wide_window", "consensus",
+            "recover_window",
+        ):  # fmt: skip
             v = getattr(self, name)
             if len(v) != 2 or not all(math.isfinite(x) and x >= 0 for x in v):
                 raise ValueError(f"{name} must be two numbers >= 0, got {v}")
@@ -297,6 +309,7 @@ class GraphSlam:
         self.closures: list[LoopClosure] = []
         self.searched = 0
         self.failed_matches = 0
+        self.recovered = 0  # wide re-searches after a poor local match
         self.optimizations = 0
         self.optimize_seconds = 0.0
         self.search_seconds = 0.0
@@ -452,6 +465,22 @@ class GraphSlam:
         best, _ = correlative_search(fld, pts, guess, m)
         pose, _, _ = refine(fld, pts, best, m.iterations, (m.linear_step, m.angular_step))
         score, _, _ = normal_equations(fld, pts, pose)
+        if score / pts.shape[0] < cfg.recover_score:
+            # a poor match: the odometry may be off by more than the window (wheel slip, a
+            # late timestamp); search a wide window once and keep it if it matches better
+            wide = replace(
+                m,
+                linear_window=cfg.recover_window[0],
+                linear_step=2 * m.linear_step,
+                angular_window=cfg.recover_window[1],
+                angular_step=2 * m.angular_step,
+            )
+            best2, _ = correlative_search(fld, pts, guess, wide)
+            pose2, _, _ = refine(fld, pts, best2, m.iterations, (m.linear_step, m.angular_step))
+            score2, _, _ = normal_equations(fld, pts, pose2)
+            self.recovered += 1
+            if score2 > score + 0.05 * pts.shape[0]:
+                pose, score = pose2, score2
         if score / pts.shape[0] < cfg.min_match_score:
             self.failed_matches += 1
             return predicted

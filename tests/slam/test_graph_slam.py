@@ -1,0 +1,261 @@
+"""Graph SLAM core: a simulated loop with drifting odometry (runs everywhere), the pose graph it
+writes, the trajectory it reports, and configuration checks."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from probmap.geometry.se2 import between, compose, wrap_angle
+from probmap.grid.raycast import cast_rays
+from probmap.grid.spec import GridSpec
+from probmap.slam.graph_slam import GraphSlam, GraphSlamConfig, inverse_mount
+
+RES = 0.05
+LAPS = 1.3
+
+
+def loop_world(seed: int = 0, step: float = 0.1, bias: float = 0.012):
+    """A 20 x 12 m ring corridor, 2.5 m wide, around a solid block, with boxes of random depth
+    on every wall (so no stretch is degenerate for scan matching); a robot drives ``LAPS``
+    laps along its centre line (the second lap revisits the start: the loop to close).
+
+    Odometry integrates the true relative motions with 2 % translation noise, heading noise
+    and a heading bias of ``bias`` rad per metre (systematic drift: metres after one lap).
+
+    Returns truth (H, W) bool, its GridSpec, true sensor poses (S, 3), odometry (S, 3),
+    ranges (S, 181), angles (181,) and the maximum range.
+    """
+    w, h, c = 20.0, 12.0, 2.5
+    spec = GridSpec(RES, (0.0, 0.0), (round(h / RES), round(w / RES)))
+    occ = np.zeros(spec.shape, dtype=bool)
+
+    def box(x0: float, x1: float, y0: float, y1: float) -> None:
+        occ[round(y0 / RES) : round(y1 / RES), round(x0 / RES) : round(x1 / RES)] = True
+
+    t = 0.15
+    box(0, w, 0, t)
+    box(0, w, h - t, h)
+    box(0, t, 0, h)
+    box(w - t, w, 0, h)
+    box(c, w - c, c, h - c)
+    rng = np.random.default_rng(seed)
+    for x in np.arange(1.0, w - 1.0, 1.7):
+        d = rng.uniform(0.2, 0.5)
+        box(x, x + rng.uniform(0.3, 0.7), t, t + d)
+        box(x + 0.6, x + 0.6 + rng.uniform(0.3, 0.7), h - t - d, h - t)
+        if c + 0.5 < x < w - c - 1.0:
+            box(x, x + 0.4, c - d, c)
+            box(x + 0.5, x + 0.9, h - c, h - c + d)
+    for y in np.arange(1.0, h - 1.0, 1.6):
+        d = rng.uniform(0.2, 0.5)
+        box(t, t + d, y, y + rng.uniform(0.3, 0.7))
+        box(w - t - d, w - t, y + 0.5, y + 0.5 + rng.uniform(0.3, 0.7))
+        if c + 0.5 < y < h - c - 1.0:
+            box(c - d, c, y, y + 0.4)
+            box(w - c, w - c + d, y + 0.3, y + 0.7)
+    m = c / 2
+    way = np.array([[m, m], [w - m, m], [w - m, h - m], [m, h - m], [m, m]])
+    pts = [way[0]]
+    for a, b in zip(way[:-1], way[1:], strict=True):
+        n = int(np.ceil(np.hypot(*(b - a)) / step))
+        pts += [a + (b - a) * k / n for k in range(1, n + 1)]
+    lap = np.asarray(pts)
+    xy = np.concatenate([lap, lap[1 : 1 + int(len(lap) * (LAPS - 1.0))]])
+    heading = np.arctan2(np.diff(xy[:, 1]), np.diff(xy[:, 0]))
+    truth = np.column_stack([xy, np.concatenate([heading, heading[-1:]])])
+    truth[:, 2] += rng.normal(0.0, 0.03, len(truth))  # wobble
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 181)
+    max_range = 10.0
+    ranges = cast_rays(occ, spec, truth, angles, max_range)
+    hit = ranges < max_range
+    ranges = np.where(hit, ranges + rng.normal(0.0, 0.01, ranges.shape), max_range)
+    u = between(truth[:-1], truth[1:])
+    dist = np.hypot(u[:, 0], u[:, 1])
+    u[:, 0] *= 1.0 + rng.normal(0.0, 0.02, len(u))
+    u[:, 2] += bias * dist + rng.normal(0.0, 0.005, len(u))
+    odo = [truth[0]]
+    for ui in u:
+        odo.append(compose(odo[-1], ui))
+    return occ, spec, truth, np.asarray(odo), ranges, angles, max_range, len(lap) - 1
+
+
+def _run(world, config=None):
+    _, _, truth, odo, ranges, angles, max_range, _ = world
+    slam = GraphSlam(config, max_range=max_range)
+    flags = [slam.add_scan(0.1 * i, ranges[i], angles, odo[i]) for i in range(len(truth))]
+    slam.finish()
+    return slam, np.asarray(flags)
+
+
+@pytest.fixture(scope="module")
+def world():
+    return loop_world()
+
+
+@pytest.fixture(scope="module")
+def run(world):
+    return _run(world)
+
+
+def _loop_error(est, truth, n_lap):
+    """Translation error (m) of the relative pose from the first scan to its revisit."""
+    e = between(between(est[0], est[n_lap]), between(truth[0], truth[n_lap]))
+    return float(np.hypot(e[0], e[1]))
+
+
+def test_simulated_loop_beats_drifting_odometry_and_closes_the_loop(world, run):
+    occ, spec, truth, odo, ranges, angles, max_range, n_lap = world
+    slam, _ = run
+    odo_err = np.hypot(*(odo[:, :2] - truth[:, :2]).T)
+    assert odo_err.mean() > 2.0  # the drift SLAM must remove
+    times, est = slam.trajectory()
+    err = np.hypot(*(est[:, :2] - truth[:, :2]).T)
+    assert err.mean() < 0.15 and err.max() < 0.3
+    assert err.mean() < odo_err.mean() / 15
+    # the loop is closed: nodes of the second lap matched to submaps of the first lap's start
+    scan_of = np.asarray(slam.node_scan)
+    loop = [c for c in slam.closures if scan_of[c.node] > n_lap and scan_of[c.anchor] < 0.3 * n_lap]
+    assert len(loop) >= 1
+    # every accepted closure measures the true relative pose (anchor -> node)
+    for c in slam.closures:
+        true_rel = between(truth[scan_of[c.anchor]], truth[scan_of[c.node]])
+        d = between(true_rel, np.asarray(c.pose))
+        assert math.hypot(d[0], d[1]) < 0.15 and abs(wrap_angle(d[2])) < 0.05, c
+    w = slam.closure_weights()
+    assert w.shape == (len(slam.closures),) and np.all((w > 0) & (w <= 1))
+    # without closures local SLAM drifts around the loop; with them the revisit lines up
+    no_closures = GraphSlamConfig(closure_min_score=1.0, wide_min_score=1.0)
+    open_slam, _ = _run(world, no_closures)
+    _, open_est = open_slam.trajectory()
+    closed = _loop_error(est, truth, n_lap)
+    assert closed < 0.1 and closed < 0.5 * _loop_error(open_est, truth, n_lap)
+
+
+def test_simulated_loop_map_matches_the_truth(world, run):
+    from probmap.grid.occupancy import OccupancyGrid
+    from probmap.grid.simworld import map_accuracy
+
+    occ, spec, truth, odo, ranges, angles, max_range, _ = world
+    slam, _ = run
+    grid = slam.map()
+    acc, n = map_accuracy(grid.classify(0.5, 0.5), grid.spec, occ, spec)
+    odo_map = OccupancyGrid(RES)
+    odo_map.integrate_scans(odo, ranges, angles, max_range=max_range)
+    odo_acc, _ = map_accuracy(odo_map.classify(0.5, 0.5), odo_map.spec, occ, spec)
+    assert n > 20_000 and acc > 0.93 and acc > odo_acc + 0.2
+
+
+def test_nodes_trajectory_and_counters(world, run):
+    _, _, truth, odo, ranges, angles, max_range, _ = world
+    slam, flags = run
+    cfg = slam.config
+    node_scans = np.asarray(slam.node_scan)
+    assert np.array_equal(np.flatnonzero(flags), node_scans)
+    assert slam.nodes == len(node_scans) == slam.node_poses().shape[0]
+    # motion filter: consecutive nodes moved min_distance or turned min_rotation (odometry)
+    u = between(odo[node_scans[:-1]], odo[node_scans[1:]])
+    assert np.all((np.hypot(u[:, 0], u[:, 1]) >= cfg.min_distance) | (abs(u[:, 2]) >= 0.1))
+    # submaps: one every submap_scans / 2 nodes, each node in two
+    assert len(slam.submaps) == math.ceil(slam.nodes / (cfg.submap_scans // 2))
+    assert all(sm.size == cfg.submap_scans for sm in slam.submaps[:-2])
+    assert slam.searched >= len(slam.closures) > 0 and slam.optimizations >= 1
+    times, est = slam.trajectory()
+    np.testing.assert_allclose(times, 0.1 * np.arange(len(truth)))
+    np.testing.assert_allclose(est[node_scans], slam.node_poses(), atol=1e-12)
+    # a scan between nodes: the previous node composed with the odometry increment
+    i = int(np.flatnonzero(~flags)[10])
+    k = int(np.searchsorted(node_scans, i, side="right") - 1)
+    expect = compose(slam.node_poses()[k], between(odo[node_scans[k]], odo[i]))
+    np.testing.assert_allclose(est[i], expect, atol=1e-12)
+
+
+def test_write_g2o_reads_back(world, run, tmp_path):
+    from probmap.datasets.g2o import read_g2o
+
+    slam, _ = run
+    path = slam.write_g2o(tmp_path / "loop.g2o")
+    g = read_g2o(path)
+    assert sorted(g.poses) == list(range(slam.nodes))
+    got = np.asarray([g.poses[i] for i in range(slam.nodes)])
+    ref = slam.node_poses()
+    np.testing.assert_allclose(got[:, :2], ref[:, :2], atol=1e-6)
+    np.testing.assert_allclose(wrap_angle(got[:, 2] - ref[:, 2]), 0.0, atol=1e-6)
+    assert len(g.pose_edges) == slam.graph.num_edges
+    # local chain plus every accepted closure (anchor -> node)
+    pairs = {(e.i, e.j) for e in g.pose_edges}
+    assert all((k - 1, k) in pairs for k in range(1, slam.nodes))
+    assert all((c.anchor, c.node) in pairs for c in slam.closures)
+
+
+def test_few_scans_and_a_pure_rotation():
+    """Two scans at one place: one node; turning in place makes a node by rotation."""
+    occ = np.zeros((100, 100), dtype=bool)
+    occ[:, :3] = occ[:, -3:] = occ[:3, :] = occ[-3:, :] = True
+    spec = GridSpec(RES, (0.0, 0.0), (100, 100))
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 91)
+    poses = np.array([[2.5, 2.5, 0.0], [2.5, 2.5, 0.0], [2.5, 2.5, 0.5]])
+    ranges = cast_rays(occ, spec, poses, angles, 8.0) + 0.003
+    slam = GraphSlam(max_range=8.0)
+    assert slam.optimize() is None  # no edge yet
+    assert [slam.add_scan(i, ranges[i], angles, poses[i]) for i in range(3)] == [1, 0, 1]
+    slam.finish()
+    _, est = slam.trajectory()
+    np.testing.assert_allclose(est[:, :2], poses[:, :2], atol=0.03)
+    # half a 5 cm cell at the walls 2.5 m away is 0.01 rad: allow two
+    np.testing.assert_allclose(est[:, 2], poses[:, 2], atol=0.02)
+
+
+def test_inverse_mount_undoes_the_mount():
+    rng = np.random.default_rng(0)
+    robot = rng.normal(0, 3, (20, 3))
+    robot[:, 2] = wrap_angle(robot[:, 2])
+    mount = np.array([0.22, -0.05, 0.1])
+    laser = compose(robot, mount)
+    back = inverse_mount(laser, mount)
+    np.testing.assert_allclose(back[:, :2], robot[:, :2], atol=1e-12)
+    np.testing.assert_allclose(wrap_angle(back[:, 2] - robot[:, 2]), 0.0, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"resolution": 0.0}, "resolution"),
+        ({"resolution": float("nan")}, "resolution"),
+        ({"robust_scale": -1.0}, "robust_scale"),
+        ({"min_distance": -0.1}, "min_distance"),
+        ({"max_clear_range": float("inf")}, "max_clear_range"),
+        ({"closure_min_score": 1.5}, "closure_min_score"),
+        ({"min_match_score": -0.1}, "min_match_score"),
+        ({"local_sd": (0.02, 0.0)}, "local_sd"),
+        ({"closure_sd": (0.05,)}, "closure_sd"),
+        ({"max_window": (-1.0, 0.3)}, "max_window"),
+        ({"submap_scans": 1}, "submap_scans"),
+        ({"optimize_every": -1}, "optimize_every"),
+        ({"closure_points": 0}, "closure_points"),
+        ({"field_radius": 0}, "field_radius"),
+        ({"robust": "tukey"}, "robust"),
+        ({"p_hit": 0.4}, "p_miss < 0.5 < p_hit"),
+    ],
+)
+def test_config_refuses_bad_values(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        GraphSlamConfig(**kwargs)
+
+
+def test_bad_scans_are_refused():
+    with pytest.raises(ValueError, match="max_range"):
+        GraphSlam(max_range=0.0)
+    slam = GraphSlam(max_range=8.0)
+    a = np.linspace(-1, 1, 5)
+    with pytest.raises(ValueError, match="equal length"):
+        slam.add_scan(0.0, np.ones(4), a, [0, 0, 0])
+    with pytest.raises(ValueError, match="odometry"):
+        slam.add_scan(0.0, np.ones(5), a, [0, 0])
+    with pytest.raises(ValueError, match="odometry"):
+        slam.add_scan(0.0, np.ones(5), a, [0, np.nan, 0])
+    with pytest.raises(ValueError, match="angles"):
+        slam.add_scan(0.0, np.ones(5), np.full(5, np.inf), [0, 0, 0])
+    assert slam.nodes == 0 and slam.trajectory()[0].size == 0

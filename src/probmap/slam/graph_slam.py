@@ -323,7 +323,10 @@ class GraphSlam:
         self.far_searched = 0  # far searches run
         self.far_found = 0  # far searches that found a match (before consensus)
         self.rejected = 0  # far matches that earlier nodes did not confirm
-        self._unguarded: list[int] = []  # confirmed closures awaiting their first optimization
+        self._unguarded: list[int] = []
+        self._closure_edges: list[
+            int
+        ] = []  # edge index of each accepted closure  # confirmed closures awaiting their first optimization
         self._pending_correction = False
         self._cache: OrderedDict[int, Any] = OrderedDict()
         self._finished: list[Submap] = []
@@ -672,6 +675,7 @@ class GraphSlam:
         edge index."""
         cfg = self.config
         edge = self.graph.add_edge(sm.anchor, k, pose, self._closure_info, robust=True)
+        self._closure_edges.append(edge)
         self.closures.append(
             LoopClosure(
                 k, sm.index, sm.anchor, (float(pose[0]), float(pose[1]), float(pose[2])), score, far
@@ -719,11 +723,11 @@ class GraphSlam:
         return result
 
     def closure_weights(self) -> NDArray[np.float64]:
-        """Robust weight (0..1] of every accepted closure after the last optimization."""
-        mask = self.graph.robust_mask
-        w = np.ones(len(mask))
+        """Robust weight (0..1] of every accepted closure after the last optimization (1 for a
+        closure taken quadratically)."""
+        w = np.ones(self.graph.num_edges)
         w[: len(self._weights)] = self._weights
-        return w[mask]
+        return w[np.asarray(self._closure_edges, dtype=np.int64)]
 
     def write_g2o(self, path: str | os.PathLike[str]) -> Path:
         """Write the optimized pose graph (laser poses; closures included) as g2o, atomically."""

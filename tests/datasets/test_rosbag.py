@@ -505,8 +505,18 @@ def test_missing_topic_and_unplaceable_scans_name_topic_frame_and_time(tmp_path,
     b.scan("/scan", T0 + 0.5, "laser", np.ones(3), 0.0, 0.1, 0.0, 5.0)
     b.scan("/scan", T0 + 2.5, "laser", np.ones(3), 0.0, 0.1, 0.0, 5.0)
     b.close()
+    # ... is dropped with a count and a warning (tf is not extrapolated); the rest is read
+    with pytest.warns(UserWarning, match=r"dropped 1 scan\(s\) stamped .* after the last"):
+        late = load_bag_scans(tmp_path / "late.bag")
+    assert late.times.tolist() == [T0 + 0.5]
+    # a bag whose every scan lies outside the tf buffer still names the topic and the time
+    b = BagBuilder(tmp_path / "later.bag", 1)
+    b.odom("/odom", T0, "odom", "laser", np.zeros(3))
+    b.odom("/odom", T0 + 1, "odom", "laser", np.ones(3))
+    b.scan("/scan", T0 + 2.5, "laser", np.ones(3), 0.0, 0.1, 0.0, 5.0)
+    b.close()
     with pytest.raises(BagError, match=r"'/scan'.*time 1600000002\.5.*outside the tf buffer"):
-        load_bag_scans(tmp_path / "late.bag")
+        load_bag_scans(tmp_path / "later.bag")
     # no pose source at all
     b = BagBuilder(tmp_path / "bare.bag", 1)
     b.scan("/scan", T0, "laser", np.ones(3), 0.0, 0.1, 0.0, 5.0)

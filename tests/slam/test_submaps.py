@@ -177,14 +177,6 @@ def test_incremental_field_equals_recomputation_when_no_cell_is_freed():
     assert _incremental_against_full(ranges, angles, POSES) >= 2
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="Submap.insert finds the new endpoint cells with its own arithmetic "
-    "(floor((x + r cos - ox) / res) in numpy), the integration kernel with another "
-    "(floor((x + r cos - ox) * (1 / res)) in numba): an endpoint on a cell boundary (every "
-    "ray-cast endpoint on an axis-aligned wall) can land in different cells, and the cell the "
-    "kernel made occupied is never splatted",
-)
 def test_incremental_field_equals_recomputation_with_endpoints_on_cell_boundaries():
     occ, spec = _room()
     ranges, angles = _scans(occ, spec, POSES)  # exact ray casting: endpoints on cell edges

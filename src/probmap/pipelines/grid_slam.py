@@ -127,18 +127,18 @@ def load_laser_log(
         if not (math.isfinite(end_time) and end_time > 0):
             raise ValueError(f"end_time must be a positive number of seconds, got {end_time}")
         t = np.asarray(batch.times)
-        keep = int(np.searchsorted(t, t[0] + end_time, side="right"))
+        keep = t <= t[0] + end_time  # log timestamps need not be sorted (Intel's jitter)
         from dataclasses import replace
 
         angles = np.asarray(batch.angles)
         batch = replace(
             batch,
-            times=t[:keep],
-            ranges=batch.ranges[:keep],
-            angles=angles if angles.ndim == 1 else angles[:keep],
-            laser_poses=batch.laser_poses[:keep],
-            robot_poses=batch.robot_poses[:keep],
-            beams=batch.beams[:keep],
+            times=t[keep],
+            ranges=batch.ranges[keep],
+            angles=angles if angles.ndim == 1 else angles[keep],
+            laser_poses=batch.laser_poses[keep],
+            robot_poses=batch.robot_poses[keep],
+            beams=batch.beams[keep],
         )
     if len(batch.times) < 2:
         raise ValueError(f"{path}: graph SLAM needs at least 2 scans, found {len(batch.times)}")

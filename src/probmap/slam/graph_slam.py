@@ -215,14 +215,22 @@ class GraphSlamConfig:
                 raise ValueError(f"{name} must lie in [0, 1], got {v}")
         for name in ("local_sd", "closure_sd"):
             v = getattr(self, name)
-            if len(v) != 2 or not all(math.isfinite(x) and x > 0 for x in v):
+            if (
+                not isinstance(v, tuple)
+                or len(v) != 2
+                or not all(math.isfinite(x) and x > 0 for x in v)
+            ):
                 raise ValueError(f"{name} must be two positive numbers, got {v}")
         for name in (
             "closure_window", "window_growth", "max_window", "wide_window", "consensus",
             "recover_window",
         ):  # fmt: skip
             v = getattr(self, name)
-            if len(v) != 2 or not all(math.isfinite(x) and x >= 0 for x in v):
+            if (
+                not isinstance(v, tuple)
+                or len(v) != 2
+                or not all(math.isfinite(x) and x >= 0 for x in v)
+            ):
                 raise ValueError(f"{name} must be two numbers >= 0, got {v}")
         if self.submap_scans < 2:
             raise ValueError(f"submap_scans must be >= 2, got {self.submap_scans}")
@@ -230,6 +238,9 @@ class GraphSlamConfig:
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         for name in (
+            "far_every",
+            "consensus_nodes",
+            "consensus_checks",
             "closure_every",
             "closure_candidates",
             "closure_points",
@@ -789,7 +800,7 @@ class GraphSlam:
         grid = OccupancyGrid(cfg.resolution, model=model, spec=spec)
         for i, p in enumerate(poses):
             grid.integrate_scan(p, rows[i], self._angles[i], max_range=self.max_range)
-        return grid.cropped()
+        return grid  # laid out on the endpoints: cropping would only copy it
 
     def closure_edges(self) -> NDArray[np.int64]:
         """Accepted closures as (node, anchor) pairs, shape (C, 2)."""

@@ -123,6 +123,11 @@ class Submap:
         res = spec0.resolution
         ix = np.floor((ex - spec0.origin[0]) / res).astype(np.int64)
         iy = np.floor((ey - spec0.origin[1]) / res).astype(np.int64)
+        # the integration kernel rounds endpoints with its own arithmetic: an endpoint on a
+        # cell boundary may be in the neighbouring cell there, so take the 3 x 3 block
+        # (re-splatting an occupied cell changes nothing under the max rule)
+        ix = (ix[:, None] + np.array([-1, 0, 1, -1, 0, 1, -1, 0, 1])).ravel()
+        iy = (iy[:, None] + np.array([-1, -1, -1, 0, 0, 0, 1, 1, 1])).ravel()
         inside = (ix >= 0) & (ix < spec0.width) & (iy >= 0) & (iy < spec0.height)
         ix, iy = ix[inside], iy[inside]
         occ = grid.log_odds[iy, ix] > 0

@@ -106,8 +106,13 @@ class GraphSlamConfig:
     local_sd : tuple of float
         Standard deviations ``(metres, radians)`` of the local-SLAM edges (node to previous node
         and node to submap anchor).
-    closure_sd : tuple of float
-        Standard deviations ``(metres, radians)`` of a loop-closure edge.
+    odometry_sd, odometry_sd_rate : tuple of float
+        The odometry increment between consecutive nodes is an edge too, with standard
+        deviations ``odometry_sd + odometry_sd_rate * (distance, |rotation|)`` (metres and
+        radians; per metre and per radian). The base equals ``local_sd``: as in Cartographer's
+        defaults, odometry and scan matching weigh alike, so where the matcher is fooled (a
+        featureless corridor, a crowd, a range scale that disagrees with the wheels) the
+        odometry pulls back. ``odometry_sd[0] = 0`` leaves the edge out.
     closure_min_score : float
         Least branch-and-bound score (mean match field over the scan's endpoints) of a closure.
     wide_min_score : float
@@ -174,6 +179,8 @@ class GraphSlamConfig:
     recover_score: float = 0.4
     recover_window: tuple[float, float] = (0.6, 0.35)
     local_sd: tuple[float, float] = (0.02, 0.005)
+    odometry_sd: tuple[float, float] = (0.02, 0.005)
+    odometry_sd_rate: tuple[float, float] = (0.02, 0.02)
     closure_sd: tuple[float, float] = (0.05, 0.01)
     closure_min_score: float = 0.55
     wide_min_score: float = 0.55
@@ -213,7 +220,7 @@ class GraphSlamConfig:
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"{name} must lie in [0, 1], got {v}")
-        for name in ("local_sd", "closure_sd"):
+        for name in ("local_sd", "closure_sd", "odometry_sd_rate"):
             v = getattr(self, name)
             if (
                 not isinstance(v, tuple)
@@ -223,7 +230,7 @@ class GraphSlamConfig:
                 raise ValueError(f"{name} must be two positive numbers, got {v}")
         for name in (
             "closure_window", "window_growth", "max_window", "wide_window", "consensus",
-            "recover_window",
+            "recover_window", "odometry_sd",
         ):  # fmt: skip
             v = getattr(self, name)
             if (
@@ -232,6 +239,8 @@ class GraphSlamConfig:
                 or not all(math.isfinite(x) and x >= 0 for x in v)
             ):
                 raise ValueError(f"{name} must be two numbers >= 0, got {v}")
+        if self.odometry_sd[0] > 0 and not self.odometry_sd[1] > 0:
+            raise ValueError(f"odometry_sd needs a positive rotation part, got {self.odometry_sd}")
         if self.submap_scans < 2:
             raise ValueError(f"submap_scans must be >= 2, got {self.submap_scans}")
         for name in ("wide_search_every", "optimize_every", "final_iterations"):
@@ -417,6 +426,13 @@ class GraphSlam:
             poses = self.graph.poses
             self.graph.add_node(compose(poses[k - 1], rel))
             self.graph.add_edge(k - 1, k, rel, self._local_info)
+            if cfg.odometry_sd[0] > 0:
+                # the odometry increment as its own edge: where the scan matcher is fooled
+                # (a corridor, a crowd, a miscalibrated range scale) it pulls back
+                d = math.hypot(u[0], u[1])
+                sxy = cfg.odometry_sd[0] + cfg.odometry_sd_rate[0] * d
+                sth = cfg.odometry_sd[1] + cfg.odometry_sd_rate[1] * abs(float(wrap_angle(u[2])))
+                self.graph.add_edge(k - 1, k, u, _information((sxy, sth)))
         self._last_node_odometry = odo.copy()
         if k:
             step = float(np.hypot(*between(self.local[k - 1], local)[:2]))

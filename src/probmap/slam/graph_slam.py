@@ -330,6 +330,8 @@ class GraphSlam:
         self.searched = 0
         self.failed_matches = 0
         self.recovered = 0  # wide re-searches after a poor local match
+        self.odometry_gated = 0  # odometry increments left out (the match searched wide)
+        self._odometry_trusted = True
         self.optimizations = 0
         self.optimize_seconds = 0.0
         self.search_seconds = 0.0
@@ -428,11 +430,16 @@ class GraphSlam:
             self.graph.add_edge(k - 1, k, rel, self._local_info)
             if cfg.odometry_sd[0] > 0:
                 # the odometry increment as its own edge: where the scan matcher is fooled
-                # (a corridor, a crowd, a miscalibrated range scale) it pulls back
+                # (a corridor, a crowd, a range scale that disagrees with the wheels) it pulls
+                # back. Left out when the match had to search beyond the window around the
+                # odometry (the odometry glitched: wheel slip, a late timestamp)
                 d = math.hypot(u[0], u[1])
                 sxy = cfg.odometry_sd[0] + cfg.odometry_sd_rate[0] * d
                 sth = cfg.odometry_sd[1] + cfg.odometry_sd_rate[1] * abs(float(wrap_angle(u[2])))
-                self.graph.add_edge(k - 1, k, u, _information((sxy, sth)))
+                if self._odometry_trusted:
+                    self.graph.add_edge(k - 1, k, u, _information((sxy, sth)))
+                else:
+                    self.odometry_gated += 1
         self._last_node_odometry = odo.copy()
         if k:
             step = float(np.hypot(*between(self.local[k - 1], local)[:2]))
@@ -489,6 +496,7 @@ class GraphSlam:
         if pts.shape[0] < 10 or sm.size == 0:
             self.failed_matches += 1
             return predicted
+        self._odometry_trusted = True
         anchor = self.local[sm.anchor]
         guess = between(anchor, predicted)
         fld = sm.field()
@@ -511,6 +519,7 @@ class GraphSlam:
             self.recovered += 1
             if score2 > score + 0.05 * pts.shape[0]:
                 pose, score = pose2, score2
+                self._odometry_trusted = False
         if score / pts.shape[0] < cfg.min_match_score:
             self.failed_matches += 1
             return predicted

@@ -12,7 +12,7 @@ import numpy as np
 __all__ = ["plot_graph_slam", "save_graph_slam_figure"]
 
 
-def plot_graph_slam(ax: Any, run: Any, *, title: str | None = None) -> Any:
+def plot_graph_slam(ax: Any, run: Any, *, title: str | None = None, max_pixels: int = 2000) -> Any:
     """Draw ``run.grid`` (occupied black, free white, unknown grey), the robot trajectory
     ``run.poses``, and each accepted closure as a segment from the node to the anchor of the
     submap it matched (green: kept by the robust cost, red: down-weighted below 0.5).
@@ -23,24 +23,33 @@ def plot_graph_slam(ax: Any, run: Any, *, title: str | None = None) -> Any:
     run : GraphSlamRun
         From :func:`probmap.pipelines.grid_slam.run_graph_slam`.
     title : str, optional
+    max_pixels : int
+        The map is drawn from every ``step``-th cell so that its longer side has at most this
+        many pixels.
     """
     grid = run.grid
-    p = np.asarray(grid.probability())
-    seen = np.asarray(grid.observed)
-    img = np.where(seen, 1.0 - p, 0.8)
     x0, y0 = grid.spec.origin
     r = grid.spec.resolution
-    h, w = p.shape
+    h, w = grid.spec.shape
+    # a picture has a few thousand pixels a side: take every step-th cell (a large building's
+    # map has tens of millions of cells, and matplotlib would resample all of them in RGBA)
+    step = max(1, -(-max(h, w) // max_pixels))
+    lo = np.asarray(grid.log_odds)[::step, ::step]
+    seen = np.asarray(grid.observed)[::step, ::step]
+    img = np.where(seen, 1.0 / (1.0 + np.exp(lo, dtype=np.float32)), np.float32(0.8))
     ax.imshow(
         img, cmap="gray", vmin=0.0, vmax=1.0, origin="lower", extent=(x0, x0 + w * r, y0, y0 + h * r),
         interpolation="nearest",
     )  # fmt: skip
-    ax.plot(run.poses[:, 0], run.poses[:, 1], color="tab:blue", lw=0.5, label="trajectory")
     nodes = run.node_poses
     weights = np.asarray(run.closure_weights)
     for (k, a), wgt in zip(run.closures, weights, strict=True):
         colour = "tab:green" if wgt >= 0.5 else "tab:red"
-        ax.plot([nodes[k, 0], nodes[a, 0]], [nodes[k, 1], nodes[a, 1]], color=colour, lw=0.4)
+        ax.plot(
+            [nodes[k, 0], nodes[a, 0]], [nodes[k, 1], nodes[a, 1]], color=colour, lw=0.3,
+            alpha=0.25,
+        )  # fmt: skip
+    ax.plot(run.poses[:, 0], run.poses[:, 1], color="tab:blue", lw=0.5, label="trajectory")
     kept = int(np.sum(weights >= 0.5))
     ax.plot([], [], color="tab:green", lw=0.8, label=f"loop closures ({kept})")
     if kept < len(weights):

@@ -686,7 +686,7 @@ class RosBag:
             return None
         raise BagError(
             f"{len(cands)} {what} topics ({', '.join(cands)}): choose one with "
-            f"{what}_topic= (probmap map --{what}-topic)",
+            f"{what}_topic= (on the command line: --{what}-topic)",
             path=self.path,
         )
 

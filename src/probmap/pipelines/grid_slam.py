@@ -147,7 +147,7 @@ def load_laser_log(
         raise ValueError(f"{path}: the scans' odometry poses are not finite")
     if np.all(laser == laser[0]):
         raise ValueError(
-            f"{path}: the log has no odometry (every scan has the same pose); graph SLAM needs "
+            f"{path}: no odometry (every scan has the same pose); graph SLAM needs "
             "odometry to predict the motion between scans"
         )
     return batch

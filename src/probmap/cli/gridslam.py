@@ -114,7 +114,12 @@ def _graph(log: Path, output: Path, end_time: float | None, bag_options: dict) -
         ),
         ("map", f"{spec.width} x {spec.height} cells at {spec.resolution:g} m"),
         ("optimization", f"{run.optimize_seconds:.1f} s"),
-        ("time", f"{run.seconds:.1f} s ({run.real_time_factor:.1f}x real time)"),
+        (
+            "time",
+            f"{run.seconds:.1f} s ({run.real_time_factor:.1f}x real time)"
+            if run.duration > 0
+            else f"{run.seconds:.1f} s (the log has no timestamps: no real-time factor)",
+        ),
         ("peak memory", f"{rss:.0f} MiB"),
     ]
     rows += [("wrote", str(f)) for f in files]

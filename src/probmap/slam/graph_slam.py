@@ -364,7 +364,7 @@ class GraphSlam:
 
     def node_poses(self) -> NDArray[np.float64]:
         """Current estimates of the nodes' sensor poses, shape (N, 3), map frame."""
-        return np.asarray(self.graph.poses, dtype=np.float64).reshape(-1, 3).copy()
+        return self.graph.poses  # a copy already
 
     # ------------------------------------------------------------------ steps
     def add_scan(
@@ -425,8 +425,7 @@ class GraphSlam:
             predicted = compose(prev, u)
             local = self._match_local(pts, predicted)
             rel = between(prev, local)
-            poses = self.graph.poses
-            self.graph.add_node(compose(poses[k - 1], rel))
+            self.graph.add_node(compose(self.graph.pose(k - 1), rel))
             self.graph.add_edge(k - 1, k, rel, self._local_info)
             if cfg.odometry_sd[0] > 0:
                 # the odometry increment as its own edge: where the scan matcher is fooled
@@ -639,7 +638,7 @@ class GraphSlam:
         cfg = self.config
         fld, grids = self._grids(sm)
         self.searched += 1
-        guess = between(self.graph.poses[sm.anchor], xk)
+        guess = between(self.graph.pose(sm.anchor), xk)
         found = branch_and_bound_search(
             grids,
             self._node_points[k],
@@ -722,8 +721,8 @@ class GraphSlam:
                 self._link(sm.index, other.index, self._travel[k] - self._travel[other.anchor])
         # optimize now only when the closure moves the estimate by a good part of the
         # near window; smaller corrections wait for the next periodic optimization
-        implied = compose(self.graph.poses[sm.anchor], pose)
-        xk = self.graph.poses[k]
+        implied = compose(self.graph.pose(sm.anchor), pose)
+        xk = self.graph.pose(k)
         moved = math.hypot(implied[0] - xk[0], implied[1] - xk[1])
         turned = abs(float(wrap_angle(implied[2] - xk[2])))
         if moved > 0.5 * cfg.closure_window[0] or turned > 0.5 * cfg.closure_window[1]:

@@ -32,13 +32,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from probmap._atomic import atomic_write
+from probmap._typing import FloatArray, IntArray
 from probmap.datasets.protocol import DatasetError
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 __all__ = [
     "LandmarkEdge",

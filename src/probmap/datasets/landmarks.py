@@ -20,10 +20,8 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
+from probmap._typing import FloatArray, IntArray
 from probmap.datasets.protocol import DatasetError
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 __all__ = [
     "LandmarkDataset",

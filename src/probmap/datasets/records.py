@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from probmap._typing import FloatArray
 
 __all__ = ["LaserScan", "Odometry", "ScanBatch"]
 

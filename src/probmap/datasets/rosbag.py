@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from probmap._typing import FloatArray
 from probmap.datasets.protocol import DatasetError
 from probmap.datasets.records import LaserScan, Odometry, ScanBatch
 
@@ -57,7 +58,6 @@ __all__ = [
     "yaw_from_quaternion",
 ]
 
-FloatArray = NDArray[np.float64]
 
 SCAN_TYPES = ("sensor_msgs/msg/LaserScan", "sensor_msgs/msg/MultiEchoLaserScan")
 ODOM_TYPE = "nav_msgs/msg/Odometry"

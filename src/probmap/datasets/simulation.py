@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from probmap.datasets.landmarks import FloatArray, LandmarkSequence, LandmarkStep
+from probmap._typing import FloatArray
+from probmap.datasets.landmarks import LandmarkSequence, LandmarkStep
 from probmap.geometry.se2 import wrap_angle
 from probmap.models.measurement import RangeBearingModel
 from probmap.models.motion import VelocityModel

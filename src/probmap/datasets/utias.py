@@ -29,9 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from probmap._typing import FloatArray, IntArray
 from probmap.datasets.landmarks import (
-    FloatArray,
-    IntArray,
     LandmarkStep,
     merge_events,
     read_numeric_table,

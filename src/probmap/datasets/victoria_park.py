@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from probmap._typing import FloatArray
 from probmap.datasets.landmarks import (
-    FloatArray,
     LandmarkStep,
     merge_events,
     read_numeric_table,

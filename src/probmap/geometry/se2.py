@@ -12,9 +12,9 @@ the composition operator follows Smith, Self and Cheeseman (1990).
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-FloatArray = NDArray[np.float64]
+from probmap._typing import FloatArray
 
 __all__ = [
     "between",

@@ -149,6 +149,9 @@ def regrid(
     return new
 
 
+_EPOCH = 254  # scans per kernel call: their ids must fit the one-byte stamp (2..255)
+
+
 class OccupancyGrid:
     """A 2-D occupancy grid holding float32 log odds, updated by the binary Bayes filter.
 
@@ -231,8 +234,12 @@ class OccupancyGrid:
             spec = GridSpec(res, (0.0, 0.0), (0, 0))
         self._spec = spec
         self._lo = np.full(spec.shape, self.l0, dtype=np.float32)
-        # stamp[iy, ix] = 1-based index of the last scan that updated the cell, 0 = never
-        self._stamp = np.zeros(spec.shape, dtype=np.int32)
+        # stamp[iy, ix]: 0 = never updated, otherwise the epoch-relative id (1..255) of the last
+        # scan that updated the cell. One byte per cell: when the ids run out every nonzero
+        # stamp is set back to 1 and ids restart at 2 (see _next_ids), so a cell is still
+        # changed at most once per scan and ``observed`` is still ``stamp != 0``.
+        self._stamp = np.zeros(spec.shape, dtype=np.uint8)
+        self._sid = 1  # last scan id handed out in the current epoch
 
     # ------------------------------------------------------------------ state
     @property
@@ -303,7 +310,7 @@ class OccupancyGrid:
                 raise ValueError(
                     f"observed shape {seen.shape} does not match spec.shape {spec.shape}"
                 )
-        grid._stamp = seen.astype(np.int32)
+        grid._stamp = seen.astype(np.uint8)
         grid._scans = 1 if seen.any() else 0
         return grid
 
@@ -331,6 +338,7 @@ class OccupancyGrid:
         )
         out._lo = self._lo[y0:y1, x0:x1].copy()
         out._stamp = self._stamp[y0:y1, x0:x1].copy()
+        out._sid = self._sid
         out._scans = self._scans
         return out
 
@@ -344,6 +352,20 @@ class OccupancyGrid:
         self._lo = regrid(self._lo, new.shape, off, self.l0)
         self._stamp = regrid(self._stamp, new.shape, off, 0)
         self._spec = new
+
+    def _next_ids(self, n: int) -> int:
+        """First of ``n`` consecutive scan ids (``n <= 254``) that no cell carries yet.
+
+        Ids live in 2..255 within an epoch; a new epoch marks every updated cell with 1 (still
+        observed, never equal to a coming id). This costs one pass over the grid per 254
+        scans and keeps the stamp at one byte per cell.
+        """
+        if self._sid + n > 255:
+            np.minimum(self._stamp, 1, out=self._stamp)
+            self._sid = 1
+        first = self._sid + 1
+        self._sid += n
+        return first
 
     # ------------------------------------------------------------------ updates
     def integrate_scan(
@@ -457,30 +479,30 @@ class OccupancyGrid:
         box = np.empty(4)
         _kernels.scan_bounds(P, R, A, shared, max_range, clear_range, self.model.thickness, box)
         self._ensure_bounds(box)
-        if self._scans + P.shape[0] >= np.iinfo(np.int32).max:  # pragma: no cover
-            raise OverflowError("more than 2**31 scans in one grid")
         counts = np.zeros(4, dtype=np.int64)
         ox, oy = self._spec.origin
-        _kernels.integrate_scans(
-            self._lo,
-            self._stamp,
-            self._scans + 1,
-            ox,
-            oy,
-            self._spec.resolution,
-            P,
-            R,
-            A,
-            shared,
-            max_range,
-            clear_range,
-            self.model.thickness,
-            self.model.l_hit - self.l0,
-            self.model.l_miss - self.l0,
-            self.l_min,
-            self.l_max,
-            counts,
-        )
+        for s0 in range(0, P.shape[0], _EPOCH):
+            s1 = min(s0 + _EPOCH, P.shape[0])
+            _kernels.integrate_scans(
+                self._lo,
+                self._stamp,
+                self._next_ids(s1 - s0),
+                ox,
+                oy,
+                self._spec.resolution,
+                P[s0:s1],
+                R[s0:s1],
+                A if shared else A[s0:s1],
+                shared,
+                max_range,
+                clear_range,
+                self.model.thickness,
+                self.model.l_hit - self.l0,
+                self.model.l_miss - self.l0,
+                self.l_min,
+                self.l_max,
+                counts,
+            )
         self._scans += P.shape[0]
         return ScanStats(
             scans=int(P.shape[0]),

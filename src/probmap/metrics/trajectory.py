@@ -20,9 +20,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap._typing import FloatArray
 from probmap.geometry.se2 import between, compose, wrap_angle
-
-FloatArray = NDArray[np.float64]
 
 __all__ = [
     "ErrorSeries",

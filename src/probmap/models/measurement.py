@@ -10,11 +10,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from probmap._typing import FloatArray
 from probmap.geometry.se2 import wrap_angle
-
-FloatArray = NDArray[np.float64]
 
 __all__ = ["RangeBearingModel"]
 

@@ -18,11 +18,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from probmap._typing import FloatArray
 from probmap.geometry.se2 import wrap_angle
-
-FloatArray = NDArray[np.float64]
 
 __all__ = ["AckermannModel", "VelocityModel"]
 

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from probmap._typing import FloatArray
 
 __all__ = ["InformationStore"]
 

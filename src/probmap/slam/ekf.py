@@ -20,14 +20,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.linalg import blas, cho_factor, cho_solve
 
+from probmap._typing import FloatArray, IntArray
 from probmap.geometry.se2 import wrap_angle
 from probmap.slam.association import NEW, associate_ml, chi2_gate, innovation
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 __all__ = ["EKFConfig", "EKFSLAM"]
 

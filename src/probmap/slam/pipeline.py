@@ -17,8 +17,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from probmap._typing import FloatArray, IntArray
 from probmap.datasets.landmarks import LandmarkDataset
 from probmap.geometry.se2 import wrap_angle
 from probmap.metrics.trajectory import (
@@ -33,9 +33,6 @@ from probmap.metrics.trajectory import (
     relative_pose_error,
 )
 from probmap.slam.base import LandmarkSLAM
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 __all__ = [
     "SlamResult",

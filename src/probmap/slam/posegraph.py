@@ -48,11 +48,8 @@ from typing import Any, Literal, TypeVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap._typing import BoolArray, FloatArray, IntArray
 from probmap.slam import _posegraph_kernels as _k
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
 __all__ = [
     "OptimizeResult",

@@ -51,12 +51,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import linalg as sla
 
+from probmap._typing import FloatArray, IntArray
 from probmap.geometry.se2 import wrap_angle
 from probmap.slam._seif_store import InformationStore
 from probmap.slam.association import NEW, associate_ml, chi2_gate
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 __all__ = [
     "SEIFSlam",

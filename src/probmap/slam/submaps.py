@@ -192,7 +192,7 @@ class Submap:
         """Bytes held (grid or occupied cells, and the cached field)."""
         n = 0
         if self.grid is not None:
-            n += self.grid.log_odds.nbytes + self.grid.spec.height * self.grid.spec.width * 4
+            n += self.grid.log_odds.nbytes + self.grid.spec.height * self.grid.spec.width
         if self._cells is not None:
             n += self._cells.nbytes
         if self._field is not None:

@@ -446,7 +446,7 @@ def _share_max_range(batch: ScanBatch | None) -> float | None:
 
 def _max_range_task(path: str, *ranges: float | None) -> float:
     """The whole log's maximum range (the smallest of its scans', as for one batch)."""
-    from probmap.datasets.carmen import DatasetError
+    from probmap.errors import DatasetError
 
     found = [r for r in ranges if r is not None]
     if not found:

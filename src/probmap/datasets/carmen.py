@@ -37,8 +37,8 @@ from typing import IO
 import numpy as np
 from numpy.typing import NDArray
 
-from probmap.datasets.protocol import DatasetError
 from probmap.datasets.records import LaserScan, Odometry, ScanBatch
+from probmap.errors import BadLinesWarning, DatasetError
 
 __all__ = [
     "DEFAULT_MAX_RANGE",
@@ -67,10 +67,6 @@ _NUMERIC_PARAMS = (
     "robot_frontlaser_offset",
     "robot_rearlaser_offset",
 )
-
-
-class BadLinesWarning(UserWarning):
-    """Malformed lines were skipped (``skip_bad_lines=True``)."""
 
 
 class _LineError(Exception):

@@ -36,7 +36,7 @@ from numpy.typing import ArrayLike
 
 from probmap._atomic import atomic_write
 from probmap._typing import FloatArray, IntArray
-from probmap.datasets.protocol import DatasetError
+from probmap.errors import DatasetError
 
 __all__ = [
     "LandmarkEdge",

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from probmap._typing import FloatArray, IntArray
-from probmap.datasets.protocol import DatasetError
+from probmap.errors import DatasetError
 
 __all__ = [
     "LandmarkDataset",

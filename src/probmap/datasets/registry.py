@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from probmap.datasets.protocol import DatasetError
+from probmap.errors import DatasetError
 
 __all__ = ["DATASETS", "FORMATS", "DatasetInfo", "data_dir", "guess_format", "load", "resolve"]
 

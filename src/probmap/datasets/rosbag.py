@@ -40,8 +40,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from probmap._typing import FloatArray
-from probmap.datasets.protocol import DatasetError
 from probmap.datasets.records import LaserScan, Odometry, ScanBatch
+from probmap.errors import BagError
 
 __all__ = [
     "BagMap",
@@ -64,10 +64,6 @@ ODOM_TYPE = "nav_msgs/msg/Odometry"
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
 MAP_TYPE = "nav_msgs/msg/OccupancyGrid"
 _NS = 1e-9
-
-
-class BagError(DatasetError):
-    """A bag that cannot be read or used: names the file and the topic, frame or time."""
 
 
 def require_rosbags() -> Any:

@@ -35,7 +35,7 @@ from probmap.datasets.landmarks import (
     merge_events,
     read_numeric_table,
 )
-from probmap.datasets.protocol import DatasetError
+from probmap.errors import DatasetError
 from probmap.metrics.trajectory import interpolate_poses
 from probmap.models.measurement import RangeBearingModel
 from probmap.models.motion import VelocityModel

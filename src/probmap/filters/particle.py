@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap.errors import ParticleFilterWarning
 from probmap.filters.resampling import Resampler, log_normalize, low_variance_resample
 
 __all__ = [
@@ -24,10 +25,6 @@ __all__ = [
     "weighted_pose_covariance",
     "weighted_pose_mean",
 ]
-
-
-class ParticleFilterWarning(UserWarning):
-    """The filter hit a degenerate case (e.g. every particle impossible) and recovered."""
 
 
 def circular_mean(angles: ArrayLike, weights: ArrayLike) -> float:

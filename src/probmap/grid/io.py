@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from probmap._atomic import atomic_files
-from probmap.datasets.protocol import DatasetError
+from probmap.errors import MapFileError
 from probmap.grid.spec import GridSpec
 
 if TYPE_CHECKING:
@@ -64,10 +64,6 @@ UNKNOWN_GREY = 205  # map_saver's value for unknown cells
 FREE_WHITE = 254
 OCCUPIED_BLACK = 0
 _IMAGE_SUFFIXES = (".pgm", ".png")
-
-
-class MapFileError(DatasetError):
-    """A malformed or inconsistent map file; the message names the file and field."""
 
 
 class GridLike(Protocol):

@@ -40,7 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from probmap._atomic import atomic_files
-from probmap.datasets.protocol import DatasetError
+from probmap.errors import SemanticFileError
 from probmap.grid.semantic import (
     LabelledInverseModel,
     SemanticGrid,
@@ -52,10 +52,6 @@ from probmap.grid.spec import GridSpec
 NPZ_FORMAT = "probmap.SemanticGrid"
 NPZ_VERSION = 1
 UNKNOWN_RGB = (205, 205, 205)
-
-
-class SemanticFileError(DatasetError):
-    """A malformed semantic map or labelled scan file; the message names the file and key."""
 
 
 # --------------------------------------------------------------------------- semantic map npz

@@ -52,6 +52,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import linalg as sla
 
 from probmap._typing import FloatArray, IntArray
+from probmap.errors import SingularInformationError
 from probmap.geometry.se2 import wrap_angle
 from probmap.slam._seif_store import InformationStore
 from probmap.slam.association import NEW, associate_ml, chi2_gate
@@ -74,10 +75,6 @@ LANDMARK_COVARIANCE_EXACT_MAX = 5000
 
 CONTEXT_MAX = 128
 """At most this many context landmarks per sparsification (``SeifConfig.context_hops``)."""
-
-
-class SingularInformationError(ValueError):
-    """An information block is singular or indefinite; the update was rejected, state unchanged."""
 
 
 # ---------------------------------------------------------------------------------------------

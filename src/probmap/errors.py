@@ -1,0 +1,73 @@
+"""The exceptions and warnings that probmap raises, in one place.
+
+Every class keeps its old import path too (``probmap.datasets.protocol.DatasetError``,
+``probmap.grid.io.MapFileError`` ...): those modules re-export the names from here.  This module
+imports nothing from the package, so any layer may import it.
+
+Exceptions that belong to one layer stay there: :class:`probmap.cli.common.CliError` (the CLI's
+one-line errors) and :class:`probmap.distributed.DistributedMappingError` (it carries that
+pipeline's partial result).
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "BadLinesWarning",
+    "BagError",
+    "DatasetError",
+    "MapFileError",
+    "ParticleFilterWarning",
+    "SemanticFileError",
+    "SingularInformationError",
+]
+
+
+# --------------------------------------------------------------------------------- input data
+class DatasetError(ValueError):
+    """Malformed input data. The message names the file and, where known, the line and field."""
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        path: object | None = None,
+        line: int | None = None,
+        field: str | None = None,
+    ) -> None:
+        where = []
+        if path is not None:
+            where.append(str(path))
+        if line is not None:
+            where.append(f"line {line}")
+        if field is not None:
+            where.append(f"field {field!r}")
+        prefix = ", ".join(where)
+        super().__init__(f"{prefix}: {message}" if prefix else message)
+        self.path = path
+        self.line = line
+        self.field = field
+
+
+class BagError(DatasetError):
+    """A bag that cannot be read or used: names the file and the topic, frame or time."""
+
+
+class MapFileError(DatasetError):
+    """A malformed or inconsistent map file; the message names the file and field."""
+
+
+class SemanticFileError(DatasetError):
+    """A malformed semantic map or labelled scan file; the message names the file and key."""
+
+
+class BadLinesWarning(UserWarning):
+    """Malformed lines were skipped (``skip_bad_lines=True``)."""
+
+
+# --------------------------------------------------------------------------------- estimators
+class SingularInformationError(ValueError):
+    """An information block is singular or indefinite; the update was rejected, state unchanged."""
+
+
+class ParticleFilterWarning(UserWarning):
+    """The filter hit a degenerate case (e.g. every particle impossible) and recovered."""

@@ -36,7 +36,7 @@ from probmap.datasets.landmarks import (
     read_numeric_table,
 )
 from probmap.errors import DatasetError
-from probmap.metrics.trajectory import interpolate_poses
+from probmap.geometry.timesync import interpolate_poses
 from probmap.models.measurement import RangeBearingModel
 from probmap.models.motion import VelocityModel
 

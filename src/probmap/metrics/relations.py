@@ -22,8 +22,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from probmap.datasets.protocol import DatasetError
+from probmap.errors import DatasetError
 from probmap.geometry.se2 import between, compose, inverse, wrap_angle
+from probmap.geometry.timesync import nearest_time_index
 
 
 @dataclass(frozen=True, eq=False)
@@ -180,19 +181,6 @@ def _read_trajectory_csv(p: Path) -> tuple[NDArray[np.float64], NDArray[np.float
     return a[:, 0].copy(), a[:, 1:4].copy()
 
 
-def _lookup(times: NDArray[np.float64], t: NDArray[np.float64], tol: float) -> NDArray[np.int64]:
-    """Index of the nearest trajectory time for each ``t``, or -1 when none is within ``tol``."""
-    order = np.argsort(times, kind="stable")
-    st = times[order]
-    k = np.clip(np.searchsorted(st, t), 1, len(st) - 1) if len(st) > 1 else np.zeros(len(t), int)
-    if len(st) > 1:
-        left = k - 1
-        nearer = np.abs(st[left] - t) <= np.abs(st[k] - t)
-        k = np.where(nearer, left, k)
-    idx = order[k]
-    return np.where(np.abs(times[idx] - t) <= tol, idx, -1)
-
-
 def relation_errors(
     times: NDArray[np.float64],
     poses: NDArray[np.float64],
@@ -236,8 +224,8 @@ def relation_errors(
         raise ValueError(f"times (T,) and poses (T, 3) disagree: {times.shape}, {poses.shape}")
     if len(times) == 0:
         raise ValueError("the trajectory has no poses")
-    i1 = _lookup(times, relations.t1, tolerance)
-    i2 = _lookup(times, relations.t2, tolerance)
+    i1 = nearest_time_index(times, relations.t1, tolerance)
+    i2 = nearest_time_index(times, relations.t2, tolerance)
     used = (i1 >= 0) & (i2 >= 0)
     if not used.any():
         raise ValueError(

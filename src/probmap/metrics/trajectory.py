@@ -22,6 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from probmap._typing import FloatArray
 from probmap.geometry.se2 import between, compose, wrap_angle
+from probmap.geometry.timesync import interpolate_poses  # re-exported: the old import path
 
 __all__ = [
     "ErrorSeries",
@@ -122,25 +123,6 @@ def apply_se2(transform: ArrayLike, data: ArrayLike) -> FloatArray:
         [T[0] + c * data[..., 0] - s * data[..., 1], T[1] + s * data[..., 0] + c * data[..., 1]],
         -1,
     )
-
-
-def interpolate_poses(trajectory: ArrayLike, times: ArrayLike) -> FloatArray:
-    """Linear interpolation of a ``(T, 4)`` ``time, x, y, theta`` trajectory at ``times``.
-
-    Angles are interpolated along the shortest arc. Times outside the trajectory's span give NaN.
-    """
-    tr = np.asarray(trajectory, dtype=np.float64)
-    t = np.asarray(times, dtype=np.float64)
-    if tr.ndim != 2 or tr.shape[1] != 4 or tr.shape[0] < 2:
-        raise ValueError(f"trajectory must have shape (T>=2, 4), got {tr.shape}")
-    if np.any(np.diff(tr[:, 0]) < 0):
-        raise ValueError("trajectory times must be non-decreasing")
-    x = np.interp(t, tr[:, 0], tr[:, 1])
-    y = np.interp(t, tr[:, 0], tr[:, 2])
-    th = np.interp(t, tr[:, 0], np.unwrap(tr[:, 3]))
-    out = np.stack([x, y, wrap_angle(th)], -1)
-    out[(t < tr[0, 0]) | (t > tr[-1, 0])] = np.nan
-    return out
 
 
 def absolute_trajectory_error(

@@ -21,12 +21,12 @@ import numpy as np
 from probmap._typing import FloatArray, IntArray
 from probmap.datasets.landmarks import LandmarkDataset
 from probmap.geometry.se2 import wrap_angle
+from probmap.geometry.timesync import interpolate_poses
 from probmap.metrics.trajectory import (
     absolute_trajectory_error,
     align_se2,
     apply_se2,
     chi2_bounds,
-    interpolate_poses,
     landmark_rmse,
     nees,
     reject_jumps,

@@ -7,7 +7,7 @@ import stat
 
 import pytest
 
-from probmap._atomic import atomic_files, atomic_save, atomic_write
+from probmap._atomic import atomic_files, atomic_path, atomic_save, atomic_write
 
 
 def test_write_creates_file_and_leaves_no_temporary(tmp_path):
@@ -124,3 +124,50 @@ def test_group_into_a_missing_folder_creates_nothing(tmp_path):
         with atomic_files([good, tmp_path / "missing" / "x"]):
             pass
     assert os.listdir(tmp_path) == []
+
+
+def test_path_writer_gets_the_target_name_and_the_old_file_survives_failure(tmp_path):
+    target = tmp_path / "plot.png"
+    target.write_bytes(b"old")
+    with atomic_path(target) as tmp:
+        assert tmp.name == "plot.png" and tmp.parent.parent == tmp_path
+        tmp.write_bytes(b"new")
+        assert target.read_bytes() == b"old"
+    assert target.read_bytes() == b"new"
+    assert os.listdir(tmp_path) == ["plot.png"]
+    with pytest.raises(RuntimeError, match="midway"):
+        with atomic_path(target) as tmp:
+            tmp.write_bytes(b"half")
+            raise RuntimeError("writer failed midway")
+    assert target.read_bytes() == b"new"
+    assert os.listdir(tmp_path) == ["plot.png"]
+
+
+def test_path_writer_may_write_a_folder(tmp_path):
+    target = tmp_path / "bag"
+    with atomic_path(target) as tmp:
+        tmp.mkdir()
+        (tmp / "bag.mcap").write_bytes(b"x")
+        (tmp / "metadata.yaml").write_text("y")
+    assert sorted(os.listdir(target)) == ["bag.mcap", "metadata.yaml"]
+    assert os.listdir(tmp_path) == ["bag"]
+
+
+def test_path_writer_that_writes_nothing_or_cannot_write(tmp_path):
+    with pytest.raises(FileNotFoundError, match="created no file"):
+        with atomic_path(tmp_path / "x.csv"):
+            pass
+    assert os.listdir(tmp_path) == []
+    target = tmp_path / "missing" / "x.csv"
+    with pytest.raises(FileNotFoundError) as info:
+        with atomic_path(target):
+            pass
+    assert str(target) in str(info.value)
+
+
+def test_path_writer_permissions_follow_the_umask_like_open(tmp_path):
+    plain = tmp_path / "plain"
+    plain.write_bytes(b"")
+    with atomic_path(tmp_path / "atomic") as tmp:
+        tmp.write_bytes(b"")
+    assert stat.S_IMODE((tmp_path / "atomic").stat().st_mode) == stat.S_IMODE(plain.stat().st_mode)

@@ -1,19 +1,29 @@
 """Atomic file writes: a temporary file in the target's folder, fsync, then ``os.replace``.
 
 A reader never sees a half-written file: either the old file (or none) or the complete new one.
-If the writer raises, the temporary file is removed and the target is untouched.
+If the writer raises, the temporary file is removed and the target is untouched. New files get the
+mode a plain ``open(path, "w")`` gives (0o666 less the umask: 0644 under the usual umask 022).
+
+This module is the package's one writer of output files:
+
+- :func:`atomic_write` / :func:`atomic_save`: one file, written through an open file object;
+- :func:`atomic_files`: several files, all or nothing;
+- :func:`atomic_path`: one file or folder written by a library that wants a *path*
+  (``savefig``, ``np.savetxt``, a ROS bag writer).
 """
 
 from __future__ import annotations
 
 import os
 import secrets
+import shutil
+import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import ExitStack, contextmanager, suppress
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["atomic_files", "atomic_save", "atomic_write"]
+__all__ = ["atomic_files", "atomic_path", "atomic_save", "atomic_write"]
 
 _WRITE_MODES = ("w", "wt", "wb")
 
@@ -33,11 +43,14 @@ def _make_temp(path: Path) -> tuple[int, str]:
         except FileExistsError:  # pragma: no cover - 32 random bits collided
             continue
         except OSError as exc:
-            reason = exc.strerror or str(exc)
-            raise type(exc)(
-                exc.errno, f"cannot write {path}: {reason} ({folder})", str(path)
-            ) from None
+            raise _naming(exc, path) from None
     raise FileExistsError(f"cannot create a temporary file for {path}")  # pragma: no cover
+
+
+def _naming(exc: OSError, path: Path) -> OSError:
+    """The same kind of error, with a message that names the target and its folder."""
+    reason = exc.strerror or str(exc)
+    return type(exc)(exc.errno, f"cannot write {path}: {reason} ({path.parent})", str(path))
 
 
 def _sync_folder(folder: Path) -> None:
@@ -153,3 +166,61 @@ def atomic_save(
     with atomic_write(path, mode, encoding=encoding) as f:
         writer(f)
     return Path(path)
+
+
+def _sync_tree(path: Path) -> None:
+    """fsync a written file, or every file below a written folder (best effort)."""
+    files = [path] if path.is_file() else [Path(d) / n for d, _, ns in os.walk(path) for n in ns]
+    for name in files:
+        with suppress(OSError):
+            fd = os.open(name, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+
+
+@contextmanager
+def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield a fresh path, with the same name as ``path``, for a writer that wants a path.
+
+    The writer creates a file or a folder (a ROS 2 bag) at the yielded path, which lies in a
+    private temporary folder beside ``path`` (so the name, and a suffix that picks a format, are
+    kept). On a clean exit it is moved onto ``path`` with ``os.replace``; whatever happens, the
+    temporary folder is removed, so a failed write leaves nothing behind and ``path`` untouched.
+
+    Raises
+    ------
+    FileNotFoundError
+        When the writer created nothing at the yielded path.
+    OSError
+        When the folder does not exist or is not writable; the message names ``path``.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> target = pathlib.Path(tempfile.mkdtemp()) / "poses.csv"
+    >>> with atomic_path(target) as tmp:
+    ...     _ = tmp.write_text("x,y")
+    ...     (tmp.name, target.exists())
+    ('poses.csv', False)
+    >>> target.read_text()
+    'x,y'
+    """
+    target = Path(path)
+    try:
+        workdir = Path(
+            tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+        )
+    except OSError as exc:
+        raise _naming(exc, target) from None
+    try:
+        tmp = workdir / target.name
+        yield tmp
+        if not tmp.exists():
+            raise FileNotFoundError(f"cannot write {target}: the writer created no file")
+        _sync_tree(tmp)
+        os.replace(tmp, target)
+        _sync_folder(target.parent)
+    finally:
+        shutil.rmtree(workdir, ignore_errors=True)

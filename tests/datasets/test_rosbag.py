@@ -449,6 +449,7 @@ def test_map_round_trip_through_a_bag(tmp_path, world, name, storage):
     with AnyReader([out]) as r:
         assert [c.msgtype for c in r.connections] == ["nav_msgs/msg/OccupancyGrid"]
     assert list(tmp_path.glob(".probmap-bag-*")) == []  # no temp left behind
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
 
 
 def test_map_writer_refuses_an_existing_ros2_folder_and_a_missing_folder(tmp_path, world):

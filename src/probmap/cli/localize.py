@@ -7,6 +7,7 @@ from typing import Any
 
 import typer
 
+from probmap._atomic import atomic_path
 from probmap.cli.common import CliError, cli_errors
 
 
@@ -29,20 +30,6 @@ def _plot(ax: Any, spec: Any, probability: Any, poses: Any, reference: Any | Non
     ax.set_ylabel("y [m]")
     ax.set_aspect("equal")
     ax.legend(loc="upper right")
-
-
-def _write_atomic(path: Path, write: Any) -> None:
-    import os
-    import tempfile
-
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _read_reference(path: Path, offset: float) -> tuple[Any, Any]:
@@ -148,12 +135,10 @@ def localize_command(
         output.mkdir(parents=True, exist_ok=True)
         rows = np.column_stack([run.times, run.poses, run.spread])
         traj = output / "trajectory.csv"
-        _write_atomic(
-            traj,
-            lambda tmp: np.savetxt(
+        with atomic_path(traj) as tmp:
+            np.savetxt(
                 tmp, rows, delimiter=",", fmt="%.6f", header="time,x,y,theta,spread", comments=""
-            ),
-        )
+            )
         import matplotlib
 
         matplotlib.use("Agg")
@@ -162,7 +147,8 @@ def localize_command(
         fig, ax = plt.subplots(figsize=(8, 8))
         _plot(ax, m.spec, m.probability, run.poses, ref_p)
         plot = output / "trajectory.png"
-        _write_atomic(plot, lambda tmp: fig.savefig(tmp, dpi=120, format="png"))
+        with atomic_path(plot) as tmp:
+            fig.savefig(tmp, dpi=120, format="png")
         plt.close(fig)
 
         console = Console()

@@ -121,11 +121,10 @@ def fit_sensor_model_command(
     """Fit the beam model's parameters to a log by EM (Probabilistic Robotics Table 6.2)."""
     with cli_errors():
         import dataclasses
-        import os
-        import tempfile
 
         import yaml
 
+        from probmap._atomic import atomic_write
         from probmap.grid.fit import fit_log
 
         if not log.exists():
@@ -152,14 +151,8 @@ def fit_sensor_model_command(
         ]
         if output is not None:
             doc = {"beam_model": {k: float(v) for k, v in params.items()}}
-            fd, tmp = tempfile.mkstemp(dir=output.parent.resolve(), suffix=".tmp")
-            try:
-                with os.fdopen(fd, "w") as fh:
-                    yaml.safe_dump(doc, fh, sort_keys=False)
-                os.replace(tmp, output)
-            except BaseException:
-                Path(tmp).unlink(missing_ok=True)
-                raise
+            with atomic_write(output, "w") as fh:
+                yaml.safe_dump(doc, fh, sort_keys=False)
             rows.append(("wrote", str(output)))
         _table(f"probmap fit-sensor-model {log.name}", rows)
 

@@ -26,9 +26,7 @@ from __future__ import annotations
 
 import math
 import os
-import shutil
 import struct
-import tempfile
 import warnings
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -39,6 +37,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from probmap._atomic import atomic_path
 from probmap._typing import FloatArray
 from probmap.datasets.records import LaserScan, Odometry, ScanBatch
 from probmap.errors import BagError
@@ -1179,9 +1178,7 @@ def write_map_to_bag(
     ros1 = out.suffix == ".bag"
     if not ros1 and out.exists():
         raise FileExistsError(f"{out}: a ROS 2 bag folder exists already")
-    tmpdir = Path(tempfile.mkdtemp(prefix=".probmap-bag-", dir=folder))
-    try:
-        tmp = tmpdir / out.name
+    with atomic_path(out) as tmp:
         ns = int(round(stamp * 1e9))
         if ros1:
             from rosbags.rosbag1 import Writer as Writer1
@@ -1201,9 +1198,6 @@ def write_map_to_bag(
                 conn = w2.add_connection(topic, MAP_TYPE, typestore=store)
                 msg = _map_message(store, grid, frame_id, stamp, False)
                 w2.write(conn, ns, store.serialize_cdr(msg, MAP_TYPE))
-        os.replace(tmp, out)
-    finally:
-        shutil.rmtree(tmpdir, ignore_errors=True)
     return out
 
 

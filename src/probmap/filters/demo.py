@@ -10,13 +10,13 @@ from __future__ import annotations
 import csv
 import math
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
+from probmap._atomic import atomic_write
 from probmap.grid.spec import GridSpec
 
 __all__ = ["LocalizationWorld", "run_localize_demo", "simulate_localization_world"]
@@ -125,17 +125,11 @@ def simulate_localization_world(
 
 
 def _write_csv_atomic(path: Path, header: list[str], rows: NDArray[np.float64]) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", newline="") as fh:
-            wr = csv.writer(fh)
-            wr.writerow(header)
-            for row in rows:
-                wr.writerow([f"{v:.6f}" for v in row])
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_write(path, "w") as fh:
+        wr = csv.writer(fh)
+        wr.writerow(header)
+        for row in rows:
+            wr.writerow([f"{v:.6f}" for v in row])
 
 
 def run_localize_demo(out_dir: str | os.PathLike[str], seed: int = 0) -> dict[str, float]:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,6 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap._atomic import atomic_save
 from probmap._typing import FloatArray
 from probmap.geometry.se2 import between, compose, wrap_angle
 from probmap.geometry.timesync import interpolate_poses  # re-exported: the old import path
@@ -291,15 +291,7 @@ def write_metrics_json(path: str | os.PathLike[str], metrics: dict[str, Any]) ->
     """Write ``metrics`` as JSON atomically (temp file + ``os.replace``); NaN/inf become null."""
     path = Path(path)
     text = json.dumps(_jsonable(metrics), indent=2, sort_keys=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text + "\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return atomic_save(path, lambda f: f.write(text + "\n"), mode="w")
 
 
 def reject_jumps(track: ArrayLike, *, max_speed: float) -> NDArray[np.bool_]:

@@ -9,7 +9,6 @@ from __future__ import annotations
 import io
 import os
 import resource
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -18,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from probmap._atomic import atomic_save
 from probmap._typing import FloatArray, IntArray
 from probmap.datasets.landmarks import LandmarkDataset
 from probmap.geometry.se2 import wrap_angle
@@ -340,15 +340,7 @@ def default_ekf_config(dataset: object) -> Any:
 
 
 def _atomic_text(path: Path, text: str) -> Path:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return atomic_save(path, lambda f: f.write(text), mode="w")
 
 
 def write_slam_outputs(

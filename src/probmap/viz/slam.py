@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from probmap._atomic import atomic_path
+
 __all__ = ["covariance_ellipse", "plot_slam", "save_slam_figure"]
 
 
@@ -68,7 +70,6 @@ def save_slam_figure(
     path = Path(path)
     fig = Figure(figsize=(8, 8))
     plot_slam(fig.add_subplot(), result, dataset, title=title)
-    tmp = path.with_name(path.name + ".tmp" + path.suffix)
-    fig.savefig(tmp, dpi=120, bbox_inches="tight")
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=120, bbox_inches="tight")
     return path

@@ -259,3 +259,20 @@ def test_bad_scans_are_refused():
     with pytest.raises(ValueError, match="angles"):
         slam.add_scan(0.0, np.ones(5), np.full(5, np.inf), [0, 0, 0])
     assert slam.nodes == 0 and slam.trajectory()[0].size == 0
+
+
+def test_finish_releases_matching_state_and_ends_the_run(world, run):
+    slam, _ = run
+    _, _, truth, odo, ranges, angles, _, _ = world
+    # finish() dropped every cached field and max-grid, finished the active submaps...
+    assert not slam.active and not slam._cache
+    assert all(sm.finished and sm.grid is None and sm._field is None for sm in slam.submaps)
+    # ...kept everything the outputs need (map, trajectory, a second optimize)...
+    grid = slam.map()
+    assert grid.observed.any()
+    times, poses = slam.trajectory()
+    assert poses.shape == (len(truth), 3)
+    slam.finish()  # idempotent
+    # ...and a later scan is refused instead of matching against released submaps
+    with pytest.raises(RuntimeError, match="finish"):
+        slam.add_scan(1e3, ranges[0], angles, odo[0])

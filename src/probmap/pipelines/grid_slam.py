@@ -161,6 +161,7 @@ def run_graph_slam(
 ) -> GraphSlamRun:
     """Run :class:`~probmap.slam.graph_slam.GraphSlam` over a scan batch (see
     :func:`load_laser_log`) and build the final map."""
+    from probmap._memory import release_freed_memory
     from probmap.geometry.se2 import between, compose, inverse, wrap_angle
     from probmap.slam.graph_slam import GraphSlam, GraphSlamConfig
 
@@ -183,9 +184,11 @@ def run_graph_slam(
         slam.add_scan(times[i], r, a, laser[i])
         if i % 200 == 199 or i == n - 1:
             peak = max(peak, slam.memory_bytes())
+            release_freed_memory()  # finished submaps' grids and evicted max-grids
             if progress is not None:
                 progress(i + 1, n)
     slam.finish()
+    release_freed_memory()  # the matching phase's freed pages, before the map is laid out
     _, sensor = slam.trajectory()
     poses = compose(sensor, inverse(mount))
     poses[:, 2] = wrap_angle(poses[:, 2])

@@ -351,6 +351,7 @@ class GraphSlam:
         ] = []  # edge index of each accepted closure  # confirmed closures awaiting their first optimization
         self._pending_correction = False
         self._cache: OrderedDict[int, Any] = OrderedDict()
+        self._done = False  # finish() was called
         self._finished: list[Submap] = []
         self._fin_anchor: list[int] = []
         self._fin_centre: list[NDArray[np.float64]] = []
@@ -383,6 +384,8 @@ class GraphSlam:
         odometry : array_like, shape (3,)
             The sensor's odometry pose (robot odometry composed with the mounting offset).
         """
+        if self._done:
+            raise RuntimeError("GraphSlam.finish() was called: no more scans can be added")
         r = np.asarray(ranges, dtype=np.float64)
         a = np.asarray(angles, dtype=np.float64)
         odo = np.asarray(odometry, dtype=np.float64)
@@ -396,6 +399,11 @@ class GraphSlam:
         self.scan_times.append(float(time_s))
         self.scan_odometry.append(odo.copy())
         self._ranges.append(r.astype(np.float32))
+        last = self._angles[-1] if self._angles else None
+        if last is not None and last.shape == a.shape and np.array_equal(last, a):
+            a = last  # most logs share one beam geometry: keep one copy
+        else:
+            a = a.copy()
         self._angles.append(a)
         cfg = self.config
         if self._last_node_odometry is not None:
@@ -772,9 +780,25 @@ class GraphSlam:
         return write_pose_graph_g2o(path, g.poses, g.edges, g.measurements, g.information)
 
     def finish(self) -> None:
-        """Final optimization (up to ``final_iterations``)."""
+        """Final optimization (up to ``final_iterations``), then release what only matching
+        needs: the active submaps are finished and every cached field and max-grid is
+        dropped, so building the map does not hold them. The run is over: scans may not be
+        added afterwards (``optimize``, ``map`` and ``trajectory`` still work)."""
+        if self._done:
+            return
         if self.nodes > 1:
             self.optimize(self.config.final_iterations)
+        self._cache.clear()
+        while self.active:
+            done = self.active.pop(0)
+            done.finish()
+            self._finished.append(done)
+            self._fin_anchor.append(done.anchor)
+            self._fin_centre.append(done.centre)
+            self._fin_radius.append(done.radius)
+        for sm in self.submaps:
+            sm.release()
+        self._done = True
 
     def trajectory(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Times (S,) and sensor poses (S, 3) of every scan: nodes at their optimized poses,

@@ -437,8 +437,8 @@ def test_save_map_leaves_nothing_when_it_fails(tmp_path, monkeypatch):
     def boom(*args, **kwargs):
         raise RuntimeError("disk full while writing the PGM")
 
-    # pgm_bytes runs inside the all-or-nothing block, after the YAML temp file was written
-    monkeypatch.setattr(gio, "pgm_bytes", boom)
+    # the PGM is streamed inside the all-or-nothing block, after the YAML temp file was written
+    monkeypatch.setattr(gio, "_write_pgm", boom)
     with pytest.raises(RuntimeError, match="disk full"):
         save_map(tmp_path / "m", grid)
     assert sorted(os.listdir(tmp_path)) == ["afile"]
@@ -455,3 +455,21 @@ def test_save_map_unwritable_folder(tmp_path):
         assert os.listdir(ro) == []
     finally:
         ro.chmod(0o700)
+
+
+@pytest.mark.parametrize("mode", ["trinary", "scale", "raw"])
+@pytest.mark.parametrize("png_scale", [1, 3])
+def test_save_map_in_row_blocks_equals_whole_array_encoding(tmp_path, monkeypatch, mode, png_scale):
+    # a large map is encoded in blocks of rows; with blocks of 2 rows (and a ragged last
+    # block) the files must be exactly those of the whole-array encoders
+    grid = random_grid(seed=3, shape=(23, 31))
+    monkeypatch.setattr(gio, "_CHUNK_CELLS", 2 * 31 + 5)
+    paths = save_map(tmp_path / "m", grid, mode=mode, png_scale=png_scale)
+    grey, _ = gio._encode_pixels(
+        grid.probability(), grid.observed, grid.p0, 0.65, 0.196, False, mode
+    )
+    assert paths[1].read_bytes() == gio.pgm_bytes(grey)
+    np.testing.assert_array_equal(pil_grey(paths[3]), gio.preview_image(grid, png_scale))
+    back = load_npz(paths[2])
+    np.testing.assert_array_equal(back.log_odds, grid.log_odds)
+    np.testing.assert_array_equal(back.observed, grid.observed)

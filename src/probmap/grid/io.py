@@ -243,10 +243,19 @@ def _yaml_text(
 def pgm_bytes(grey: NDArray[np.uint8], comment: str = "probmap") -> bytes:
     """A binary PGM (P5, maxval 255) of an (H, W) uint8 image (row 0 = top)."""
     g = np.ascontiguousarray(grey, dtype=np.uint8)
+    return _pgm_header(g, comment) + g.tobytes()
+
+
+def _pgm_header(g: NDArray[np.uint8], comment: str = "probmap") -> bytes:
     if g.ndim != 2:
         raise ValueError(f"a PGM image must be 2-D, got shape {g.shape}")
-    head = f"P5\n# {comment}\n{g.shape[1]} {g.shape[0]}\n255\n".encode("ascii")
-    return head + g.tobytes()
+    return f"P5\n# {comment}\n{g.shape[1]} {g.shape[0]}\n255\n".encode("ascii")
+
+
+def _write_pgm(f: IO[bytes], grey: NDArray[np.uint8]) -> None:
+    """Stream a binary PGM of a C-contiguous (H, W) uint8 image into ``f`` (no copy)."""
+    f.write(_pgm_header(grey))
+    f.write(memoryview(np.ascontiguousarray(grey)).cast("B"))
 
 
 def png_bytes(grey: NDArray[np.uint8], alpha: NDArray[np.uint8] | None = None) -> bytes:
@@ -516,10 +525,12 @@ def read_map_server(yaml_path: str | os.PathLike[str]) -> MapServerMap:
 # ---------------------------------------------------------------------------- npz
 
 
-def _npz_arrays(grid: GridLike) -> dict[str, NDArray[Any]]:
+def _npz_arrays(
+    grid: GridLike, observed: NDArray[np.bool_] | None = None
+) -> dict[str, NDArray[Any]]:
     spec = grid.spec
     lo = np.asarray(grid.log_odds, dtype=np.float32)
-    seen = np.asarray(grid.observed, dtype=bool)
+    seen = np.asarray(grid.observed if observed is None else observed, dtype=bool)
     if lo.shape != spec.shape or seen.shape != spec.shape:
         raise ValueError(
             f"grid arrays {lo.shape}, {seen.shape} do not match spec.shape {spec.shape}"
@@ -537,11 +548,12 @@ def _npz_arrays(grid: GridLike) -> dict[str, NDArray[Any]]:
     }
 
 
-def _write_npz(f: IO[bytes], grid: GridLike) -> None:
+def _write_npz(f: IO[bytes], grid: GridLike, observed: NDArray[np.bool_] | None = None) -> None:
     """The ``.npz`` layout of ``np.savez_compressed`` (one ``NAME.npy`` per array in a zip), at
-    deflate level 3: twice as fast as numpy's default level on large grids, files ~30% larger."""
+    deflate level 3: twice as fast as numpy's default level on large grids, files ~30% larger.
+    ``observed`` is the grid's mask when the caller already has it."""
     with zipfile.ZipFile(f, "w", zipfile.ZIP_DEFLATED, compresslevel=3) as zf:
-        for name, arr in _npz_arrays(grid).items():
+        for name, arr in _npz_arrays(grid, observed).items():
             with zf.open(f"{name}.npy", "w", force_zip64=True) as member:
                 np.lib.format.write_array(member, arr, allow_pickle=False)
 
@@ -697,17 +709,58 @@ def save_map(
     if base.name in ("", ".", ".."):
         raise ValueError(f"output prefix {os.fspath(prefix)!r} needs a file name part")
     paths = [base.parent / f"{base.name}.{ext}" for ext in ("yaml", "pgm", "npz", "png")]
-    # the probabilities once for both images
-    p = np.asarray(grid.probability(), dtype=np.float64)
-    seen = np.asarray(grid.observed, dtype=bool)
-    grey, _ = _encode_pixels(p, seen, float(grid.p0), occupied_thresh, free_thresh, False, mode)
-    png = png_bytes(_preview_pixels(p, seen, png_scale))
     yaml_text = _yaml_text(paths[1].name, grid.spec, occupied_thresh, free_thresh, False, mode)
-    npz = io.BytesIO()
-    _write_npz(npz, grid)
+    seen = np.asarray(grid.observed, dtype=bool)
+    grey, preview = _map_images(grid, seen, occupied_thresh, free_thresh, mode, png_scale)
     with atomic_files(paths) as (fy, fp, fn, fi):
         fy.write(yaml_text.encode("utf-8"))
-        fp.write(pgm_bytes(grey))
-        fn.write(npz.getvalue())
-        fi.write(png)
+        _write_pgm(fp, grey)
+        del grey
+        _write_npz(fn, grid, seen)
+        from PIL import Image
+
+        Image.fromarray(preview).save(fi, format="PNG", compress_level=3)
     return paths
+
+
+_CHUNK_CELLS = 1 << 22  # cells per block when a large map is encoded block by block
+
+
+def _map_images(
+    grid: GridLike,
+    seen: NDArray[np.bool_],
+    occupied_thresh: float,
+    free_thresh: float,
+    mode: str,
+    scale: int,
+) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
+    """The map-server image and the grey preview (both row 0 = top), encoded in blocks of
+    rows so that a large map never needs its probabilities (8 bytes a cell) all at once."""
+    from probmap.grid.logodds import prob
+    from probmap.grid.occupancy import OccupancyGrid
+
+    h, w = seen.shape
+    p0 = float(grid.p0)
+    whole = None if isinstance(grid, OccupancyGrid) else np.asarray(grid.probability(), float)
+    grey = np.empty((h, w), dtype=np.uint8)
+    preview: NDArray[np.uint8] | None = None
+    rows = max(1, _CHUNK_CELLS // max(w, 1))
+    for r0 in range(0, max(h, 1), rows):
+        r1 = min(h, r0 + rows)
+        if whole is None:  # exactly OccupancyGrid.probability, block by block
+            p = np.asarray(prob(grid.log_odds[r0:r1]), dtype=np.float64)
+        else:
+            p = whole[r0:r1]
+        sb = seen[r0:r1]
+        g, _ = _encode_pixels(p, sb, p0, occupied_thresh, free_thresh, False, mode)
+        grey[h - r1 : h - r0] = g
+        v = _preview_pixels(p, sb, scale)
+        if preview is None:
+            preview = np.empty((h * scale, w * scale), dtype=np.uint8)
+        preview[(h - r1) * scale : (h - r0) * scale] = v
+    if preview is None:  # an empty grid
+        _check_thresholds(occupied_thresh, free_thresh)
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        preview = _preview_pixels(np.zeros((h, w)), seen, scale)
+    return grey, preview

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from probmap.cli.common import cli_errors
+from probmap.cli.common import cli_errors, print_summary
 
 
 def _seconds(t: float) -> str:
@@ -58,12 +58,7 @@ def info_command(
             rows.append(("tf", f"{parent} -> {child} ({kind})"))
         scans = [t.topic for t in s.topics_of(SCAN_TYPES)]
         rows.append(("laser topics", ", ".join(scans) or "none"))
-        summary = Table(show_header=False, box=None)
-        summary.add_column(style="bold")
-        summary.add_column()
-        for k, v in rows:
-            summary.add_row(k, v)
-        console.print(summary)
+        print_summary(None, rows, justify="left", console=console)
 
 
 def register(app: typer.Typer) -> None:

@@ -1,11 +1,16 @@
-"""Helpers shared by CLI commands: one-line errors and non-zero exits, never tracebacks."""
+"""Helpers shared by CLI commands: one-line errors and non-zero exits, never tracebacks, and the
+two-column summary table every command prints at the end."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
+from typing import TYPE_CHECKING, Literal
 
 import typer
+
+if TYPE_CHECKING:
+    from rich.console import Console
 
 
 class CliError(Exception):
@@ -23,3 +28,34 @@ def cli_errors() -> Iterator[None]:
             msg = f"{exc.filename}: {msg}"
         typer.echo(f"error: {msg}", err=True)
         raise typer.Exit(1) from None
+
+
+def print_summary(
+    title: str | None,
+    rows: Iterable[tuple[str, str]],
+    *,
+    justify: Literal["left", "right"] = "right",
+    console: Console | None = None,
+) -> None:
+    """Print ``(name, value)`` rows as a borderless two-column table (names in bold).
+
+    Parameters
+    ----------
+    title : str or None
+        Printed above the table.
+    rows : iterable of (str, str)
+        Already formatted: the library returns numbers, the command chooses their format.
+    justify : {"right", "left"}
+        Alignment of the value column (right suits numbers).
+    console : rich.console.Console, optional
+        Where to print (default: a new console on stdout).
+    """
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=title, show_header=False, box=None)
+    table.add_column(style="bold")
+    table.add_column(justify=justify)
+    for name, value in rows:
+        table.add_row(name, value)
+    (console or Console()).print(table)

@@ -48,8 +48,8 @@ def run_map_distributed(
     Exits with status 1 (writing nothing) when an input fails, unless ``allow_partial``: then the
     map of the other inputs is written, the failures listed, and the exit status is still 1.
     """
-    from probmap.cli.common import CliError
-    from probmap.cli.mapping import _mapping_rows, _summary
+    from probmap.cli.common import CliError, print_summary
+    from probmap.cli.mapping import _mapping_rows
     from probmap.distributed import (
         DistributedMappingError,
         DistributedOptions,
@@ -80,7 +80,7 @@ def run_map_distributed(
     _inputs_table(result)
     rows = _mapping_rows(mapping)
     rows.append(("mode", f"{result.mode} ({result.tasks} tasks on {result.workers} workers)"))
-    _summary("probmap map (distributed)", rows)
+    print_summary("probmap map (distributed)", rows)
     if result.failed:
         raise typer.Exit(1)
     return result

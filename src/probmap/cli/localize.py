@@ -8,7 +8,7 @@ from typing import Any
 import typer
 
 from probmap._atomic import atomic_path
-from probmap.cli.common import CliError, cli_errors
+from probmap.cli.common import CliError, cli_errors, print_summary
 
 
 def _plot(ax: Any, spec: Any, probability: Any, poses: Any, reference: Any | None) -> None:
@@ -152,13 +152,12 @@ def localize_command(
         plt.close(fig)
 
         console = Console()
-        summary = Table(title=f"probmap localize {log.name}", show_header=False, box=None)
-        summary.add_column(style="bold")
-        summary.add_column(justify="right")
-        summary.add_row("updates", f"{run.times.size:,}")
-        summary.add_row("final spread", f"{run.spread[-1]:.3f} m" if run.spread.size else "-")
-        summary.add_row("wrote", f"{traj}, {plot}")
-        console.print(summary)
+        summary_rows = [
+            ("updates", f"{run.times.size:,}"),
+            ("final spread", f"{run.spread[-1]:.3f} m" if run.spread.size else "-"),
+            ("wrote", f"{traj}, {plot}"),
+        ]
+        print_summary(f"probmap localize {log.name}", summary_rows, console=console)
         if ref_t is not None and ref_p is not None:
             err, head = trajectory_errors(run, ref_t, ref_p)
             if err.size == 0:

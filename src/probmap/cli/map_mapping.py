@@ -11,19 +11,7 @@ from typing import Any
 
 import typer
 
-from probmap.cli.common import cli_errors
-
-
-def _table(title: str, rows: list[tuple[str, str]]) -> None:
-    from rich.console import Console
-    from rich.table import Table
-
-    table = Table(title=title, show_header=False, box=None)
-    table.add_column(style="bold")
-    table.add_column(justify="right")
-    for k, v in rows:
-        table.add_row(k, v)
-    Console().print(table)
+from probmap.cli.common import cli_errors, print_summary
 
 
 def run_map_method(
@@ -95,7 +83,7 @@ def run_map_method(
     ]
     for f in result.files:
         rows.append(("wrote", str(f)))
-    _table(f"probmap map --method map {log.name}", rows)
+    print_summary(f"probmap map --method map {log.name}", rows)
     return result
 
 
@@ -154,7 +142,7 @@ def fit_sensor_model_command(
             with atomic_write(output, "w") as fh:
                 yaml.safe_dump(doc, fh, sort_keys=False)
             rows.append(("wrote", str(output)))
-        _table(f"probmap fit-sensor-model {log.name}", rows)
+        print_summary(f"probmap fit-sensor-model {log.name}", rows)
 
 
 def register(app: typer.Typer) -> None:

@@ -7,19 +7,7 @@ from typing import Any
 
 import typer
 
-from probmap.cli.common import cli_errors
-
-
-def _summary(title: str, rows: list[tuple[str, str]]) -> None:
-    from rich.console import Console
-    from rich.table import Table
-
-    table = Table(title=title, show_header=False, box=None)
-    table.add_column(style="bold")
-    table.add_column(justify="right")
-    for k, v in rows:
-        table.add_row(k, v)
-    Console().print(table)
+from probmap.cli.common import cli_errors, print_summary
 
 
 def _fmt(v: object) -> str:
@@ -194,7 +182,7 @@ def map_command(
 
             frame = RosBag(log, **bag_options).resolve_frames()[0]
             rows.append(("wrote", str(write_map_to_bag(to_bag, result.grid, frame_id=frame))))
-        _summary(f"probmap map {log.name}", rows)
+        print_summary(f"probmap map {log.name}", rows)
 
 
 def demo_command(
@@ -222,7 +210,7 @@ def demo_command(
             from probmap.filters.demo import run_localize_demo
 
             summary = run_localize_demo(output)
-            _summary("probmap demo --localize", [(k, _fmt(v)) for k, v in summary.items()])
+            print_summary("probmap demo --localize", [(k, _fmt(v)) for k, v in summary.items()])
             return
         from probmap.pipelines import check_output_prefix, run_mapping_demo
 
@@ -237,7 +225,7 @@ def demo_command(
                 "classified correctly against the ground truth",
             ),
         )
-        _summary("probmap demo: simulated floor plan", rows)
+        print_summary("probmap demo: simulated floor plan", rows)
 
 
 def register(app: typer.Typer) -> None:

@@ -7,19 +7,7 @@ from typing import Any
 
 import typer
 
-from probmap.cli.common import cli_errors
-
-
-def _table(title: str, rows: list[tuple[str, str]]) -> None:
-    from rich.console import Console
-    from rich.table import Table
-
-    table = Table(title=title, show_header=False, box=None)
-    table.add_column(style="bold")
-    table.add_column(justify="right")
-    for k, v in rows:
-        table.add_row(k, v)
-    Console().print(table)
+from probmap.cli.common import cli_errors, print_summary
 
 
 def print_semantic_demo(summary: dict[str, Any]) -> None:
@@ -41,7 +29,7 @@ def print_semantic_demo(summary: dict[str, Any]) -> None:
         ),
     ]
     rows += [("wrote", f) for f in summary["files"]]
-    _table("probmap demo --semantic: labelled floor plan", rows)
+    print_summary("probmap demo --semantic: labelled floor plan", rows)
     iou = Table(title="per-class IoU on observed cells")
     iou.add_column("class")
     iou.add_column("IoU (1-cell tolerance)", justify="right")
@@ -125,7 +113,7 @@ def semantic_command(
             )
         )
         rows += [("wrote", str(f)) for f in files]
-        _table(f"probmap semantic {scans.name}", rows)
+        print_summary(f"probmap semantic {scans.name}", rows)
 
 
 def register(app: typer.Typer) -> None:

@@ -13,7 +13,7 @@ from typing import Any
 
 import typer
 
-from probmap.cli.common import CliError, cli_errors
+from probmap.cli.common import CliError, cli_errors, print_summary
 
 slam_app = typer.Typer(help="Landmark SLAM on feature datasets (EKF; SEIF).", no_args_is_help=True)
 datasets_app = typer.Typer(help="Known datasets.", no_args_is_help=True)
@@ -106,7 +106,6 @@ def run_and_report(
     """Run with a progress bar, evaluate, write outputs and a plot, print the metrics table."""
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-    from rich.table import Table
 
     from probmap.slam.pipeline import evaluate, run_landmark_slam, write_slam_outputs
 
@@ -131,14 +130,8 @@ def run_and_report(
         from probmap.viz.slam import save_slam_figure
 
         files.append(save_slam_figure(output / "slam.png", result, dataset, title=title))
-    table = Table(title=f"{title} on {metrics['dataset']}", show_header=False, box=None)
-    table.add_column(style="bold")
-    table.add_column(justify="right")
-    for k, v in metrics_rows(metrics):
-        table.add_row(k, v)
-    for f in files:
-        table.add_row("wrote", str(f))
-    Console().print(table)
+    rows = [*metrics_rows(metrics), *(("wrote", str(f)) for f in files)]
+    print_summary(f"{title} on {metrics['dataset']}", rows)
     return metrics
 
 

@@ -1,0 +1,39 @@
+"""The CLI's shared helpers: one-line errors and the summary table."""
+
+from __future__ import annotations
+
+import pytest
+import typer
+from rich.console import Console
+
+from probmap.cli.common import CliError, cli_errors, print_summary
+
+
+def _render(*args, **kwargs) -> str:
+    console = Console(record=True, width=60, color_system=None)
+    print_summary(*args, console=console, **kwargs)
+    return console.export_text()
+
+
+def test_summary_table_rows_and_title():
+    text = _render("probmap map", [("scans", "910"), ("wrote", "out.pgm")])
+    lines = [ln.rstrip() for ln in text.splitlines() if ln.strip()]
+    assert lines[0].strip() == "probmap map"
+    assert lines[1].split() == ["scans", "910"] and lines[2].split() == ["wrote", "out.pgm"]
+    assert not any(ch in text for ch in "┃│─━")  # borderless, no header row
+
+
+def test_summary_table_justifies_the_values():
+    rows = [("a", "1"), ("long name", "12345")]
+    right = [ln.rstrip() for ln in _render(None, rows).splitlines() if ln.strip()]
+    left = [ln.rstrip() for ln in _render(None, rows, justify="left").splitlines() if ln.strip()]
+    assert len(right[0]) == len(right[1])  # "1" ends where "12345" ends
+    assert len(left[0]) < len(left[1])
+
+
+def test_cli_errors_one_line_and_exit_code(capsys):
+    with pytest.raises(typer.Exit) as info:
+        with cli_errors():
+            raise CliError("no scans")
+    assert info.value.exit_code == 1
+    assert capsys.readouterr().err.strip() == "error: no scans"

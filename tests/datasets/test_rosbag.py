@@ -590,12 +590,3 @@ def test_is_bag_and_resolved_frames(tmp_path, world):
     assert RosBag(path, fixed_frame="laser").resolve_frames() == ("laser", "laser", "laser")
     b2 = write_sim_bag(tmp_path / "d", world, ros=2, source="odom")
     assert is_bag(b2) and not is_bag(tmp_path)
-
-
-def test_docstring_examples():
-    import doctest
-
-    import probmap.datasets.rosbag as mod
-
-    result = doctest.testmod(mod)
-    assert result.attempted >= 2 and result.failed == 0

@@ -119,12 +119,3 @@ def test_effective_sample_size():
     assert effective_sample_size(np.ones(10)) == pytest.approx(10.0)
     assert effective_sample_size([0, 0, 1.0]) == pytest.approx(1.0)
     assert effective_sample_size([1.0, 3.0]) == pytest.approx(1.0 / (1 / 16 + 9 / 16))
-
-
-@pytest.mark.parametrize("name", ["probmap.filters.resampling", "probmap.filters.kld"])
-def test_docstring_examples(name):
-    import doctest
-    import importlib
-
-    result = doctest.testmod(importlib.import_module(name))
-    assert result.attempted > 0 and result.failed == 0

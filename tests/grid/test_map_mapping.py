@@ -412,15 +412,6 @@ def test_intel_corrected_converges(shared_data):
     assert rate > 0.85
 
 
-@pytest.mark.parametrize("name", ["probmap.grid.map_mapping", "probmap.grid.fit"])
-def test_doctests(name):
-    import doctest
-    import importlib
-
-    result = doctest.testmod(importlib.import_module(name), optionflags=doctest.ELLIPSIS)
-    assert result.attempted > 0 and result.failed == 0
-
-
 # ----------------------------------------------------------------------------- sonar cones
 
 

@@ -436,13 +436,3 @@ def test_bad_model():
         LabelledInverseModel(p_correct=0.0)
     with pytest.raises(ValueError, match="p_hit"):
         LabelledInverseModel(p_hit=1.0)
-
-
-@pytest.mark.parametrize("name", ["probmap.grid.semantic", "probmap.grid.semantic_io"])
-def test_doctests(name):
-    import doctest
-    import importlib
-
-    module = importlib.import_module(name)
-    result = doctest.testmod(module, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
-    assert result.attempted > 0 and result.failed == 0

@@ -723,7 +723,7 @@ def save_map(
     return paths
 
 
-_CHUNK_CELLS = 1 << 22  # cells per block when a large map is encoded block by block
+_CHUNK_CELLS = 1 << 20  # cells per block when a large map is encoded block by block
 
 
 def _map_images(

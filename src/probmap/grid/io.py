@@ -255,7 +255,7 @@ def _pgm_header(g: NDArray[np.uint8], comment: str = "probmap") -> bytes:
 def _write_pgm(f: IO[bytes], grey: NDArray[np.uint8]) -> None:
     """Stream a binary PGM of a C-contiguous (H, W) uint8 image into ``f`` (no copy)."""
     f.write(_pgm_header(grey))
-    f.write(memoryview(np.ascontiguousarray(grey)).cast("B"))
+    f.write(memoryview(np.ascontiguousarray(grey).data).cast("B"))
 
 
 def png_bytes(grey: NDArray[np.uint8], alpha: NDArray[np.uint8] | None = None) -> bytes:

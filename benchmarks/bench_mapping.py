@@ -3,7 +3,9 @@
 The same rays (180 beams over 180 degrees, 0.05 m cells, ranges uniform in 1-8 m, random poses)
 go into each implementation, each in its own subprocess so that peak memory (max RSS) is its own.
 Prints scans/s, cell updates/s (probmap's count of cells changed per scan, the same rays for all),
-peak memory and the ratios to octomap-python. Then times ``map_log`` on the full raw Intel log,
+peak memory and the ratios to octomap-python, for probmap both in one batch (``integrate_scans``)
+and one scan per call (``integrate_scan``, as a live robot streams them), then the per-call
+overhead of ``integrate_scan``. Then times ``map_log`` on the full raw Intel log,
 split into parsing and mapping (after a warm-up run that compiles the kernels).
 
 Run:  python benchmarks/bench_mapping.py [--scans 2000] [--no-intel]
@@ -51,6 +53,44 @@ def run_probmap(poses, ranges, angles):
     return time.perf_counter() - t, stats.cell_updates
 
 
+def run_probmap_per_scan(poses, ranges, angles):
+    """The same rays streamed one scan at a time (a live robot): ``integrate_scan`` per scan."""
+    from probmap.grid.occupancy import OccupancyGrid
+    from probmap.grid.spec import GridSpec
+
+    spec = GridSpec(RES, (-9.0, -9.0), (int(38 / RES), int(38 / RES)))
+    warm = OccupancyGrid(RES, spec=spec)
+    for s in range(5):
+        warm.integrate_scan(poses[s], ranges[s], angles, max_range=80.0)
+    grid = OccupancyGrid(RES, spec=spec)
+    updates = 0
+    t = time.perf_counter()
+    for s in range(len(poses)):
+        updates += grid.integrate_scan(poses[s], ranges[s], angles, max_range=80.0).cell_updates
+    return time.perf_counter() - t, updates
+
+
+def call_overhead(calls: int = 20000, repeat: int = 7) -> float:
+    """Microseconds per ``integrate_scan`` call with 3 beams shorter than a cell on a pre-sized
+    grid: the per-call overhead (validation, dispatch, bookkeeping), best of ``repeat``."""
+    from probmap.grid.occupancy import OccupancyGrid
+    from probmap.grid.spec import GridSpec
+
+    grid = OccupancyGrid(RES, spec=GridSpec(RES, (-10.0, -10.0), (400, 400)))
+    pose = np.array([0.0, 0.0, 0.3])
+    ranges = np.array([0.02, 0.03, 0.04])
+    angles = np.array([-0.1, 0.0, 0.1])
+    for _ in range(1000):
+        grid.integrate_scan(pose, ranges, angles, max_range=8.0)
+    best = float("inf")
+    for _ in range(repeat):
+        t = time.perf_counter()
+        for _ in range(calls):
+            grid.integrate_scan(pose, ranges, angles, max_range=8.0)
+        best = min(best, (time.perf_counter() - t) / calls)
+    return best * 1e6
+
+
 def run_numpy(poses, ranges, angles):
     """Per scan: sample each beam every res/4, unique cells, hits win, update once per scan."""
     n = int(38 / RES)
@@ -96,7 +136,15 @@ def run_octomap(poses, ranges, angles):
 
 def child(name: str, n_scans: int) -> None:
     poses, ranges, angles = make_rays(n_scans)
-    fn = {"probmap": run_probmap, "numpy": run_numpy, "octomap-python": run_octomap}[name]
+    if name == "overhead":
+        print(json.dumps({"us_per_call": call_overhead()}))
+        return
+    fn = {
+        "probmap": run_probmap,
+        "probmap per scan": run_probmap_per_scan,
+        "numpy": run_numpy,
+        "octomap-python": run_octomap,
+    }[name]
     seconds, updates = fn(poses, ranges, angles)
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     print(json.dumps({"seconds": seconds, "updates": updates, "rss_mib": rss, "scans": n_scans}))
@@ -131,8 +179,8 @@ def main() -> None:
         child(args.child, args.scans)
         return
     results = {}
-    for name in ("probmap", "numpy", "octomap-python"):
-        n = args.scans if name == "probmap" else max(args.scans // 10, 50)
+    for name in ("probmap", "probmap per scan", "numpy", "octomap-python"):
+        n = args.scans if name.startswith("probmap") else max(args.scans // 10, 50)
         proc = subprocess.run(
             [sys.executable, __file__, "--child", name, "--scans", str(n)],
             capture_output=True,
@@ -162,6 +210,19 @@ def main() -> None:
         "(cell updates/s = scans/s x probmap's cells changed per scan on the same rays:"
         f" {per_scan:.0f})"
     )
+    print(
+        "(probmap: integrate_scans on all scans at once; probmap per scan: integrate_scan once per"
+        " scan, as a live robot streams them)"
+    )
+    proc = subprocess.run(
+        [sys.executable, __file__, "--child", "overhead"], capture_output=True, text=True
+    )
+    if proc.returncode == 0:
+        us = json.loads(proc.stdout.strip().splitlines()[-1])["us_per_call"]
+        print(
+            f"integrate_scan overhead per call (3 beams shorter than a cell, pre-sized grid,"
+            f" best of 7 x 20,000 calls): {us:.2f} us"
+        )
     data = Path(
         os.environ.get("PROBMAP_DATA", Path(__file__).resolve().parents[2] / "shared" / "data")
     )

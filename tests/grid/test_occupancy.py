@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -320,3 +321,203 @@ def test_max_range_clearing_never_passes_the_sensor_range():
     grid = OccupancyGrid(0.1, model=model)
     grid.integrate_scan([0.0, 0.0, 0.0], [4.0], [0.0], max_range=4.0)
     assert grid.observed.sum() == 40  # 4 m of free cells, not 10
+
+
+# --------------------------------------------------------------------------- per-scan fast path
+
+
+class _CountGeneral:
+    """Counts the calls of ``OccupancyGrid.integrate_scans`` (the general path)."""
+
+    def __init__(self, monkeypatch):
+        self.calls = 0
+        general = OccupancyGrid.integrate_scans
+
+        def spy(grid, *args, **kwargs):
+            self.calls += 1
+            return general(grid, *args, **kwargs)
+
+        monkeypatch.setattr(OccupancyGrid, "integrate_scans", spy)
+
+
+def _state(grid):
+    return grid.spec, grid.log_odds.copy(), grid._stamp.copy(), grid._sid, grid.scans_integrated
+
+
+def _assert_same_state(a, b):
+    assert a[0] == b[0]
+    np.testing.assert_array_equal(a[1], b[1])
+    np.testing.assert_array_equal(a[2], b[2])
+    assert a[3:] == b[3:]
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("thickness,clear", [(0.0, None), (0.12, 1.5), (0.0, 0.0), (0.07, 9.0)])
+def test_single_scan_fast_path_matches_batch_and_reference(monkeypatch, seed, thickness, clear):
+    rng = np.random.default_rng(100 + seed)
+    res = float(rng.choice([0.05, 0.1, 0.23]))
+    poses, ranges, angles = random_scans(rng, 12, int(rng.integers(1, 60)))
+    ranges[0, :] = np.inf  # a scan with no valid reading
+    max_range = 3.5
+    model = InverseSensorModel(p_hit=0.72, p_miss=0.38, thickness=thickness, max_clear_range=clear)
+    spec = GridSpec(res, (-6.0, -6.5), (int(13 / res), int(12 / res)))
+
+    def make():
+        return OccupancyGrid(res, p0=0.45, model=model, spec=spec, fixed=True)
+
+    batch = make()
+    total = batch.integrate_scans(poses, ranges, angles, max_range=max_range)
+    single = make()
+    spy = _CountGeneral(monkeypatch)
+    stats = [
+        single.integrate_scan(p, r, angles, max_range=max_range)
+        for p, r in zip(poses, ranges, strict=True)
+    ]
+    assert spy.calls == 0  # every scan took the compiled single-scan path
+    assert sum(stats[1:], stats[0]) == total
+    assert all(s.scans == 1 and s.beams == len(angles) for s in stats)
+    _assert_same_state(_state(single), _state(batch))
+
+    lo = np.full(spec.shape, single.l0, dtype=np.float32)
+    seen = np.zeros(spec.shape, bool)
+    # the reference clears max-range readings up to max_clear_range itself: cap it as the grid does
+    capped = model if clear is None else replace(model, max_clear_range=min(clear, max_range))
+    reference_integrate(
+        lo, seen, spec, poses, ranges, angles, max_range, capped, single.l0, single.l_min,
+        single.l_max,
+    )  # fmt: skip
+    np.testing.assert_array_equal(single.log_odds, lo)
+    np.testing.assert_array_equal(single.observed, seen)
+
+
+def test_single_scan_fast_path_epochs_and_unusual_arrays(monkeypatch):
+    # 600 scans one at a time cross two epochs of the one-byte stamp: the scan that starts a
+    # new epoch takes the general path, and the stamps equal those of the batch path; lists,
+    # integers, strided views and read-only arrays give the same map
+    rng = np.random.default_rng(5)
+    poses, ranges, angles = random_scans(rng, 600, 9, spread=1.5)
+    poses[:, :2] *= 0.3
+    spec = GridSpec(0.1, (-3.0, -3.0), (60, 60))
+    batch = OccupancyGrid(0.1, spec=spec, fixed=True, clamp=(0.001, 0.999))
+    batch.integrate_scans(poses, ranges, angles, max_range=2.0)
+    single = OccupancyGrid(0.1, spec=spec, fixed=True, clamp=(0.001, 0.999))
+    frozen = angles.copy()
+    frozen.flags.writeable = False
+    spy = _CountGeneral(monkeypatch)
+    for k in range(600):
+        if k % 4 == 0:
+            single.integrate_scan(poses[k].tolist(), ranges[k].tolist(), list(angles), max_range=2)
+        elif k % 4 == 1:
+            wide = np.repeat(ranges[k], 2)[::2]  # not contiguous
+            single.integrate_scan(poses[k], wide, frozen, max_range=np.float32(2.0))
+        else:
+            single.integrate_scan(poses[k], ranges[k], angles, max_range=2.0)
+    assert spy.calls == 2  # scans 255 and 509 start the second and third epochs
+    _assert_same_state(_state(single), _state(batch))
+    # per-scan angles of shape (1, B) are accepted, by the general path
+    single.integrate_scan(poses[0], ranges[0], angles[None, :], max_range=2.0)
+    assert spy.calls == 3
+    batch.integrate_scans(poses[:1], ranges[:1], angles[None, :], max_range=2.0)
+    _assert_same_state(_state(single), _state(batch))
+
+
+@pytest.mark.parametrize(
+    "pose,ranges,angles,max_range,error",
+    [
+        ([0.0, np.nan, 0.0], [1.0, 2.0], [0.0, 0.1], 5.0, "poses must be finite numbers; pose 0"),
+        ([0.0, 0.0, np.inf], [1.0, 2.0], [0.0, 0.1], 5.0, "poses must be finite numbers; pose 0"),
+        ([0.0, 0.0], [1.0, 2.0], [0.0, 0.1], 5.0, "pose must have shape"),
+        ([[0.0, 0.0, 0.0]], [1.0, 2.0], [0.0, 0.1], 5.0, "pose must have shape"),
+        ([0.0, 0.0, 0.0], [[1.0, 2.0]], [0.0, 0.1], 5.0, "ranges must be 1-D"),
+        ([0.0, 0.0, 0.0], [1.0, 2.0], [0.0, 0.1, 0.2], 5.0, "angles shape"),
+        ([0.0, 0.0, 0.0], [1.0, 2.0], [[0.0, 0.1]] * 2, 5.0, "angles shape"),
+        ([0.0, 0.0, 0.0], [1.0, 2.0], 0.0, 5.0, ""),
+        ([0.0, 0.0, 0.0], [1.0, 2.0], [0.0, np.nan], 5.0, "angles must be finite"),
+        ([0.0, 0.0, 0.0], [1.0, 2.0], [-np.inf, 0.0], 5.0, "angles must be finite"),
+        ([0.0, 0.0, 0.0], [1.0, 2.0], ["a", "b"], 5.0, "could not convert"),
+        ([0.0, 0.0, 0.0], [1.0, 2.0], [0.0, 0.1], 0.0, "max_range must be > 0"),
+        ([0.0, 0.0, 0.0], [1.0, 2.0], [0.0, 0.1], -1.0, "max_range must be > 0"),
+        ([0.0, 0.0, 0.0], [1.0, 2.0], [0.0, 0.1], np.nan, "max_range must be > 0"),
+        ([0.0, 0.0, 0.0], [1.0, 2.0], [0.0, 0.1], "far", "could not convert"),
+        ([0.0, 0.0, 0.0], [1e308, 2.0], [0.0, 0.1], np.inf, "cannot convert float infinity"),
+        ([1e308, 0.0, 0.0], [1.7e308, 2.0], [0.0, 0.1], np.inf, "poses must be finite numbers"),
+        ([1e306, 0.0, 0.0], [1.0, 2.0], [0.0, 0.1], 5.0, ""),  # numpy: grid too large
+    ],
+)
+def test_single_scan_bad_input_raises_as_the_batch_path(pose, ranges, angles, max_range, error):
+    grid = OccupancyGrid(0.1, spec=GridSpec(0.1, (-5.0, -5.0), (100, 100)))
+    grid.integrate_scan([0.0, 0.0, 0.0], [1.0, 1.5], [0.3, 0.4], max_range=5.0)
+    before = _state(grid)
+    with pytest.raises((ValueError, TypeError, IndexError, OverflowError)) as single:
+        grid.integrate_scan(pose, ranges, angles, max_range=max_range)
+    _assert_same_state(_state(grid), before)  # nothing changed
+    assert error in str(single.value)
+    if error.startswith(("pose must", "ranges must")):
+        return  # integrate_scan's own checks, before either path
+    p = np.asarray(pose, dtype=np.float64)[None, :]
+    r = np.asarray(ranges, dtype=np.float64)[None, :]
+    with pytest.raises(type(single.value)) as batch:
+        grid.integrate_scans(p, r, angles, max_range=max_range)
+    assert str(batch.value) == str(single.value)
+
+
+def test_single_scan_that_leaves_the_grid(monkeypatch):
+    rng = np.random.default_rng(3)
+    poses, ranges, angles = random_scans(rng, 40, 25, spread=2.0)
+    poses[:, :2] += np.linspace(0.0, 12.0, 40)[:, None]  # the robot drives away: the grid grows
+    model = InverseSensorModel(thickness=0.1, max_clear_range=1.0)
+    batch = OccupancyGrid(0.1, model=model)
+    single = OccupancyGrid(0.1, model=model)
+    spy = _CountGeneral(monkeypatch)
+    grown = 0
+    for p, r in zip(poses, ranges, strict=True):
+        batch.integrate_scans(p[None, :], r[None, :], angles, max_range=3.0)
+        calls = spy.calls
+        shape = single.spec.shape
+        single.integrate_scan(p, r, angles, max_range=3.0)
+        assert (spy.calls > calls) == (single.spec.shape != shape)  # general path only to grow
+        grown += spy.calls > calls
+        _assert_same_state(_state(single), _state(batch))
+    assert 1 < grown < 20
+    # a fixed grid raises the usual error and keeps its cells
+    fixed = OccupancyGrid(0.1, spec=GridSpec(0.1, (-1.0, -1.0), (20, 20)), fixed=True)
+    fixed.integrate_scan([0.0, 0.0, 0.0], [0.5], [0.0], max_range=5.0)
+    before = _state(fixed)
+    with pytest.raises(GridBoundsError, match="outside the fixed grid") as single_err:
+        fixed.integrate_scan([0.0, 0.0, 0.0], [0.5, 1.2], [0.0, 0.1], max_range=5.0)
+    _assert_same_state(_state(fixed), before)
+    with pytest.raises(GridBoundsError) as batch_err:
+        fixed.integrate_scans([[0.0, 0.0, 0.0]], [[0.5, 1.2]], [0.0, 0.1], max_range=5.0)
+    assert str(batch_err.value) == str(single_err.value)
+    # a scan that reaches exactly the last cell stays on the fast path
+    calls = spy.calls
+    fixed.integrate_scan([0.0, 0.0, 0.0], [0.99], [0.0], max_range=5.0)
+    assert spy.calls == calls
+
+
+def test_single_scan_kernel_codes_leave_the_grid_untouched():
+    from probmap.grid import _kernels as k
+
+    grid = OccupancyGrid(0.1, spec=GridSpec(0.1, (-2.0, -2.0), (40, 40)))
+    params = grid._fast_params()
+    ok = (np.zeros(3), np.array([1.0, 1.5]), np.array([0.0, 1.0]), 5.0)
+    cases = [
+        (k.SCAN_OK, ok),
+        (k.SCAN_BAD_POSE, (np.array([0.0, np.nan, 0.0]), *ok[1:])),
+        (k.SCAN_BAD_ANGLES_SHAPE, (ok[0], ok[1], np.zeros(3), 5.0)),
+        (k.SCAN_BAD_ANGLES, (ok[0], ok[1], np.array([0.0, np.inf]), 5.0)),
+        (k.SCAN_BAD_MAX_RANGE, (*ok[:3], 0.0)),
+        (k.SCAN_BAD_MAX_RANGE, (*ok[:3], np.nan)),
+        (k.SCAN_OUTSIDE, (ok[0], np.array([1.0, 2.5]), np.array([0.0, np.pi]), 5.0)),
+        (k.SCAN_OUTSIDE, (ok[0], np.array([1.0, 1e308]), ok[2], np.inf)),
+    ]
+    for code, (pose, ranges, angles, max_range) in cases:
+        lo, stamp = grid.log_odds.copy(), grid._stamp.copy()
+        out = k.integrate_one_scan(lo, stamp, 2, pose, ranges, angles, max_range, params)
+        assert out[0] == code
+        if code == k.SCAN_OK:
+            assert out[1:] == (2, 0, 0, int((stamp == 2).sum()))
+        else:
+            assert out[1:] == (0, 0, 0, 0)
+            np.testing.assert_array_equal(lo, grid.log_odds)
+            assert not stamp.any()

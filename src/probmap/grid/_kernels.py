@@ -92,6 +92,83 @@ def integrate_scans(
     )  # fmt: skip
 
 
+# Codes returned by integrate_one_scan; anything but SCAN_OK leaves the grid untouched.
+SCAN_OK = 0
+SCAN_BAD_POSE = 1  # a pose coordinate is not finite
+SCAN_BAD_ANGLES_SHAPE = 2  # angles and ranges differ in length
+SCAN_BAD_ANGLES = 3  # an angle is not finite
+SCAN_BAD_MAX_RANGE = 4  # max_range is not > 0
+SCAN_OUTSIDE = 5  # the scan leaves the grid (or its bounds are not finite): grow first
+
+
+@njit(cache=True)
+def integrate_one_scan(lo, stamp, sid, pose, ranges, angles, max_range, params):
+    """Validate and integrate one scan (stamp ``sid``) into log-odds ``lo``, in place, in one call.
+
+    The per-scan fast path of :meth:`probmap.grid.occupancy.OccupancyGrid.integrate_scan`: the
+    same checks, bounding box and update as the batch path (:func:`scan_bounds` then
+    :func:`integrate_scans` on one scan), with few arguments so that the call itself is cheap.
+    ``pose`` (3,), ``ranges`` (B,) and ``angles`` (B,) are float64; ``params`` is float64
+    ``[ox, oy, res, max_clear_range (< 0 for None), thickness, d_hit, d_free, lmin, lmax]``.
+
+    Returns ``(code, hits, max-range readings, dropped readings, cell updates)``. ``code`` is
+    ``SCAN_OK`` when the scan was integrated; any other code (see the ``SCAN_*`` constants) means
+    nothing was changed, and the caller takes the general path, which raises or grows the grid.
+    """
+    for k in range(3):
+        if not math.isfinite(pose[k]):
+            return SCAN_BAD_POSE, 0, 0, 0, 0
+    n = ranges.shape[0]
+    if angles.shape[0] != n:
+        return SCAN_BAD_ANGLES_SHAPE, 0, 0, 0, 0
+    for b in range(n):
+        if not math.isfinite(angles[b]):
+            return SCAN_BAD_ANGLES, 0, 0, 0, 0
+    if not max_range > 0.0:
+        return SCAN_BAD_MAX_RANGE, 0, 0, 0, 0
+    ox = params[0]
+    oy = params[1]
+    res = params[2]
+    max_clear = params[3]
+    thickness = params[4]
+    # effective_clear_range in probmap.grid.occupancy
+    if max_clear < 0.0:
+        clear_range = max_range if math.isfinite(max_range) else 0.0
+    else:
+        clear_range = min(max_clear, max_range)
+    P = np.empty((1, 3))
+    for k in range(3):
+        P[0, k] = pose[k]
+    R = np.empty((1, n))
+    A = np.empty((1, n))
+    for b in range(n):
+        R[0, b] = ranges[b]
+        A[0, b] = angles[b]
+    box = np.empty(4)
+    scan_bounds(P, R, A, True, max_range, clear_range, thickness, box)
+    h, w = lo.shape
+    for k in range(4):
+        if not math.isfinite(box[k]):
+            return SCAN_OUTSIDE, 0, 0, 0, 0
+    # GridSpec.enclosing: the grid stays as it is only if every corner's cell lies in it. The
+    # cell indexes stay floats (np.floor): an index too large for an integer must not wrap round.
+    if (
+        h == 0
+        or w == 0
+        or np.floor((box[0] - ox) / res) < 0.0
+        or np.floor((box[1] - ox) / res) >= w
+        or np.floor((box[2] - oy) / res) < 0.0
+        or np.floor((box[3] - oy) / res) >= h
+    ):
+        return SCAN_OUTSIDE, 0, 0, 0, 0
+    counts = np.zeros(4, np.int64)
+    _integrate_body(
+        lo, lo, stamp, sid, ox, oy, res, P, R, A, True, max_range, clear_range, thickness,
+        params[5], params[6], params[7], params[8], counts,
+    )  # fmt: skip
+    return SCAN_OK, counts[0], counts[1], counts[2], counts[3]
+
+
 @njit(cache=True)
 def count_scans(
     hits,

@@ -151,6 +151,17 @@ def regrid(
 
 _EPOCH = 254  # scans per kernel call: their ids must fit the one-byte stamp (2..255)
 
+_one_scan_kernel: Any = None  # _kernels.integrate_one_scan, imported on first use (numba is heavy)
+
+
+def _load_one_scan_kernel() -> Any:
+    """:func:`probmap.grid._kernels.integrate_one_scan`, imported the first time it is needed."""
+    global _one_scan_kernel
+    from probmap.grid._kernels import integrate_one_scan
+
+    _one_scan_kernel = integrate_one_scan
+    return integrate_one_scan
+
 
 class OccupancyGrid:
     """A 2-D occupancy grid holding float32 log odds, updated by the binary Bayes filter.
@@ -240,6 +251,7 @@ class OccupancyGrid:
         # changed at most once per scan and ``observed`` is still ``stamp != 0``.
         self._stamp = np.zeros(spec.shape, dtype=np.uint8)
         self._sid = 1  # last scan id handed out in the current epoch
+        self._fast: tuple[tuple[Any, ...], NDArray[np.float64]] | None = None
 
     # ------------------------------------------------------------------ state
     @property
@@ -395,6 +407,14 @@ class OccupancyGrid:
         ScanStats
             Counts of beams, hits, max-range and dropped readings and cell updates.
 
+        Notes
+        -----
+        Made for streaming one scan at a time: a single compiled call checks the input and the
+        bounds and integrates the scan (a few microseconds of overhead per call). A scan that
+        leaves the grid, bad input and the scan that starts a new stamp epoch go through
+        :meth:`integrate_scans` instead, which grows the grid or raises; the result is the same
+        as ``integrate_scans`` on this one scan, bit for bit.
+
         Examples
         --------
         >>> import numpy as np
@@ -408,7 +428,51 @@ class OccupancyGrid:
         r = np.asarray(ranges, dtype=np.float64)
         if r.ndim != 1:
             raise ValueError(f"ranges must be 1-D, got shape {r.shape}")
+        # Fast path: one compiled call validates, checks the bounds and integrates. Anything it
+        # declines (bad input, a scan that leaves the grid, the end of a stamp epoch, unusual
+        # arguments) goes through integrate_scans, which raises the usual errors or grows the grid.
+        if self._sid < 255:
+            try:
+                a = np.asarray(angles, dtype=np.float64)
+                mr = float(max_range)
+            except (TypeError, ValueError):
+                a = None
+            if a is not None and a.ndim == 1:
+                kernel = _one_scan_kernel or _load_one_scan_kernel()
+                code, hits, n_max, dropped, updates = kernel(
+                    self._lo, self._stamp, self._sid + 1, p, r, a, mr, self._fast_params()
+                )
+                if code == 0:
+                    self._sid += 1
+                    self._scans += 1
+                    return ScanStats(1, r.shape[0], hits, n_max, dropped, updates)
         return self.integrate_scans(p[None, :], r[None, :], angles, max_range=max_range)
+
+    def _fast_params(self) -> NDArray[np.float64]:
+        """The float64 parameters of :func:`_kernels.integrate_one_scan`, rebuilt only when the
+        geometry, the sensor model, the prior or the clamping bounds change."""
+        key = (self._spec, self.model, self.l0, self.l_min, self.l_max)
+        cached = self._fast
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        m = self.model
+        ox, oy = self._spec.origin
+        params = np.array(
+            [
+                ox,
+                oy,
+                self._spec.resolution,
+                -1.0 if m.max_clear_range is None else m.max_clear_range,
+                m.thickness,
+                m.l_hit - self.l0,
+                m.l_miss - self.l0,
+                self.l_min,
+                self.l_max,
+            ],
+            dtype=np.float64,
+        )
+        self._fast = (key, params)
+        return params
 
     def integrate_scans(
         self,

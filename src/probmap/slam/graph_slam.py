@@ -123,8 +123,7 @@ class GraphSlamConfig:
     window_growth : tuple of float
         Growth of those half-widths per metre of travel between the node and the submap along
         the shortest chain of local-SLAM links and accepted closures (the uncertainty the
-        odometry and scan matching accumulate). A closure that the robust cost overruled
-        (weight below 0.5 after the last optimization) does not count as a link.
+        odometry and scan matching accumulate).
     max_window : tuple of float
         Largest half-widths of that window.
     wide_window : tuple of float
@@ -340,11 +339,6 @@ class GraphSlam:
         self._since_optimize = 0
         self._travel: list[float] = []  # cumulative path length at each node, metres
         self._sub_links: list[dict[int, float]] = []  # submap graph: neighbour -> travel
-        # the links of the submap graph: consecutive submaps (always), and those of each
-        # accepted closure (closure number, a, b, travel), which count only while the robust
-        # cost keeps the closure (weight >= 0.5 after the last optimization)
-        self._chain_links: list[tuple[int, int, float]] = []
-        self._closure_links: list[tuple[int, int, int, float]] = []
         self._sub_dist: NDArray[np.float64] | None = None  # travel from the newest submap
         self._sub_dist_at = 0.0  # node travel when _sub_dist was computed
         self._last_searched: list[int] = []  # per submap, the last node that searched it
@@ -471,9 +465,7 @@ class GraphSlam:
             self._last_searched.append(-1)
             if self.submaps:
                 last = self.submaps[-1]
-                travel = self._travel[k] - self._travel[last.anchor]
-                self._chain_links.append((last.index, sm.index, travel))
-                self._link(last.index, sm.index, travel)
+                self._link(last.index, sm.index, self._travel[k] - self._travel[last.anchor])
             self.submaps.append(sm)
             self.active.append(sm)
         with np.errstate(invalid="ignore"):  # submaps hold what the matcher uses
@@ -734,9 +726,7 @@ class GraphSlam:
         )
         for other in self.submaps[-2:]:
             if k in other.nodes:
-                travel = self._travel[k] - self._travel[other.anchor]
-                self._closure_links.append((len(self.closures) - 1, sm.index, other.index, travel))
-                self._link(sm.index, other.index, travel)
+                self._link(sm.index, other.index, self._travel[k] - self._travel[other.anchor])
         # optimize now only when the closure moves the estimate by a good part of the
         # near window; smaller corrections wait for the next periodic optimization
         implied = compose(self.graph.pose(sm.anchor), pose)
@@ -769,28 +759,11 @@ class GraphSlam:
             self.graph.set_robust(self._unguarded, True)
             self._unguarded = []
         self._weights = result.weights
-        self._relink()
         self.optimize_seconds += time.perf_counter() - t0
         self.optimizations += 1
         self._since_optimize = 0
         self._pending_correction = False
         return result
-
-    def _relink(self) -> None:
-        """Rebuild the submap graph from the chain and the closures the robust cost keeps: a
-        closure it overruled does not shorten the travel that sizes the search windows."""
-        if not self._closure_links:
-            return
-        w = self.closure_weights()
-        links: list[dict[int, float]] = [{} for _ in self._sub_links]
-        kept = ((a, b, t) for c, a, b, t in self._closure_links if w[c] >= 0.5)
-        for a, b, t in (*self._chain_links, *kept):
-            t = max(float(t), 0.0)
-            if t < links[a].get(b, math.inf):
-                links[a][b] = t
-                links[b][a] = t
-        self._sub_links = links
-        self._sub_dist = None
 
     def closure_weights(self) -> NDArray[np.float64]:
         """Robust weight (0..1] of every accepted closure after the last optimization (1 for a

@@ -234,7 +234,8 @@ def worker_graph(key: str, data: Path, end_time: float | None) -> dict[str, Any]
 def worker_rbpf(data: Path, end_time: float | None) -> dict[str, Any]:
     from probmap.datasets.carmen import load_scans
     from probmap.metrics.relations import read_relations
-    from probmap.slam.gridslam import GridSlamConfig, run_grid_slam, slam_log
+    from probmap.pipelines.grid_slam import slam_log
+    from probmap.slam.gridslam import GridSlamConfig, run_grid_slam
 
     _, log_rel, rel_rel = LOGS["intel"]
     warnings.simplefilter("ignore", UserWarning)

@@ -1,6 +1,6 @@
 """EM fit of the beam model (Table 6.2): recovery of known parameters from seeded samples,
-monotone likelihood, the truncated-exponential M-step against a numerical optimum, bad input,
-and the Intel corrected log."""
+monotone likelihood, the truncated-exponential M-step against a numerical optimum, bad input.
+(The fit of a whole log, the Intel corrected one, is in tests/pipelines/test_fit.py.)"""
 
 from __future__ import annotations
 
@@ -107,15 +107,3 @@ def test_fit_is_finite_with_outliers_and_bad_readings():
 def test_bad_input(z, zs, mr, match):
     with pytest.raises(ValueError, match=match):
         fit_beam_model(z, zs, mr)
-
-
-def test_fit_intel_corrected(shared_data):
-    from probmap.grid.fit import fit_log
-
-    log = shared_data("intel-research-lab/intel-corrected.log.gz")
-    fit = fit_log(log, resolution=0.1, every=4)
-    p = fit.params
-    print(f"\nIntel corrected, EM beam model: {p}, mean log-lik {fit.log_likelihood[-1]:.3f}")
-    assert fit.log_likelihood[-1] > fit.log_likelihood[0]
-    assert 0.01 < p.sigma_hit < 0.3  # a good laser in a consistent map
-    assert p.z_hit > 0.5

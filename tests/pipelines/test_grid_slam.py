@@ -1,5 +1,5 @@
 """The grid-SLAM pipeline on real logs (Intel raw log and ROS bag, Freiburg hospital) and its
-refusals of bad input.
+refusals of bad input; the RBPF's log reader (``slam_log``) and the trajectory file.
 
 Real-data tests go through the ``shared_data`` fixture: they skip when the data is absent and
 fail under CI.
@@ -8,6 +8,7 @@ fail under CI.
 from __future__ import annotations
 
 import bz2
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,8 @@ import pytest
 from probmap.datasets.protocol import DatasetError
 from probmap.geometry.se2 import between, compose, wrap_angle
 from probmap.metrics.relations import Relations, read_relations, relation_errors
-from probmap.pipelines.grid_slam import load_laser_log, run_graph_slam
+from probmap.pipelines.grid_slam import load_laser_log, run_graph_slam, slam_log, write_trajectory
+from probmap.slam.gridslam import GridSlamConfig
 
 INTEL = "intel-research-lab/intel.clf.bz2"
 INTEL_BAG = "intel-research-lab/intel.orig.bag"
@@ -266,3 +268,47 @@ def write_odometry_only_bag(path: Path) -> Path:
             data = store.serialize_ros1(msg, "nav_msgs/msg/Odometry")
             writer.write(conn, int((100 + i) * 1e9), data)
     return path
+
+
+# ----------------------------------------------------------------- RBPF: slam_log, write_trajectory
+def test_slam_log_of_a_missing_file_is_refused(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        slam_log(tmp_path / "missing.log")
+
+
+def test_trajectory_csv_round_trip(tmp_path):
+    from probmap.metrics.relations import read_trajectory
+
+    t = np.array([976052857.33753, 976052858.5])
+    p = np.array([[1.0, -2.0, 0.5], [1.5, -2.25, -3.0]])
+    f = write_trajectory(tmp_path / "x.trajectory.csv", t, p)
+    t2, p2 = read_trajectory(f)
+    np.testing.assert_allclose(t2, t, atol=1e-6)
+    np.testing.assert_allclose(p2, p, atol=1e-6)
+
+
+def test_intel_first_400_seconds_beats_odometry(shared_data):
+    from probmap.datasets.carmen import load_scans
+    from probmap.metrics.relations import Relations, read_relations, relation_errors
+
+    log = shared_data("intel-research-lab/intel.clf.bz2")
+    rel = read_relations(shared_data("intel-research-lab/intel.relations"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        res = slam_log(log, GridSlamConfig(particles=5), end_time=400.0)
+    keep = (rel.t1 <= res.times[-1]) & (rel.t2 <= res.times[-1])
+    sub = Relations(rel.t1[keep], rel.t2[keep], rel.delta[keep])
+    slam = relation_errors(res.times, res.poses, sub).summary()
+    b = load_scans(log, poses="odometry")
+    odo = relation_errors(np.asarray(b.times), np.asarray(b.robot_poses), sub).summary()
+    assert slam["relations"] > 200
+    assert slam["trans_abs_mean_m"] < 0.06 < odo["trans_abs_mean_m"]
+    assert slam["rot_abs_mean_deg"] < 2.0 < odo["rot_abs_mean_deg"]
+
+
+def test_old_paths_warn_and_forward():
+    import probmap.slam.gridslam as old
+
+    for name, new in (("slam_log", slam_log), ("write_trajectory", write_trajectory)):
+        with pytest.warns(DeprecationWarning, match=f"probmap.pipelines.grid_slam.{name}"):
+            assert getattr(old, name) is new

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import warnings
 
 import numpy as np
 import pytest
@@ -17,8 +16,6 @@ from probmap.slam.gridslam import (
     GridSlamConfig,
     interpolate_trajectory,
     run_grid_slam,
-    slam_log,
-    write_trajectory,
 )
 
 
@@ -233,7 +230,7 @@ def test_without_odometry_warns_and_runs_on_matching_alone(world):
     assert _step_error(world.poses[:n], res.poses) < 0.05
 
 
-def test_bad_input_is_refused(world, tmp_path):
+def test_bad_input_is_refused(world):
     with pytest.raises(ValueError, match="particles"):
         GridSlamConfig(particles=0)
     with pytest.raises(ValueError, match="degenerate_sd"):
@@ -244,39 +241,7 @@ def test_bad_input_is_refused(world, tmp_path):
         run_grid_slam(world.times, world.ranges, world.angles, world.odometry[:5], world.max_range)
     with pytest.raises(ValueError, match="disagree"):
         run_grid_slam(world.times[:3], world.ranges, world.angles, None, world.max_range)
-    with pytest.raises(FileNotFoundError):
-        slam_log(tmp_path / "missing.log")
-
-
-def test_trajectory_csv_round_trip(tmp_path):
-    from probmap.metrics.relations import read_trajectory
-
-    t = np.array([976052857.33753, 976052858.5])
-    p = np.array([[1.0, -2.0, 0.5], [1.5, -2.25, -3.0]])
-    f = write_trajectory(tmp_path / "x.trajectory.csv", t, p)
-    t2, p2 = read_trajectory(f)
-    np.testing.assert_allclose(t2, t, atol=1e-6)
-    np.testing.assert_allclose(p2, p, atol=1e-6)
-
-
-# ----------------------------------------------------------------- real data
-def test_intel_first_400_seconds_beats_odometry(shared_data):
-    from probmap.datasets.carmen import load_scans
-    from probmap.metrics.relations import Relations, read_relations, relation_errors
-
-    log = shared_data("intel-research-lab/intel.clf.bz2")
-    rel = read_relations(shared_data("intel-research-lab/intel.relations"))
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        res = slam_log(log, GridSlamConfig(particles=5), end_time=400.0)
-    keep = (rel.t1 <= res.times[-1]) & (rel.t2 <= res.times[-1])
-    sub = Relations(rel.t1[keep], rel.t2[keep], rel.delta[keep])
-    slam = relation_errors(res.times, res.poses, sub).summary()
-    b = load_scans(log, poses="odometry")
-    odo = relation_errors(np.asarray(b.times), np.asarray(b.robot_poses), sub).summary()
-    assert slam["relations"] > 200
-    assert slam["trans_abs_mean_m"] < 0.06 < odo["trans_abs_mean_m"]
-    assert slam["rot_abs_mean_deg"] < 2.0 < odo["rot_abs_mean_deg"]
+    # reading a log (slam_log) and writing a trajectory: tests/pipelines/test_grid_slam.py
 
 
 # ----------------------------------------------------------------- CLI

@@ -142,7 +142,8 @@ def _rbpf(
 
     from probmap.grid.io import save_map
     from probmap.pipelines import check_output_prefix
-    from probmap.slam.gridslam import GridSlamConfig, slam_log, write_trajectory
+    from probmap.pipelines.grid_slam import slam_log, write_trajectory
+    from probmap.slam.gridslam import GridSlamConfig
 
     prefix = check_output_prefix(output)
     cfg = GridSlamConfig(

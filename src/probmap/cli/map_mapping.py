@@ -113,7 +113,7 @@ def fit_sensor_model_command(
         import yaml
 
         from probmap._atomic import atomic_write
-        from probmap.grid.fit import fit_log
+        from probmap.pipelines.fit import fit_log
 
         if not log.exists():
             raise FileNotFoundError(f"{log}: no such file")

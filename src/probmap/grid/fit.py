@@ -21,15 +21,18 @@ either end).
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap._deprecation import moved
 from probmap.grid.map_mapping import BeamModelParams
 
-__all__ = ["FitResult", "component_densities", "fit_beam_model", "fit_log"]
+__all__ = ["FitResult", "component_densities", "fit_beam_model"]
+
+# ``fit_log`` (reading a log) moved to probmap.pipelines.fit; the old path works for one release.
+__getattr__ = moved(__name__, {"fit_log": "probmap.pipelines.fit"})
 
 
 @dataclass(frozen=True)
@@ -200,42 +203,3 @@ def fit_beam_model(
         lambda_short=lam,
     )
     return FitResult(params, tuple(history), it, converged, int(z.size))
-
-
-def fit_log(
-    path: str | os.PathLike[str],
-    *,
-    resolution: float = 0.05,
-    every: int = 1,
-    max_range: float | None = None,
-    poses: str = "corrected",
-    skip_bad_lines: bool = False,
-    init: BeamModelParams | None = None,
-) -> FitResult:
-    """Fit the beam model to a CARMEN log with known poses.
-
-    The map is the log-odds map of the log itself (Table 9.1), thresholded at p = 0.5; the
-    expected ranges come from exact ray casting in it. Every ``every``-th scan is used.
-    """
-    from probmap.datasets.carmen import load_scans
-    from probmap.grid.occupancy import OccupancyGrid
-    from probmap.grid.raycast import cast_rays
-
-    if every < 1:
-        raise ValueError(f"every must be >= 1, got {every}")
-    batch = load_scans(path, poses=poses, max_range=max_range, skip_bad_lines=skip_bad_lines)
-    mr = float(max_range if max_range is not None else batch.max_range)
-    P = np.asarray(batch.laser_poses)
-    R = np.asarray(batch.ranges)
-    A = np.asarray(batch.angles)
-    grid = OccupancyGrid(resolution)
-    grid.integrate_scans(P, R, A, max_range=mr)
-    occ = grid.classify(0.5, 0.5) == 1
-    sel = slice(None, None, every)
-    if A.ndim == 1:
-        zs = cast_rays(occ, grid.spec, P[sel], A, mr)
-    else:
-        zs = np.stack(
-            [cast_rays(occ, grid.spec, p, a, mr) for p, a in zip(P[sel], A[sel], strict=True)]
-        )
-    return fit_beam_model(R[sel], zs, mr, init=init)

@@ -13,19 +13,25 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
+from probmap._atomic import atomic_write
 from probmap.grid.occupancy import OccupancyGrid
+
+if TYPE_CHECKING:
+    from probmap.slam.gridslam import GridSlamConfig, GridSlamResult
 
 __all__ = [
     "GraphSlamRun",
     "load_laser_log",
     "run_graph_slam",
     "slam_graph_log",
+    "slam_log",
     "write_graph_slam",
+    "write_trajectory",
 ]
 
 
@@ -227,13 +233,56 @@ def slam_graph_log(
     return run_graph_slam(batch, config, progress=progress)
 
 
+def slam_log(
+    path: str | os.PathLike[str],
+    config: GridSlamConfig | None = None,
+    *,
+    end_time: float | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> GridSlamResult:
+    """Read a raw CARMEN log and run :func:`~probmap.slam.gridslam.run_grid_slam` on its front-laser scans.
+
+    ``end_time`` keeps the scans of the first ``end_time`` seconds only.
+    """
+    from probmap.datasets.carmen import load_scans
+    from probmap.geometry.se2 import between
+    from probmap.slam.gridslam import run_grid_slam
+
+    batch = load_scans(path, poses="odometry", dtype=np.float32)
+    times = np.asarray(batch.times, dtype=np.float64)
+    ranges = np.asarray(batch.ranges)
+    angles = np.asarray(batch.angles, dtype=np.float64)
+    if angles.ndim != 1:
+        raise ValueError(f"{path}: scans with different beam geometries are not supported")
+    robot = np.asarray(batch.robot_poses, dtype=np.float64)
+    laser = np.asarray(batch.laser_poses, dtype=np.float64)
+    mount = between(robot[0], laser[0])
+    if end_time is not None:
+        keep = times <= times[0] + end_time
+        times, ranges, robot = times[keep], ranges[keep], robot[keep]
+    return run_grid_slam(
+        times, ranges, angles, robot, float(batch.max_range), config, mount=mount,
+        progress=progress,
+    )  # fmt: skip
+
+
+def write_trajectory(path: str | os.PathLike[str], times: ArrayLike, poses: ArrayLike) -> Path:
+    """Write ``time,x,y,theta`` rows atomically (timestamps with microseconds)."""
+    t = np.asarray(times, dtype=np.float64)
+    p = np.asarray(poses, dtype=np.float64)
+    with atomic_write(path, "w") as f:
+        f.write("time,x,y,theta\n")
+        for ti, (x, y, th) in zip(t, p, strict=True):
+            f.write(f"{ti:.6f},{x:.6f},{y:.6f},{th:.6f}\n")
+    return Path(path)
+
+
 def write_graph_slam(prefix: str | os.PathLike[str], run: GraphSlamRun) -> list[Path]:
     """Write ``PREFIX.yaml/.pgm/.npz/.png`` (the map), ``PREFIX.trajectory.csv`` (robot pose
     at every scan time), ``PREFIX.g2o`` (the optimized pose graph, laser poses) and
     ``PREFIX.slam.png`` (map, trajectory and accepted closures, axes in metres), each
     atomically. Returns the paths written."""
     from probmap.grid.io import save_map
-    from probmap.slam.gridslam import write_trajectory
     from probmap.viz.grid_slam import save_graph_slam_figure
 
     prefix = Path(prefix)

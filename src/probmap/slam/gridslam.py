@@ -26,19 +26,25 @@ trajectories are a tree of nodes shared by descendants.
 from __future__ import annotations
 
 import math
-import os
 import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap._deprecation import moved
 from probmap.geometry.se2 import between, compose, inverse, wrap_angle
 from probmap.grid.occupancy import OccupancyGrid
 from probmap.slam.scan_matching import MatcherConfig, MatchField, match_scan, scan_points
+
+# Reading a log and writing a trajectory moved to probmap.pipelines.grid_slam (the core reads and
+# writes no files); the old paths work for one release.
+__getattr__ = moved(
+    __name__,
+    {"slam_log": "probmap.pipelines.grid_slam", "write_trajectory": "probmap.pipelines.grid_slam"},
+)
 
 
 def _default_matcher() -> MatcherConfig:
@@ -646,47 +652,3 @@ def run_grid_slam(
         map_bytes=slam.map_bytes,
         seconds=time.perf_counter() - t0,
     )
-
-
-def slam_log(
-    path: str | os.PathLike[str],
-    config: GridSlamConfig | None = None,
-    *,
-    end_time: float | None = None,
-    progress: Callable[[int, int], None] | None = None,
-) -> GridSlamResult:
-    """Read a raw CARMEN log and run :func:`run_grid_slam` on its front-laser scans.
-
-    ``end_time`` keeps the scans of the first ``end_time`` seconds only.
-    """
-    from probmap.datasets.carmen import load_scans
-
-    batch = load_scans(path, poses="odometry", dtype=np.float32)
-    times = np.asarray(batch.times, dtype=np.float64)
-    ranges = np.asarray(batch.ranges)
-    angles = np.asarray(batch.angles, dtype=np.float64)
-    if angles.ndim != 1:
-        raise ValueError(f"{path}: scans with different beam geometries are not supported")
-    robot = np.asarray(batch.robot_poses, dtype=np.float64)
-    laser = np.asarray(batch.laser_poses, dtype=np.float64)
-    mount = between(robot[0], laser[0])
-    if end_time is not None:
-        keep = times <= times[0] + end_time
-        times, ranges, robot = times[keep], ranges[keep], robot[keep]
-    return run_grid_slam(
-        times, ranges, angles, robot, float(batch.max_range), config, mount=mount,
-        progress=progress,
-    )  # fmt: skip
-
-
-def write_trajectory(path: str | os.PathLike[str], times: ArrayLike, poses: ArrayLike) -> Path:
-    """Write ``time,x,y,theta`` rows atomically (timestamps with microseconds)."""
-    from probmap._atomic import atomic_write
-
-    t = np.asarray(times, dtype=np.float64)
-    p = np.asarray(poses, dtype=np.float64)
-    with atomic_write(path, "w") as f:
-        f.write("time,x,y,theta\n")
-        for ti, (x, y, th) in zip(t, p, strict=True):
-            f.write(f"{ti:.6f},{x:.6f},{y:.6f},{th:.6f}\n")
-    return Path(path)

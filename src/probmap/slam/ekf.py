@@ -13,11 +13,22 @@ through BLAS. The full ``(3 + 2n)`` square Jacobians of the textbook presentatio
 The covariance correction is the Joseph form ``(I - K H) P (I - K H)^T + K R K^T``, expanded with
 ``S = H P H^T + R`` into ``P - K (P H^T)^T - (P H^T) K^T + K S K^T``: it is symmetric by
 construction and stays positive semi-definite even when ``K`` is not exactly optimal (rounding).
+
+Two tiers, as in :mod:`probmap.slam.seif`: pure functions on the state arrays that state the
+book's equations (:func:`ekf_slam_predict`, Table 10.1 lines 2-5; :func:`ekf_slam_correct`, lines
+12-18 batched; :func:`ekf_slam_augment`, landmark initialisation; :func:`ekf_slam_innovation_covariances`
+and :func:`landmark_covariances`), and the stateful :class:`EKFSLAM`, which owns the
+landmark bookkeeping (ids, slots, provisional landmarks, association) and calls them. The models
+it is built with are typed by the protocols :class:`EKFMotionModel` and
+:class:`EKFMeasurementModel` (:class:`~probmap.models.motion.VelocityModel`,
+:class:`~probmap.models.motion.AckermannModel` and
+:class:`~probmap.models.measurement.RangeBearingModel` fit).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -27,7 +38,288 @@ from probmap._typing import FloatArray, IntArray
 from probmap.geometry.se2 import wrap_angle
 from probmap.slam.association import NEW, associate_ml, chi2_gate, innovation
 
-__all__ = ["EKFConfig", "EKFSLAM"]
+__all__ = [
+    "EKFConfig",
+    "EKFMeasurementModel",
+    "EKFMotionModel",
+    "EKFSLAM",
+    "ekf_slam_augment",
+    "ekf_slam_correct",
+    "ekf_slam_innovation_covariances",
+    "ekf_slam_predict",
+    "landmark_covariances",
+]
+
+
+class EKFMotionModel(Protocol):
+    """What :class:`EKFSLAM` needs of a motion model (e.g. :class:`~probmap.models.motion.VelocityModel`)."""
+
+    def predict(
+        self, x: ArrayLike, u: ArrayLike, dt: float
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """``g(u, x)`` (3,), ``G = dg/dx`` (3, 3) and ``V = dg/du`` (3, m) for a step of ``dt`` s."""
+        ...
+
+    def control_covariance(self, u: ArrayLike, dt: float) -> FloatArray:
+        """Covariance ``M`` (m, m) of the control noise for a step of ``dt`` s."""
+        ...
+
+
+class EKFMeasurementModel(Protocol):
+    """What :class:`EKFSLAM` needs of a landmark sensor (e.g.
+    :class:`~probmap.models.measurement.RangeBearingModel`)."""
+
+    @property
+    def R(self) -> FloatArray:
+        """Measurement noise covariance (2, 2), (m^2, rad^2)."""
+        ...
+
+    def predict_many(
+        self, pose: ArrayLike, landmarks: ArrayLike
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """``z_hat (n, 2)``, ``H_x (n, 2, 3)``, ``H_m (n, 2, 2)`` of ``landmarks (n, 2)``."""
+        ...
+
+    def inverse(self, pose: ArrayLike, z: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Landmark ``(2,)`` from ``z (2,)`` and its Jacobians ``J_x (2, 3)``, ``J_z (2, 2)``."""
+        ...
+
+
+# ---------------------------------------------------------------------------------------------
+# Function tier: Table 10.1 on the state arrays (robot = rows 0..2, landmark j = rows 3+2j, 4+2j)
+# ---------------------------------------------------------------------------------------------
+def ekf_slam_predict(
+    mu: FloatArray, P: FloatArray, x_new: FloatArray, G: FloatArray, Q: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """EKF SLAM prediction (Probabilistic Robotics Table 10.1, lines 2-5), in place, O(n).
+
+    With ``F_x`` the (3, 3 + 2n) robot selector, the book's ``mu_bar = mu + F_x^T delta`` and
+    ``Sigma_bar = G_full Sigma G_full^T + F_x^T R_t F_x`` with ``G_full = I + F_x^T (G - I) F_x``
+    touch only the robot rows and columns:
+
+    - ``mu_x <- x_new``;
+    - ``P_rr <- G P_rr G^T + Q``;
+    - ``P_rm <- G P_rm`` and ``P_mr <- P_rm^T``; ``P_mm`` is unchanged.
+
+    Parameters
+    ----------
+    mu : ndarray, shape (3 + 2n,)
+        State mean ``(x, y, theta, m_1x, m_1y, ...)``, world frame (m, rad); modified in place.
+    P : ndarray, shape (3 + 2n, 3 + 2n)
+        State covariance; modified in place.
+    x_new : ndarray, shape (3,)
+        Predicted pose ``g(u, mu_x)`` (heading wrapped), world frame.
+    G : ndarray, shape (3, 3)
+        Pose Jacobian ``d g / d x`` at ``mu_x``.
+    Q : ndarray, shape (3, 3)
+        Motion noise in pose space, ``V M V^T`` (the book's ``R_t``), may be singular.
+
+    Returns
+    -------
+    mu, P : ndarray
+        The same arrays, updated.
+    """
+    mu[:3] = x_new
+    P[:3, :3] = G @ P[:3, :3] @ G.T + Q
+    if P.shape[0] > 3:
+        P_rm = G @ P[:3, 3:]
+        P[:3, 3:] = P_rm
+        P[3:, :3] = P_rm.T
+    return mu, P
+
+
+def landmark_covariances(P: FloatArray, slots: IntArray) -> FloatArray:
+    """Marginal 2x2 covariances ``P_mm`` of the landmarks in ``slots``.
+
+    Parameters
+    ----------
+    P : ndarray, shape (3 + 2n, 3 + 2n)
+        State covariance.
+    slots : ndarray of int, shape (k,)
+        Landmark slots (0-based; slot ``j`` is rows ``3 + 2j`` and ``4 + 2j``).
+
+    Returns
+    -------
+    ndarray, shape (k, 2, 2)
+        (m^2).
+    """
+    r = 3 + 2 * np.asarray(slots, dtype=np.int64)
+    out = np.empty((r.size, 2, 2))
+    out[:, 0, 0] = P[r, r]
+    out[:, 0, 1] = P[r, r + 1]
+    out[:, 1, 0] = P[r + 1, r]
+    out[:, 1, 1] = P[r + 1, r + 1]
+    return out
+
+
+def ekf_slam_innovation_covariances(
+    P: FloatArray, slots: IntArray, H_x: FloatArray, H_m: FloatArray, R: FloatArray
+) -> FloatArray:
+    """Per-landmark innovation covariances ``S_j = H_j P H_j^T + R`` (Table 10.1 line 15,
+    Table 10.2 line 16), from the sparse 2x5 blocks ``H_j = [H_x, H_m]``.
+
+    Parameters
+    ----------
+    P : ndarray, shape (3 + 2n, 3 + 2n)
+        State covariance.
+    slots : ndarray of int, shape (k,)
+        Landmark slots.
+    H_x : ndarray, shape (k, 2, 3)
+        ``d z / d pose`` of each landmark's predicted measurement.
+    H_m : ndarray, shape (k, 2, 2)
+        ``d z / d landmark``.
+    R : ndarray, shape (2, 2)
+        Measurement noise covariance ((m, rad) for range-bearing).
+
+    Returns
+    -------
+    ndarray, shape (k, 2, 2)
+    """
+    sl = np.asarray(slots, dtype=np.int64)
+    cols = (3 + 2 * sl[:, None] + np.arange(2)).ravel()
+    P_rm = P[:3, cols].reshape(3, sl.size, 2).transpose(1, 0, 2)  # (k, 3, 2)
+    P_mm = landmark_covariances(P, sl)
+    HxPrm = H_x @ P_rm  # (k, 2, 2)
+    S: FloatArray = (
+        H_x @ P[:3, :3] @ H_x.transpose(0, 2, 1)
+        + HxPrm @ H_m.transpose(0, 2, 1)
+        + H_m @ HxPrm.transpose(0, 2, 1)
+        + H_m @ P_mm @ H_m.transpose(0, 2, 1)
+        + R
+    )
+    return S
+
+
+def ekf_slam_correct(
+    mu: FloatArray,
+    P: FloatArray,
+    z: FloatArray,
+    slots: IntArray,
+    z_hat: FloatArray,
+    H_x: FloatArray,
+    H_m: FloatArray,
+    R: FloatArray,
+) -> tuple[FloatArray, FloatArray, float]:
+    """Batched EKF SLAM correction (Table 10.1, lines 12-18) for ``k`` matched observations.
+
+    The book fuses one observation at a time; here all ``k`` are fused at once with the stacked
+    ``H`` (2k, 3 + 2n) whose rows are ``[H_x | 0 | H_m | 0]``, never built:
+
+    - ``P H^T`` (N, 2k) is gathered from the robot and the observed landmarks' columns, O(n k);
+    - ``S = H P H^T + R_blockdiag`` (2k, 2k), ``K = P H^T S^-1`` (Cholesky);
+    - ``mu <- mu + K nu`` with ``nu = z - z_hat`` (bearing wrapped), heading wrapped;
+    - ``P <- (I - K H) P (I - K H)^T + K R K^T`` (Joseph form), expanded into one rank-4k BLAS
+      update ``P - W U^T`` with ``C = P H^T - K S / 2``, ``U = [K, C]``, ``W = [C, K]``.
+
+    Parameters
+    ----------
+    mu : ndarray, shape (N,), N = 3 + 2n
+        State mean, world frame (m, rad); updated in place.
+    P : ndarray, shape (N, N), C-contiguous
+        State covariance; updated in place where BLAS allows (use the returned array).
+    z : ndarray, shape (k, 2)
+        Measurements ``(range m, bearing rad)`` in the sensor frame.
+    slots : ndarray of int, shape (k,)
+        Landmark slot of each measurement (distinct).
+    z_hat, H_x, H_m : ndarray, shapes (k, 2), (k, 2, 3), (k, 2, 2)
+        Predicted measurements and Jacobians at ``mu`` (``predict_many`` of the sensor model).
+    R : ndarray, shape (2, 2)
+        Measurement noise covariance.
+
+    Returns
+    -------
+    mu : ndarray, shape (N,)
+    P : ndarray, shape (N, N)
+    nis : float
+        Normalised innovation squared ``nu^T S^-1 nu`` (chi-square with 2k dof when consistent).
+
+    Raises
+    ------
+    ValueError
+        If ``S`` is not positive definite.
+    """
+    k = z.shape[0]
+    N = P.shape[0]
+    cols = (3 + 2 * slots[:, None] + np.arange(2)).ravel()  # (2k,) landmark columns
+    # P H^T from the robot columns and each observation's landmark columns: (N, 2k)
+    PHt = P[:, :3] @ H_x.reshape(2 * k, 3).T
+    P_lm = P[:, cols].reshape(N, k, 2)
+    PHt += np.einsum("nkj,kij->nki", P_lm, H_m).reshape(N, 2 * k)
+    # S = H P H^T + R, gathered from the rows of P H^T that H touches: (2k, 2k)
+    S = H_x.reshape(2 * k, 3) @ PHt[:3]
+    S += np.einsum("kij,kjm->kim", H_m, PHt[cols].reshape(k, 2, 2 * k)).reshape(2 * k, 2 * k)
+    for i in range(k):
+        S[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] += R
+    S = 0.5 * (S + S.T)
+    nu = innovation(z, z_hat).ravel()
+    try:
+        cS = cho_factor(S)
+    except np.linalg.LinAlgError as exc:
+        raise ValueError("innovation covariance is not positive definite") from exc
+    K = cho_solve(cS, PHt.T).T  # (N, 2k) = P H^T S^-1
+    nis = float(nu @ cho_solve(cS, nu))
+    mu += K @ nu
+    mu[2] = wrap_angle(mu[2])
+    # Joseph form expanded: P -= K C^T + C K^T with C = P H^T - K S / 2
+    C = PHt - 0.5 * (K @ S)
+    U = np.hstack([K, C])
+    W = np.hstack([C, K])
+    Pt = P.T  # Fortran-ordered view of the C-ordered P: BLAS writes in place
+    out = blas.dgemm(alpha=-1.0, a=W, b=U, trans_b=True, beta=1.0, c=Pt, overwrite_c=True)
+    if not np.shares_memory(out, P):
+        P = np.ascontiguousarray(out.T)
+    return mu, P, nis
+
+
+def ekf_slam_augment(
+    mu: FloatArray,
+    P: FloatArray,
+    xy: FloatArray,
+    J_x: FloatArray,
+    J_z: FloatArray,
+    R: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """Append ``k`` new landmarks initialised from the inverse measurement model.
+
+    Instead of the book's infinite prior (Table 10.1 lines 9-11), each new landmark
+    ``m = h^-1(x, z)`` gets its full cross-covariance: ``P_m* = J_x P_r*`` (with the old state),
+    ``P_mm' = J_x P_rr J_x'^T`` between new landmarks (correlated through the pose) plus
+    ``J_z R J_z^T`` on each diagonal block.
+
+    Parameters
+    ----------
+    mu : ndarray, shape (N,)
+        State mean.
+    P : ndarray, shape (N, N)
+        State covariance.
+    xy : ndarray, shape (k, 2)
+        New landmark positions, world frame (m).
+    J_x : ndarray, shape (k, 2, 3)
+        ``d m / d pose`` of each.
+    J_z : ndarray, shape (k, 2, 2)
+        ``d m / d z`` of each.
+    R : ndarray, shape (2, 2)
+        Measurement noise covariance.
+
+    Returns
+    -------
+    mu : ndarray, shape (N + 2k,)
+    P : ndarray, shape (N + 2k, N + 2k)
+        New arrays; the new landmarks take slots ``n .. n + k - 1`` in order.
+    """
+    k = xy.shape[0]
+    N = P.shape[0]
+    Jx_all = J_x.reshape(2 * k, 3)
+    cross = Jx_all @ P[:3, :]  # (2k, N): new landmarks vs old state
+    new_block = Jx_all @ P[:3, :3] @ Jx_all.T  # correlated through the pose
+    for i in range(k):
+        new_block[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] += J_z[i] @ R @ J_z[i].T
+    P_new = np.empty((N + 2 * k, N + 2 * k))
+    P_new[:N, :N] = P
+    P_new[N:, :N] = cross
+    P_new[:N, N:] = cross.T
+    P_new[N:, N:] = 0.5 * (new_block + new_block.T)
+    return np.concatenate([mu, xy.ravel()]), P_new
 
 
 @dataclass(frozen=True)
@@ -81,12 +373,16 @@ class EKFSLAM:
 
     Parameters
     ----------
-    motion_model
-        Object with ``predict(x, u, dt) -> (x', G, V)`` and ``control_covariance(u, dt)``.
-    measurement_model
-        :class:`~probmap.models.measurement.RangeBearingModel` (or compatible).
+    motion_model : EKFMotionModel
+        ``predict(x, u, dt) -> (x', G, V)`` and ``control_covariance(u, dt)``, e.g.
+        :class:`~probmap.models.motion.VelocityModel`.
+    measurement_model : EKFMeasurementModel
+        ``R``, ``predict_many`` and ``inverse``, e.g.
+        :class:`~probmap.models.measurement.RangeBearingModel`.
     initial_pose : array_like, shape (3,)
+        Start pose ``(x, y, theta)``, world frame (m, rad).
     initial_covariance : array_like, shape (3, 3)
+        Its covariance.
     config : EKFConfig, optional
 
     Notes
@@ -95,12 +391,16 @@ class EKFSLAM:
     maximum-likelihood association (Table 10.2) for ``ids == -1``. New landmarks are initialised
     from the inverse measurement model with their full cross-covariance (not with the book's
     infinite prior), ``P_mm = J_x P_rr J_x^T + J_z R J_z^T`` and ``P_m* = J_x P_r*``.
+
+    The arithmetic is that of the function tier (:func:`ekf_slam_predict`,
+    :func:`ekf_slam_correct`, :func:`ekf_slam_augment`); this class keeps the state, the landmark
+    ids and the association logic.
     """
 
     def __init__(
         self,
-        motion_model: object,
-        measurement_model: object,
+        motion_model: EKFMotionModel,
+        measurement_model: EKFMeasurementModel,
         initial_pose: ArrayLike,
         initial_covariance: ArrayLike,
         config: EKFConfig | None = None,
@@ -116,7 +416,7 @@ class EKFSLAM:
         self.config = config if config is not None else EKFConfig()
         self._mu = mu.copy()
         self._P = np.array(0.5 * (P0 + P0.T), order="C")
-        self._R = np.asarray(measurement_model.R, dtype=np.float64)  # type: ignore[attr-defined]
+        self._R = np.asarray(measurement_model.R, dtype=np.float64)
         self._ids = np.zeros(0, dtype=np.int64)  # landmark id per slot
         self._hits = np.zeros(0, dtype=np.int64)
         self._misses = np.zeros(0, dtype=np.int64)
@@ -172,30 +472,21 @@ class EKFSLAM:
         return self._ids[sel].copy(), xy.copy(), cov
 
     def _landmark_blocks(self, slots: IntArray) -> FloatArray:
-        r = 3 + 2 * np.asarray(slots, dtype=np.int64)
-        P = self._P
-        out = np.empty((r.size, 2, 2))
-        out[:, 0, 0] = P[r, r]
-        out[:, 0, 1] = P[r, r + 1]
-        out[:, 1, 0] = P[r + 1, r]
-        out[:, 1, 1] = P[r + 1, r + 1]
-        return out
+        return landmark_covariances(self._P, slots)
 
     # ------------------------------------------------------------------ prediction
     def predict(self, u: ArrayLike, dt: float) -> None:
-        """EKF prediction (Table 10.1, lines 2-5): only ``P_rr`` and ``P_rm`` change, O(n)."""
+        """EKF prediction (Table 10.1, lines 2-5): only ``P_rr`` and ``P_rm`` change, O(n).
+
+        ``u`` is the control of :attr:`motion_model` (``(v, w)`` m/s, rad/s for the velocity
+        model) held for ``dt`` s; see :func:`ekf_slam_predict`.
+        """
         if dt == 0.0:
             return
         u = np.asarray(u, dtype=np.float64)
-        x_new, G, V = self.motion_model.predict(self._mu[:3], u, dt)  # type: ignore[attr-defined]
-        M = self.motion_model.control_covariance(u, dt)  # type: ignore[attr-defined]
-        P = self._P
-        self._mu[:3] = x_new
-        P[:3, :3] = G @ P[:3, :3] @ G.T + V @ M @ V.T
-        if P.shape[0] > 3:
-            P_rm = G @ P[:3, 3:]
-            P[:3, 3:] = P_rm
-            P[3:, :3] = P_rm.T
+        x_new, G, V = self.motion_model.predict(self._mu[:3], u, dt)
+        M = self.motion_model.control_covariance(u, dt)
+        ekf_slam_predict(self._mu, self._P, x_new, G, V @ M @ V.T)
 
     # ------------------------------------------------------------------ measurement update
     def update(self, z: ArrayLike, ids: ArrayLike) -> None:
@@ -270,19 +561,8 @@ class EKFSLAM:
         """``z_hat``, ``H_x (n, 2, 3)``, ``H_m (n, 2, 2)``, ``S (n, 2, 2)`` of ``slots`` (all)."""
         sl = np.arange(self.n_landmarks) if slots is None else np.asarray(slots, dtype=np.int64)
         lm = self._mu[3:].reshape(-1, 2)[sl]
-        z_hat, H_x, H_m = self.measurement_model.predict_many(self._mu[:3], lm)  # type: ignore[attr-defined]
-        P = self._P
-        cols = (3 + 2 * sl[:, None] + np.arange(2)).ravel()
-        P_rm = P[:3, cols].reshape(3, sl.size, 2).transpose(1, 0, 2)  # (n, 3, 2)
-        P_mm = self._landmark_blocks(sl)
-        HxPrm = H_x @ P_rm  # (n, 2, 2)
-        S = (
-            H_x @ P[:3, :3] @ H_x.transpose(0, 2, 1)
-            + HxPrm @ H_m.transpose(0, 2, 1)
-            + H_m @ HxPrm.transpose(0, 2, 1)
-            + H_m @ P_mm @ H_m.transpose(0, 2, 1)
-            + self._R
-        )
+        z_hat, H_x, H_m = self.measurement_model.predict_many(self._mu[:3], lm)
+        S = ekf_slam_innovation_covariances(self._P, sl, H_x, H_m, self._R)
         return z_hat, H_x, H_m, S
 
     def _associate(self, z: FloatArray) -> IntArray:
@@ -297,7 +577,7 @@ class EKFSLAM:
         if n_before == 0:
             return
         lm = self._mu[3 : 3 + 2 * n_before].reshape(-1, 2)
-        z_hat, _, _ = self.measurement_model.predict_many(self._mu[:3], lm)  # type: ignore[attr-defined]
+        z_hat, _, _ = self.measurement_model.predict_many(self._mu[:3], lm)
         visible = (z_hat[:, 0] <= self.config.visibility_range) & (
             np.abs(z_hat[:, 1]) <= self.config.visibility_fov / 2
         )
@@ -322,26 +602,13 @@ class EKFSLAM:
     def _add_landmarks(self, z: FloatArray, ids: list[int]) -> None:
         """Augment the state with new landmarks from the inverse measurement model."""
         k = z.shape[0]
-        N = self._P.shape[0]
         sensor = self.measurement_model
         xy = np.empty((k, 2))
         Jx = np.empty((k, 2, 3))
         Jz = np.empty((k, 2, 2))
         for i in range(k):
-            xy[i], Jx[i], Jz[i] = sensor.inverse(self._mu[:3], z[i])  # type: ignore[attr-defined]
-        Jx_all = Jx.reshape(2 * k, 3)
-        P = self._P
-        cross = Jx_all @ P[:3, :]  # (2k, N): new landmarks vs old state
-        new_block = Jx_all @ P[:3, :3] @ Jx_all.T  # correlated through the pose
-        for i in range(k):
-            new_block[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] += Jz[i] @ self._R @ Jz[i].T
-        P_new = np.empty((N + 2 * k, N + 2 * k))
-        P_new[:N, :N] = P
-        P_new[N:, :N] = cross
-        P_new[:N, N:] = cross.T
-        P_new[N:, N:] = 0.5 * (new_block + new_block.T)
-        self._P = P_new
-        self._mu = np.concatenate([self._mu, xy.ravel()])
+            xy[i], Jx[i], Jz[i] = sensor.inverse(self._mu[:3], z[i])
+        self._mu, self._P = ekf_slam_augment(self._mu, self._P, xy, Jx, Jz, self._R)
         assigned: list[int] = []
         for i in ids:
             if i < 0:
@@ -360,40 +627,12 @@ class EKFSLAM:
 
     def _fuse(self, z: FloatArray, slots: IntArray) -> None:
         """Batched EKF correction (Table 10.1, lines 12-18) for ``k`` matched observations."""
-        k = z.shape[0]
-        P = self._P
-        N = P.shape[0]
         lm = self._mu[3:].reshape(-1, 2)[slots]
-        z_hat, H_x, H_m = self.measurement_model.predict_many(self._mu[:3], lm)  # type: ignore[attr-defined]
-        cols = (3 + 2 * slots[:, None] + np.arange(2)).ravel()  # (2k,) landmark columns
-        # P H^T from the robot columns and each observation's landmark columns: (N, 2k)
-        PHt = P[:, :3] @ H_x.reshape(2 * k, 3).T
-        P_lm = P[:, cols].reshape(N, k, 2)
-        PHt += np.einsum("nkj,kij->nki", P_lm, H_m).reshape(N, 2 * k)
-        # S = H P H^T + R, gathered from the rows of P H^T that H touches: (2k, 2k)
-        S = H_x.reshape(2 * k, 3) @ PHt[:3]
-        S += np.einsum("kij,kjm->kim", H_m, PHt[cols].reshape(k, 2, 2 * k)).reshape(2 * k, 2 * k)
-        for i in range(k):
-            S[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] += self._R
-        S = 0.5 * (S + S.T)
-        nu = innovation(z, z_hat).ravel()
-        try:
-            cS = cho_factor(S)
-        except np.linalg.LinAlgError as exc:
-            raise ValueError("innovation covariance is not positive definite") from exc
-        K = cho_solve(cS, PHt.T).T  # (N, 2k) = P H^T S^-1
-        self.last_nis = float(nu @ cho_solve(cS, nu))
-        self.last_nis_dof = 2 * k
-        self._mu += K @ nu
-        self._mu[2] = wrap_angle(self._mu[2])
-        # Joseph form expanded: P -= K C^T + C K^T with C = P H^T - K S / 2
-        C = PHt - 0.5 * (K @ S)
-        U = np.hstack([K, C])
-        W = np.hstack([C, K])
-        Pt = P.T  # Fortran-ordered view of the C-ordered P: BLAS writes in place
-        out = blas.dgemm(alpha=-1.0, a=W, b=U, trans_b=True, beta=1.0, c=Pt, overwrite_c=True)
-        if not np.shares_memory(out, P):
-            self._P = np.ascontiguousarray(out.T)
+        z_hat, H_x, H_m = self.measurement_model.predict_many(self._mu[:3], lm)
+        self._mu, self._P, self.last_nis = ekf_slam_correct(
+            self._mu, self._P, z, slots, z_hat, H_x, H_m, self._R
+        )
+        self.last_nis_dof = 2 * z.shape[0]
         self._n_updates += 1
         if self._n_updates % self.config.symmetrize_every == 0:
             self._P = np.ascontiguousarray(0.5 * (self._P + self._P.T))

@@ -6,20 +6,8 @@ from pathlib import Path
 
 import typer
 
-from probmap.cli.common import cli_errors
+from probmap.cli.common import cli_errors, print_summary
 from probmap.cli.slam import slam_app
-
-
-def _table(title: str, rows: list[tuple[str, str]]) -> None:
-    from rich.console import Console
-    from rich.table import Table
-
-    table = Table(title=title, show_header=False, box=None)
-    table.add_column(style="bold")
-    table.add_column(justify="right")
-    for k, v in rows:
-        table.add_row(k, v)
-    Console().print(table)
 
 
 @slam_app.command("grid")
@@ -123,7 +111,7 @@ def _graph(log: Path, output: Path, end_time: float | None, bag_options: dict) -
         ("peak memory", f"{rss:.0f} MiB"),
     ]
     rows += [("wrote", str(f)) for f in files]
-    _table("grid SLAM (graph)", rows)
+    print_summary("grid SLAM (graph)", rows)
 
 
 def _rbpf(
@@ -176,7 +164,7 @@ def _rbpf(
         ("time", f"{result.seconds:.1f} s ({duration / max(result.seconds, 1e-9):.1f}x real time)"),
     ]
     rows += [("wrote", str(f)) for f in [*files, traj]]
-    _table("grid SLAM (rbpf)", rows)
+    print_summary("grid SLAM (rbpf)", rows)
 
 
 def match_command(
@@ -230,7 +218,7 @@ def match_command(
         pts = scan_points(batch.ranges[scan], angles, float(batch.max_range), cfg.usable_range)
         res = match_scan(field, pts, guess, cfg)
         sd = np.sqrt(np.diag(res.covariance))
-        _table(
+        print_summary(
             f"scan {scan} of {log.name} on {map_file.name}",
             [
                 ("initial", f"x={guess[0]:.3f} y={guess[1]:.3f} theta={guess[2]:.4f}"),

@@ -10,7 +10,7 @@ from probmap import errors
 from probmap.datasets import carmen, protocol, rosbag
 from probmap.filters import particle
 from probmap.grid import io as grid_io
-from probmap.grid import semantic_io
+from probmap.grid import occupancy, semantic_io
 from probmap.slam import seif
 
 
@@ -24,6 +24,7 @@ from probmap.slam import seif
         (carmen, "BadLinesWarning"),
         (seif, "SingularInformationError"),
         (particle, "ParticleFilterWarning"),
+        (occupancy, "GridBoundsError"),
     ],
 )
 def test_old_import_path_is_the_same_class(module, name):
@@ -35,6 +36,7 @@ def test_hierarchy():
         assert issubclass(cls, errors.DatasetError)
     assert issubclass(errors.DatasetError, ValueError)
     assert issubclass(errors.SingularInformationError, ValueError)
+    assert issubclass(errors.GridBoundsError, ValueError)
     assert issubclass(errors.BadLinesWarning, UserWarning)
     assert issubclass(errors.ParticleFilterWarning, UserWarning)
 

@@ -15,6 +15,7 @@ __all__ = [
     "BadLinesWarning",
     "BagError",
     "DatasetError",
+    "GridBoundsError",
     "MapFileError",
     "ParticleFilterWarning",
     "SemanticFileError",
@@ -65,6 +66,10 @@ class BadLinesWarning(UserWarning):
 
 
 # --------------------------------------------------------------------------------- estimators
+class GridBoundsError(ValueError):
+    """A scan or pose falls outside a fixed-bounds grid, or a grid would grow past its limit."""
+
+
 class SingularInformationError(ValueError):
     """An information block is singular or indefinite; the update was rejected, state unchanged."""
 

@@ -17,12 +17,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap.errors import GridBoundsError  # re-exported: its old home
 from probmap.grid.logodds import logit, prob
 from probmap.grid.spec import GridSpec
-
-
-class GridBoundsError(ValueError):
-    """A scan or pose falls outside a fixed-bounds grid."""
 
 
 @dataclass(frozen=True)

@@ -439,7 +439,7 @@ def test_single_scan_fast_path_epochs_and_unusual_arrays(monkeypatch):
         ([0.0, 0.0, 0.0], [1.0, 2.0], [0.0, 0.1], -1.0, "max_range must be > 0"),
         ([0.0, 0.0, 0.0], [1.0, 2.0], [0.0, 0.1], np.nan, "max_range must be > 0"),
         ([0.0, 0.0, 0.0], [1.0, 2.0], [0.0, 0.1], "far", "could not convert"),
-        ([0.0, 0.0, 0.0], [1e308, 2.0], [0.0, 0.1], np.inf, "cannot convert float infinity"),
+        ([0.0, 0.0, 0.0], [1e308, 2.0], [0.0, 0.1], np.inf, "max_extent"),
         ([1e308, 0.0, 0.0], [1.7e308, 2.0], [0.0, 0.1], np.inf, "poses must be finite numbers"),
         ([1e306, 0.0, 0.0], [1.0, 2.0], [0.0, 0.1], 5.0, ""),  # numpy: grid too large
     ],
@@ -521,3 +521,33 @@ def test_single_scan_kernel_codes_leave_the_grid_untouched():
             assert out[1:] == (0, 0, 0, 0)
             np.testing.assert_array_equal(lo, grid.log_odds)
             assert not stamp.any()
+
+
+def test_growth_past_max_extent_is_refused_and_changes_nothing():
+    from probmap.errors import GridBoundsError
+
+    angles = np.array([-0.1, 0.0, 0.1])
+    grid = OccupancyGrid(0.1, max_extent=50.0)
+    grid.integrate_scan([0.0, 0.0, 0.0], [5.0, 5.0, 5.0], angles, max_range=10.0)
+    lo, seen, spec = grid.log_odds.copy(), grid.observed.copy(), grid.spec
+    # a pose glitch 1e7 m away, a reading past the limit, a far reading with max_range=inf
+    for pose, ranges, max_range in (
+        ([1e7, 0.0, 0.0], [5.0, 5.0, 5.0], 10.0),
+        ([0.0, 0.0, 0.0], [60.0, 60.0, 60.0], 100.0),
+        ([0.0, 0.0, 0.0], [1e9, 1e9, 1e9], math.inf),
+    ):
+        with pytest.raises(GridBoundsError, match=r"max_extent"):
+            grid.integrate_scan(pose, ranges, angles, max_range=max_range)
+        assert grid.spec == spec
+        np.testing.assert_array_equal(grid.log_odds, lo)
+        np.testing.assert_array_equal(grid.observed, seen)
+    # within the limit it still grows: 45 m away from the first scan
+    grid.integrate_scan([40.0, 0.0, 0.0], [5.0, 5.0, 5.0], angles, max_range=10.0)
+    assert grid.spec.extent[1] >= 45.0
+    # the default limit is a few km: a 1 km building grows, a 1e9 m reading does not
+    big = OccupancyGrid(0.5)
+    big.integrate_scan([0.0, 0.0, 0.0], [1000.0] * 3, angles, max_range=2000.0)
+    with pytest.raises(GridBoundsError, match="3000 m a side"):
+        big.integrate_scan([0.0, 0.0, 0.0], [1e9] * 3, angles)
+    with pytest.raises(ValueError, match="max_extent"):
+        OccupancyGrid(0.1, max_extent=0.0)

@@ -103,8 +103,18 @@ class ScanStats:
         )
 
 
+MAX_EXTENT_M = 3000.0
+"""Default largest side of a growing grid, metres: a building, a campus or a long outdoor run
+fits; a pose glitch (a laser pose at 1e7 m, a 1e9 m reading with ``max_range=inf``) does not,
+and is refused with :class:`GridBoundsError` instead of an attempt to allocate terabytes."""
+
+
 def plan_growth(
-    spec: GridSpec, box: NDArray[np.float64], *, fixed: bool
+    spec: GridSpec,
+    box: NDArray[np.float64],
+    *,
+    fixed: bool,
+    max_extent: float = MAX_EXTENT_M,
 ) -> tuple[GridSpec, tuple[int, int] | None]:
     """The geometry a grid needs to contain ``box = (xmin, xmax, ymin, ymax)``.
 
@@ -115,9 +125,22 @@ def plan_growth(
     Raises
     ------
     GridBoundsError
-        When ``fixed`` and the box leaves the grid.
+        When ``fixed`` and the box leaves the grid, or when the grid would have to span more
+        than ``max_extent`` metres in x or y to hold the box.
     """
     xmin, xmax, ymin, ymax = (float(v) for v in box)
+    if spec.width and spec.height:
+        x0, x1, y0, y1 = spec.extent
+        span_x, span_y = max(xmax, x1) - min(xmin, x0), max(ymax, y1) - min(ymin, y0)
+    else:
+        span_x, span_y = xmax - xmin, ymax - ymin
+    if not fixed and max(span_x, span_y) > max_extent:
+        raise GridBoundsError(
+            f"the grid would have to span {span_x:.4g} x {span_y:.4g} m to hold a scan reaching "
+            f"x in [{xmin:.4g}, {xmax:.4g}], y in [{ymin:.4g}, {ymax:.4g}] m, more than its "
+            f"limit of {max_extent:.4g} m a side (max_extent): a pose or a range far off the "
+            "map (a glitch, or an infinite max_range)?"
+        )
     if spec.width == 0 or spec.height == 0:
         if fixed:
             raise GridBoundsError("fixed grid has no cells")
@@ -179,6 +202,9 @@ class OccupancyGrid:
     fixed : bool
         If true the grid never grows: a pose or endpoint outside ``spec`` raises
         :class:`GridBoundsError`. Requires ``spec``.
+    max_extent : float
+        Largest side (metres) a growing grid may reach (default :data:`MAX_EXTENT_M`, 3 km):
+        a scan that would need more raises :class:`GridBoundsError` and changes nothing.
 
     Notes
     -----
@@ -211,7 +237,10 @@ class OccupancyGrid:
         model: InverseSensorModel | None = None,
         spec: GridSpec | None = None,
         fixed: bool = False,
+        max_extent: float = MAX_EXTENT_M,
     ) -> None:
+        if not (math.isfinite(max_extent) and max_extent > 0):
+            raise ValueError(f"max_extent must be a positive number of metres, got {max_extent}")
         if (
             spec is not None
             and not math.isclose(spec.resolution, resolution)
@@ -237,6 +266,7 @@ class OccupancyGrid:
         self.l_max = float(logit(clamp[1]))
         self.model = model if model is not None else InverseSensorModel()
         self.fixed = bool(fixed)
+        self.max_extent = float(max_extent)
         self._scans = 0
         if spec is None:
             spec = GridSpec(res, (0.0, 0.0), (0, 0))
@@ -343,7 +373,13 @@ class OccupancyGrid:
         ox, oy = self._spec.origin
         spec = GridSpec(r, (ox + x0 * r, oy + y0 * r), (y1 - y0, x1 - x0))
         out = OccupancyGrid(
-            r, p0=self.p0, clamp=self.clamp, model=self.model, spec=spec, fixed=self.fixed
+            r,
+            p0=self.p0,
+            clamp=self.clamp,
+            model=self.model,
+            spec=spec,
+            fixed=self.fixed,
+            max_extent=self.max_extent,
         )
         out._lo = self._lo[y0:y1, x0:x1].copy()
         out._stamp = self._stamp[y0:y1, x0:x1].copy()
@@ -355,7 +391,7 @@ class OccupancyGrid:
     def _ensure_bounds(self, box: NDArray[np.float64]) -> None:
         if not np.isfinite(box).all():
             raise ValueError("poses must be finite numbers")
-        new, off = plan_growth(self._spec, box, fixed=self.fixed)
+        new, off = plan_growth(self._spec, box, fixed=self.fixed, max_extent=self.max_extent)
         if new is self._spec:
             return
         self._lo = regrid(self._lo, new.shape, off, self.l0)

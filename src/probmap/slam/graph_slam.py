@@ -476,12 +476,7 @@ class GraphSlam:
             if sm.anchor != k and sm.anchor != k - 1:
                 self.graph.add_edge(sm.anchor, k, in_sub, self._local_info)
         while self.active and self.active[0].size >= cfg.submap_scans:
-            done = self.active.pop(0)
-            done.finish()
-            self._finished.append(done)
-            self._fin_anchor.append(done.anchor)
-            self._fin_centre.append(done.centre)
-            self._fin_radius.append(done.radius)
+            self._retire_oldest()
         # closure endpoints: an even subsample of the scan
         step = max(1, math.ceil(len(pts) / cfg.closure_points))
         cpts = np.ascontiguousarray(pts[::step])
@@ -494,6 +489,15 @@ class GraphSlam:
             self._since_optimize >= cfg.optimize_every or self._pending_correction
         ):
             self.optimize()
+
+    def _retire_oldest(self) -> None:
+        """Finish the oldest active submap and make it a closure-search candidate."""
+        done = self.active.pop(0)
+        done.finish()
+        self._finished.append(done)
+        self._fin_anchor.append(done.anchor)
+        self._fin_centre.append(done.centre)
+        self._fin_radius.append(done.radius)
 
     def _match_local(self, pts: NDArray, predicted: NDArray) -> NDArray[np.float64]:
         """Scan-to-submap matching around the odometry prediction (local-SLAM frame)."""
@@ -790,12 +794,7 @@ class GraphSlam:
             self.optimize(self.config.final_iterations)
         self._cache.clear()
         while self.active:
-            done = self.active.pop(0)
-            done.finish()
-            self._finished.append(done)
-            self._fin_anchor.append(done.anchor)
-            self._fin_centre.append(done.centre)
-            self._fin_radius.append(done.radius)
+            self._retire_oldest()
         for sm in self.submaps:
             sm.release()
         self._done = True

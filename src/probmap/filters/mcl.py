@@ -13,6 +13,19 @@
   :mod:`probmap.models.sampling` fit).
 
 Poses are ``(x, y, theta)`` in the map frame (m, rad).
+
+Two tiers, as in :mod:`probmap.slam.seif`: array functions that state Table 8.2's steps
+(:func:`mcl_sample_motion`, line 4; :func:`mcl_weight`, line 5 with normalisation;
+:func:`mcl_resample`, lines 8-11 with Tables 4.4, 8.3 and 8.4; :func:`mcl_likelihood_averages`
+and :func:`mcl_random_fraction`, Table 8.3; :func:`mcl_sample_and_weight_scan`, the fused
+odometry + likelihood-field pass; :func:`sample_pose_gaussian`, the tracking prior), and the
+stateful :class:`MonteCarloLocalization`, which holds the particle set and calls them.
+
+A filter is valid as soon as it is built: give the initial particle set
+(``MonteCarloLocalization(..., particles=p)``) or use :meth:`MonteCarloLocalization.from_pose`
+(tracking) or :meth:`MonteCarloLocalization.uniform` (global localization). The old pattern,
+construction without particles followed by ``initialize_pose`` / ``initialize_global``, still
+works and gives the same particles, with a ``DeprecationWarning``.
 """
 
 from __future__ import annotations
@@ -39,16 +52,29 @@ __all__ = [
     "FreeSpaceSampler",
     "MCLConfig",
     "MonteCarloLocalization",
+    "MotionModel",
     "PoseEstimate",
     "RangeBearingLandmarks",
+    "SensorModel",
+    "mcl_likelihood_averages",
+    "mcl_random_fraction",
+    "mcl_resample",
+    "mcl_sample_and_weight_scan",
+    "mcl_sample_motion",
+    "mcl_weight",
+    "sample_pose_gaussian",
 ]
 
 
 class MotionModel(Protocol):
+    """A sampling motion model: ``sample(poses (N, 3), *u, rng) -> (N, 3)`` (Table 8.2 line 4)."""
+
     def sample(self, poses: Any, *args: Any) -> NDArray[np.float64]: ...
 
 
 class SensorModel(Protocol):
+    """A measurement model: ``log_likelihood_sum(poses (N, 3), *z) -> (N,)`` (Table 8.2 line 5)."""
+
     def log_likelihood_sum(self, poses: Any, *z: Any) -> NDArray[np.float64]: ...
 
 
@@ -249,8 +275,260 @@ class RangeBearingLandmarks:
         return np.asarray(self.log_likelihood(poses, z, ids).sum(axis=1))
 
 
+# ---------------------------------------------------------------------------------------------
+# Function tier: Table 8.2 (with 8.3 and 8.4) on particle arrays
+# ---------------------------------------------------------------------------------------------
+def sample_pose_gaussian(
+    mean: ArrayLike, covariance: ArrayLike, n: int, rng: np.random.Generator
+) -> NDArray[np.float64]:
+    """Initial particles for tracking: ``n`` draws from ``N(mean, covariance)``, heading wrapped.
+
+    Parameters
+    ----------
+    mean : array_like, shape (3,)
+        Start pose ``(x, y, theta)``, map frame (m, rad).
+    covariance : array_like, shape (3, 3)
+        Its covariance (m^2, rad^2); may be singular (eigen-decomposition).
+    n : int
+        Particle count.
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+    """
+    mu = np.asarray(mean, dtype=np.float64)
+    cov = np.asarray(covariance, dtype=np.float64)
+    if mu.shape != (3,) or cov.shape != (3, 3):
+        raise ValueError(f"mean must be (3,) and covariance (3, 3), got {mu.shape}, {cov.shape}")
+    p = rng.multivariate_normal(mu, cov, size=n, method="eigh")
+    p[:, 2] = (p[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    return np.asarray(p)
+
+
+def mcl_sample_motion(
+    particles: NDArray[np.float64],
+    motion: MotionModel,
+    u: tuple[Any, ...],
+    rng: np.random.Generator,
+) -> NDArray[np.float64]:
+    """Motion sampling, ``x_t^[m] ~ p(x_t | u_t, x_{t-1}^[m])`` (Table 8.2, line 4).
+
+    Parameters
+    ----------
+    particles : ndarray, shape (N, 3)
+        Poses ``(x, y, theta)``, map frame (m, rad).
+    motion : MotionModel
+        ``sample(poses, *u, rng)``, e.g. :class:`~probmap.models.sampling.OdometryMotionModel`
+        (``u = (odom_prev, odom_cur)``) or :class:`~probmap.models.sampling.VelocityMotionModel`
+        (``u = ((v, w), dt)``).
+    u : tuple
+        The control, as the model's ``sample`` takes it.
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    ndarray, shape (N, 3), C-contiguous
+        New poses (the input is not modified).
+    """
+    return np.ascontiguousarray(motion.sample(particles, *u, rng))
+
+
+def mcl_weight(
+    log_weights: NDArray[np.float64], log_likelihood: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], float]:
+    """Importance weighting in the log domain, ``w^[m] ~ w^[m] p(z_t | x_t^[m])`` (Table 8.2,
+    line 5; the weights carried over when the previous step did not resample), normalised.
+
+    Parameters
+    ----------
+    log_weights : ndarray, shape (N,)
+        Current normalised log weights.
+    log_likelihood : ndarray, shape (N,)
+        ``log p(z_t | x_t^[m])`` of each particle; NaN counts as impossible.
+
+    Returns
+    -------
+    log_weights : ndarray, shape (N,)
+        Normalised (``logsumexp = 0``); ``-inf`` where impossible.
+    ess : float
+        Effective sample size ``1 / sum w^2`` of the new weights; ``0.0`` when every particle is
+        impossible (the weights are then all ``-inf`` and the caller must recover).
+    """
+    lw = np.where(np.isnan(log_likelihood), -np.inf, log_weights + log_likelihood)
+    top = float(lw.max())
+    if not math.isfinite(top):
+        return np.full(lw.shape, -np.inf), 0.0
+    w = np.exp(lw - top)
+    s = float(w.sum())
+    with np.errstate(divide="ignore"):
+        out = lw - top - math.log(s)
+    w /= s
+    return out, float(1.0 / np.dot(w, w))
+
+
+def mcl_likelihood_averages(
+    w_slow: float,
+    w_fast: float,
+    log_likelihood: NDArray[np.float64],
+    count: int,
+    alpha_slow: float,
+    alpha_fast: float,
+) -> tuple[float, float]:
+    """Long- and short-term average likelihoods of augmented MCL (Table 8.3, lines 6-10).
+
+    ``w_avg`` is the mean particle likelihood taken per measurement (geometric mean over the
+    ``count`` beams or landmarks), so it stays in floating-point range whatever ``count``;
+    ``w_slow += alpha_slow (w_avg - w_slow)``, ``w_fast += alpha_fast (w_avg - w_fast)``, both
+    started at the first ``w_avg`` (when ``w_slow == 0``).
+
+    Parameters
+    ----------
+    w_slow, w_fast : float
+        Current averages (0 before the first measurement).
+    log_likelihood : ndarray, shape (N,)
+        ``log p(z_t | x_t^[m])`` (all measurements of the step).
+    count : int
+        Number of measurements in ``z_t``.
+    alpha_slow, alpha_fast : float
+        Decay rates, ``0 <= alpha_slow << alpha_fast``.
+
+    Returns
+    -------
+    w_slow, w_fast : float
+    """
+    ll = log_likelihood
+    log_avg = (float(np.log(np.exp(ll - ll.max()).mean())) + float(ll.max())) / max(count, 1)
+    w_avg = math.exp(min(log_avg, 700.0))
+    if w_slow == 0.0:
+        w_slow = w_fast = w_avg
+    w_slow += alpha_slow * (w_avg - w_slow)
+    w_fast += alpha_fast * (w_avg - w_fast)
+    return w_slow, w_fast
+
+
+def mcl_random_fraction(w_slow: float, w_fast: float) -> float:
+    """Probability of a random particle, ``max(0, 1 - w_fast / w_slow)`` (Table 8.3 line 12);
+    0 before the first measurement (``w_slow <= 0``)."""
+    if w_slow <= 0.0:
+        return 0.0
+    return max(0.0, 1.0 - w_fast / w_slow)
+
+
+def mcl_resample(
+    particles: NDArray[np.float64],
+    weights: NDArray[np.float64],
+    rng: np.random.Generator,
+    kld: KLDConfig | None = None,
+    random_fraction: float = 0.0,
+    free_space: FreeSpaceSampler | None = None,
+) -> NDArray[np.float64]:
+    """Resampling (Table 8.2, lines 8-11).
+
+    Low-variance resampling (Table 4.4, one uniform draw), or KLD-sampling (Table 8.4) when
+    ``kld`` is given; then, under augmented MCL, each new particle is replaced with probability
+    ``random_fraction`` by a pose uniform over free space (Table 8.3, lines 11-15: a binomial
+    count of slots chosen without replacement).
+
+    Parameters
+    ----------
+    particles : ndarray, shape (N, 3)
+        Poses, map frame (m, rad).
+    weights : ndarray, shape (N,)
+        Normalised weights.
+    rng : numpy.random.Generator
+    kld : KLDConfig, optional
+    random_fraction : float
+        From :func:`mcl_random_fraction`; used only with ``free_space``.
+    free_space : FreeSpaceSampler, optional
+
+    Returns
+    -------
+    ndarray, shape (M, 3)
+        ``M = N`` unless KLD-sampling chose another count. Weights are uniform afterwards.
+    """
+    src = np.ascontiguousarray(particles, dtype=np.float64)
+    if kld is not None:
+        idx = kld_resample(src, weights, rng, kld)
+    else:
+        idx = np.empty(src.shape[0], dtype=np.int64)
+        _k.low_variance_indexes(weights, float(rng.uniform()), idx)
+    new = np.empty((idx.shape[0], 3))
+    _k.gather_rows(src, idx, new)
+    if random_fraction > 0.0 and free_space is not None:
+        k = int(rng.binomial(new.shape[0], random_fraction))
+        if k:
+            slots = rng.choice(new.shape[0], size=k, replace=False)
+            new[slots] = free_space.sample(k, rng)
+    return new
+
+
+def mcl_sample_and_weight_scan(
+    particles: NDArray[np.float64],
+    odom_prev: ArrayLike,
+    odom_cur: ArrayLike,
+    lx: NDArray[np.float64],
+    ly: NDArray[np.float64],
+    field: LikelihoodField,
+    motion: OdometryMotionModel,
+    rng: np.random.Generator,
+) -> NDArray[np.float64]:
+    """Table 8.2 lines 4-5 fused for odometry (Table 5.6) and a likelihood field (Table 6.3).
+
+    One compiled pass moves each particle by a noisy sample of the odometry step and sums the
+    log-likelihood of the scan endpoints seen from it.
+
+    Parameters
+    ----------
+    particles : ndarray, shape (N, 3), C-contiguous float64
+        Poses, map frame (m, rad); **moved in place**.
+    odom_prev, odom_cur : array_like, shape (3,)
+        Odometry poses before and after the step (odometry frame).
+    lx, ly : ndarray, shape (B,)
+        Valid scan endpoints in the robot frame (m), e.g. from ``field.endpoints``.
+    field : LikelihoodField
+    motion : OdometryMotionModel
+    rng : numpy.random.Generator
+        Source of the ``(N, 3)`` standard-normal noise.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        Log-likelihood of the scan for each moved particle.
+    """
+    r1, tr, r2 = (float(v) for v in odometry_deltas(odom_prev, odom_cur))
+    sd1, sdt, sd2 = odometry_noise_std(r1, tr, r2, motion.alphas)
+    n = particles.shape[0]
+    noise = rng.standard_normal((n, 3))
+    ll = np.zeros(n)
+    f = field.frame
+    _k.odometry_predict_and_weight(
+        particles,
+        noise,
+        r1,
+        tr,
+        r2,
+        sd1,
+        sdt,
+        sd2,
+        np.ascontiguousarray(lx),
+        np.ascontiguousarray(ly),
+        field.table,
+        f.x0,
+        f.y0,
+        1.0 / f.resolution,
+        field.outside,
+        ll,
+    )
+    return ll
+
+
 class MonteCarloLocalization:
     """Monte Carlo localization, Tables 8.2-8.4.
+
+    A thin class over the function tier (:func:`mcl_sample_motion`, :func:`mcl_weight`,
+    :func:`mcl_resample`, ...): it holds the particle set, the log weights, the random
+    generator and the augmented-MCL averages.
 
     Parameters
     ----------
@@ -259,9 +537,24 @@ class MonteCarloLocalization:
     motion : MotionModel
         Motion model with ``sample(poses, *u, rng)``.
     rng : numpy.random.Generator
-    config : MCLConfig
+    config : MCLConfig, optional
     free_space : FreeSpaceSampler, optional
         Needed for global localization, augmented MCL and recovery from all-zero weights.
+    particles : array_like, shape (N, 3), keyword-only
+        The initial particle set ``(x, y, theta)``, map frame (m, rad), with uniform weights;
+        see also :meth:`from_pose` and :meth:`uniform`. Leaving it out is deprecated: the
+        particles then sit at the origin until ``initialize_pose`` / ``initialize_global``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from probmap.models.sampling import VelocityMotionModel
+    >>> lm = RangeBearingLandmarks(np.array([1]), np.array([[2.0, 0.0]]))
+    >>> mcl = MonteCarloLocalization.from_pose(
+    ...     lm, VelocityMotionModel(), np.random.default_rng(0), [0.0, 0.0, 0.0],
+    ...     np.diag([0.01, 0.01, 0.01]), MCLConfig(n_particles=100))
+    >>> mcl.n, mcl.particles.shape
+    (100, (100, 3))
     """
 
     def __init__(
@@ -271,6 +564,8 @@ class MonteCarloLocalization:
         rng: np.random.Generator,
         config: MCLConfig | None = None,
         free_space: FreeSpaceSampler | None = None,
+        *,
+        particles: ArrayLike | None = None,
     ) -> None:
         self.config = config or MCLConfig()
         if self.config.augmented and free_space is None:
@@ -279,29 +574,82 @@ class MonteCarloLocalization:
         self.motion = motion
         self.rng = rng
         self.free_space = free_space
-        n = self.config.n_particles
-        self.particles = np.zeros((n, 3))
-        self.log_weights = np.full(n, -math.log(n))
         self.w_slow = 0.0
         self.w_fast = 0.0
-        self.last_ess = float(n)
-
-    # -- initialisation -------------------------------------------------------------------
-    def initialize_pose(self, mean: ArrayLike, covariance: ArrayLike) -> None:
-        """Tracking: particles from a Gaussian around a known start pose."""
-        mu = np.asarray(mean, dtype=np.float64)
-        cov = np.asarray(covariance, dtype=np.float64)
-        if mu.shape != (3,) or cov.shape != (3, 3):
-            raise ValueError(
-                f"mean must be (3,) and covariance (3, 3), got {mu.shape}, {cov.shape}"
+        if particles is None:
+            warnings.warn(
+                "MonteCarloLocalization without particles is deprecated: pass particles=, or "
+                "use MonteCarloLocalization.from_pose(...) / .uniform(...)",
+                DeprecationWarning,
+                stacklevel=2,
             )
-        n = self.config.n_particles
-        p = self.rng.multivariate_normal(mu, cov, size=n, method="eigh")
-        p[:, 2] = (p[:, 2] + np.pi) % (2 * np.pi) - np.pi
+            p = np.zeros((self.config.n_particles, 3))
+        else:
+            p = np.array(particles, dtype=np.float64)  # a copy: the filter moves it in place
+            if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] == 0:
+                raise ValueError(f"particles must have shape (N, 3) with N > 0, got {p.shape}")
+            if not np.all(np.isfinite(p)):
+                raise ValueError("particles must be finite")
         self._reset(p)
 
+    # -- construction -------------------------------------------------------------------------
+    @classmethod
+    def from_pose(
+        cls,
+        sensor: SensorModel,
+        motion: MotionModel,
+        rng: np.random.Generator,
+        mean: ArrayLike,
+        covariance: ArrayLike,
+        config: MCLConfig | None = None,
+        free_space: FreeSpaceSampler | None = None,
+    ) -> MonteCarloLocalization:
+        """Tracking: ``config.n_particles`` particles from ``N(mean, covariance)``
+        (:func:`sample_pose_gaussian`, drawn from ``rng``).
+
+        ``mean`` is ``(x, y, theta)`` (3,) in the map frame (m, rad), ``covariance`` (3, 3).
+        """
+        cfg = config or MCLConfig()
+        p = sample_pose_gaussian(mean, covariance, cfg.n_particles, rng)
+        return cls(sensor, motion, rng, cfg, free_space, particles=p)
+
+    @classmethod
+    def uniform(
+        cls,
+        sensor: SensorModel,
+        motion: MotionModel,
+        rng: np.random.Generator,
+        free_space: FreeSpaceSampler,
+        config: MCLConfig | None = None,
+    ) -> MonteCarloLocalization:
+        """Global localization: ``config.n_particles`` particles uniform over ``free_space``."""
+        cfg = config or MCLConfig()
+        p = free_space.sample(cfg.n_particles, rng)
+        return cls(sensor, motion, rng, cfg, free_space, particles=p)
+
+    # -- deprecated initialisation ------------------------------------------------------------
+    def initialize_pose(self, mean: ArrayLike, covariance: ArrayLike) -> None:
+        """Tracking: particles from a Gaussian around a known start pose.
+
+        .. deprecated:: use :meth:`from_pose` (same draws from the same generator).
+        """
+        warnings.warn(
+            "initialize_pose is deprecated: use MonteCarloLocalization.from_pose(...)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        self._reset(sample_pose_gaussian(mean, covariance, self.config.n_particles, self.rng))
+
     def initialize_global(self) -> None:
-        """Global localization: particles uniform over free space."""
+        """Global localization: particles uniform over free space.
+
+        .. deprecated:: use :meth:`uniform` (same draws from the same generator).
+        """
+        warnings.warn(
+            "initialize_global is deprecated: use MonteCarloLocalization.uniform(...)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
         if self.free_space is None:
             raise ValueError("global localization needs a free_space sampler")
         self._reset(self.free_space.sample(self.config.n_particles, self.rng))
@@ -324,7 +672,7 @@ class MonteCarloLocalization:
     # -- algorithm steps --------------------------------------------------------------------
     def predict(self, *u: Any) -> None:
         """Sample the motion model for every particle (Table 8.2, line 4)."""
-        self.particles = np.ascontiguousarray(self.motion.sample(self.particles, *u, self.rng))
+        self.particles = mcl_sample_motion(self.particles, self.motion, u, self.rng)
 
     def correct(self, *z: Any) -> None:
         """Weight every particle by the measurement model (Table 8.2, line 5)."""
@@ -334,28 +682,17 @@ class MonteCarloLocalization:
         self._add_log_likelihood(ll, _measurement_count(z))
 
     def _add_log_likelihood(self, ll: NDArray[np.float64], count: int) -> None:
-        lw = np.where(np.isnan(ll), -np.inf, self.log_weights + ll)
-        top = float(lw.max())
-        if not math.isfinite(top):
+        lw, ess = mcl_weight(self.log_weights, ll)
+        if ess == 0.0:  # every particle impossible
             self._recover()
             return
         if self.config.augmented:
-            # Table 8.3 lines 6-10 on the per-measurement geometric mean likelihood, so the
-            # averages stay in floating-point range whatever the number of beams.
-            log_avg = (float(np.log(np.exp(ll - ll.max()).mean())) + float(ll.max())) / max(
-                count, 1
+            cfg = self.config
+            self.w_slow, self.w_fast = mcl_likelihood_averages(
+                self.w_slow, self.w_fast, ll, count, cfg.alpha_slow, cfg.alpha_fast
             )
-            w_avg = math.exp(min(log_avg, 700.0))
-            if self.w_slow == 0.0:
-                self.w_slow = self.w_fast = w_avg
-            self.w_slow += self.config.alpha_slow * (w_avg - self.w_slow)
-            self.w_fast += self.config.alpha_fast * (w_avg - self.w_fast)
-        w = np.exp(lw - top)
-        s = float(w.sum())
-        with np.errstate(divide="ignore"):
-            self.log_weights = lw - top - math.log(s)
-        w /= s
-        self.last_ess = float(1.0 / np.dot(w, w))
+        self.log_weights = lw
+        self.last_ess = ess
 
     def _recover(self) -> None:
         if self.free_space is not None:
@@ -368,27 +705,21 @@ class MonteCarloLocalization:
 
     def random_fraction(self) -> float:
         """Probability of a random particle, ``max(0, 1 - w_fast / w_slow)`` (Table 8.3)."""
-        if not self.config.augmented or self.w_slow <= 0.0:
+        if not self.config.augmented:
             return 0.0
-        return max(0.0, 1.0 - self.w_fast / self.w_slow)
+        return mcl_random_fraction(self.w_slow, self.w_fast)
 
     def resample(self) -> None:
         """Low-variance resampling (Table 4.4), KLD-sampling when configured (Table 8.4),
         with random particles injected under augmented MCL (Table 8.3)."""
-        w = self.weights
-        if self.config.kld is not None:
-            idx = kld_resample(self.particles, w, self.rng, self.config.kld)
-        else:
-            idx = np.empty(self.n, dtype=np.int64)
-            _k.low_variance_indexes(w, float(self.rng.uniform()), idx)
-        new = np.empty((idx.shape[0], 3))
-        _k.gather_rows(self.particles, idx, new)
-        p_rand = self.random_fraction()
-        if p_rand > 0.0 and self.free_space is not None:
-            k = int(self.rng.binomial(new.shape[0], p_rand))
-            if k:
-                slots = self.rng.choice(new.shape[0], size=k, replace=False)
-                new[slots] = self.free_space.sample(k, self.rng)
+        new = mcl_resample(
+            self.particles,
+            self.weights,
+            self.rng,
+            self.config.kld,
+            self.random_fraction(),
+            self.free_space,
+        )
         self._reset(new)
 
     def resample_if_needed(self) -> bool:
@@ -441,29 +772,10 @@ class MonteCarloLocalization:
         lf: LikelihoodField,
         mm: OdometryMotionModel,
     ) -> None:
-        """Fused odometry sampling + likelihood-field weighting for valid endpoints ``lx, ly``."""
-        r1, tr, r2 = (float(v) for v in odometry_deltas(odom_prev, odom_cur))
-        sd1, sdt, sd2 = odometry_noise_std(r1, tr, r2, mm.alphas)
-        noise = self.rng.standard_normal((self.n, 3))
-        ll = np.zeros(self.n)
-        f = lf.frame
-        _k.odometry_predict_and_weight(
-            self.particles,
-            noise,
-            r1,
-            tr,
-            r2,
-            sd1,
-            sdt,
-            sd2,
-            np.ascontiguousarray(lx),
-            np.ascontiguousarray(ly),
-            lf.table,
-            f.x0,
-            f.y0,
-            1.0 / f.resolution,
-            lf.outside,
-            ll,
+        """Fused odometry sampling + likelihood-field weighting for valid endpoints ``lx, ly``
+        (:func:`mcl_sample_and_weight_scan`)."""
+        ll = mcl_sample_and_weight_scan(
+            self.particles, odom_prev, odom_cur, lx, ly, lf, mm, self.rng
         )
         self._add_log_likelihood(ll, int(lx.shape[0]))
 

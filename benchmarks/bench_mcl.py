@@ -185,10 +185,10 @@ def main() -> None:
     ap.add_argument("--beam-particles", type=int, default=1000)
     args = ap.parse_args()
 
-    from probmap.filters.demo import simulate_localization_world
     from probmap.filters.mcl import MCLConfig, MonteCarloLocalization
     from probmap.grid.forward import BeamModel, LikelihoodField
     from probmap.models.sampling import OdometryMotionModel
+    from probmap.pipelines.demo import simulate_localization_world
 
     world = simulate_localization_world(0)
     zmax = world.max_range

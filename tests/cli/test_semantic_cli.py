@@ -57,7 +57,7 @@ def test_semantic_command_bad_input(tmp_path):
 
 def test_demo_printer(tmp_path, capsys):
     from probmap.cli.semantic import print_semantic_demo
-    from probmap.grid.semantic_sim import run_semantic_demo
+    from probmap.pipelines.semantic import run_semantic_demo
 
     print_semantic_demo(run_semantic_demo(tmp_path))
     out = capsys.readouterr().out

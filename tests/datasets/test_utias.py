@@ -5,8 +5,8 @@ import pytest
 
 from probmap.datasets.protocol import DatasetError
 from probmap.datasets.utias import MRCLAM
+from probmap.pipelines.landmark_slam import default_ekf_config, evaluate, run_landmark_slam
 from probmap.slam.ekf import EKFSLAM
-from probmap.slam.pipeline import default_ekf_config, evaluate, run_landmark_slam
 
 HEAD = "# h\n# h\n# h\n# h\n"
 

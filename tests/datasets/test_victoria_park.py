@@ -5,8 +5,8 @@ import pytest
 
 from probmap.datasets.protocol import Dataset, DatasetError
 from probmap.datasets.victoria_park import MAT_CLOCK_OFFSET_S, VictoriaPark
+from probmap.pipelines.landmark_slam import default_ekf_config, evaluate, run_landmark_slam
 from probmap.slam.ekf import EKFSLAM
-from probmap.slam.pipeline import default_ekf_config, evaluate, run_landmark_slam
 
 
 def write_vp(d, inputs=None, meas=None, gps=None):

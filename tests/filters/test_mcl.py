@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from probmap.filters import _kernels
-from probmap.filters.demo import run_localize_demo, simulate_localization_world
 from probmap.filters.kld import KLDConfig, kld_resample, kld_sample_size
 from probmap.filters.mcl import (
     FreeSpaceSampler,
@@ -20,6 +19,7 @@ from probmap.filters.mcl import (
 from probmap.filters.particle import ParticleFilterWarning
 from probmap.grid.forward import LikelihoodField
 from probmap.models.sampling import OdometryMotionModel, VelocityMotionModel
+from probmap.pipelines.demo import simulate_localization_world
 
 
 @pytest.fixture(scope="module")
@@ -267,11 +267,3 @@ def test_bad_configuration(field):
         )
     with pytest.raises(ValueError, match="no free cell"):
         FreeSpaceSampler(field.spec, np.zeros(field.spec.shape, dtype=bool))
-
-
-def test_demo_writes_trajectory(tmp_path):
-    res = run_localize_demo(tmp_path)
-    assert (tmp_path / "trajectory.csv").exists()
-    assert 0 < res["converged_at"] <= 20 and res["median_error_m"] < 0.1
-    rows = (tmp_path / "trajectory.csv").read_text().splitlines()
-    assert rows[0].startswith("step,x,y,theta,spread") and len(rows) == res["steps"] + 1

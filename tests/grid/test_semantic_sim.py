@@ -1,4 +1,7 @@
-"""Semantic mapping of the simulated labelled world: IoU, calibration, and the scoring functions."""
+"""Semantic mapping of the simulated labelled world: IoU, calibration, and the scoring functions.
+
+(The demo that also writes the map files: tests/pipelines/test_semantic.py.)
+"""
 
 from __future__ import annotations
 
@@ -10,7 +13,6 @@ from probmap.grid.semantic_sim import (
     SEMANTIC_CLASSES,
     map_labelled_world,
     reliability,
-    run_semantic_demo,
     semantic_iou,
     simulate_labelled_world,
     truth_on_grid,
@@ -133,28 +135,3 @@ def test_reliability_closed_form():
     np.testing.assert_allclose(rel.confidence, [0.6, 0.9])
     np.testing.assert_allclose(rel.accuracy, [1.0, 0.5])
     assert rel.expected_calibration_error == pytest.approx(0.5 * 0.4 + 0.5 * 0.4)
-
-
-def test_demo_writes_maps(tmp_path):
-    out = run_semantic_demo(tmp_path / "demo")
-    assert min(out["iou"].values()) >= 0.95
-    assert out["calibration error"] < 0.1
-    names = sorted(p.split("/")[-1] for p in out["files"])
-    assert names == [
-        "semantic.npz",
-        "semantic.occupancy.npz",
-        "semantic.occupancy.pgm",
-        "semantic.occupancy.png",
-        "semantic.occupancy.yaml",
-        "semantic.png",
-    ]
-    from probmap.grid.io import read_map_server
-    from probmap.grid.semantic_io import load_semantic
-
-    grid = load_semantic(tmp_path / "demo" / "semantic.npz")
-    occ = read_map_server(tmp_path / "demo" / "semantic.occupancy.yaml")
-    assert occ.spec.shape == grid.spec.shape
-    # the map_server occupancy agrees with p(occupied) = 1 - p(free)
-    cls = occ.classify()
-    p_occ = 1.0 - grid.probabilities()[..., 0]
-    assert (p_occ[cls == 1] > 0.65).all() and (p_occ[cls == 0] < 0.196).all()

@@ -304,11 +304,3 @@ def test_intel_first_400_seconds_beats_odometry(shared_data):
     assert slam["relations"] > 200
     assert slam["trans_abs_mean_m"] < 0.06 < odo["trans_abs_mean_m"]
     assert slam["rot_abs_mean_deg"] < 2.0 < odo["rot_abs_mean_deg"]
-
-
-def test_old_paths_warn_and_forward():
-    import probmap.slam.gridslam as old
-
-    for name, new in (("slam_log", slam_log), ("write_trajectory", write_trajectory)):
-        with pytest.warns(DeprecationWarning, match=f"probmap.pipelines.grid_slam.{name}"):
-            assert getattr(old, name) is new

@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 
 from probmap.cli import register
 from probmap.cli.app import app
-from probmap.slam.pipeline import evaluate, run_landmark_slam
+from probmap.pipelines.landmark_slam import evaluate, run_landmark_slam
 from probmap.slam.seif import SeifConfig, build_seif
 
 register(app)

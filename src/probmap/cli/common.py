@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import typer
 
@@ -59,3 +59,35 @@ def print_summary(
     for name, value in rows:
         table.add_row(name, value)
     (console or Console()).print(table)
+
+
+def mapping_rows(result: Any) -> list[tuple[str, str]]:
+    """The summary rows of a :class:`~probmap.pipelines.MappingResult` (``probmap map``, local or
+    distributed): scans, beams, cells, map size, time, skipped lines, files written."""
+    s = result.stats
+    spec = result.grid.spec
+    rows = [
+        ("scans", f"{s.scans:,}"),
+        (
+            "beams",
+            f"{s.beams:,} ({s.hits:,} hits, {s.max_range:,} max-range, {s.dropped:,} dropped)",
+        ),
+        ("cells updated", f"{s.cell_updates:,}"),
+        (
+            "map size",
+            f"{spec.width} x {spec.height} cells at {spec.resolution:g} m "
+            f"({spec.width * spec.resolution:.1f} x {spec.height * spec.resolution:.1f} m)",
+        ),
+        ("observed cells", f"{int(result.grid.observed.sum()):,}"),
+        (
+            "time",
+            f"{result.parse_seconds + result.map_seconds + result.write_seconds:.2f} s "
+            f"(parse {result.parse_seconds:.2f}, map {result.map_seconds:.2f}, "
+            f"write {result.write_seconds:.2f})",
+        ),
+    ]
+    if result.skipped_lines:
+        rows.append(("skipped bad lines", f"{result.skipped_lines:,}"))
+    for f in result.files:
+        rows.append(("wrote", str(f)))
+    return rows

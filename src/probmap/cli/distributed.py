@@ -48,8 +48,7 @@ def run_map_distributed(
     Exits with status 1 (writing nothing) when an input fails, unless ``allow_partial``: then the
     map of the other inputs is written, the failures listed, and the exit status is still 1.
     """
-    from probmap.cli.common import CliError, print_summary
-    from probmap.cli.mapping import _mapping_rows
+    from probmap.cli.common import CliError, mapping_rows, print_summary
     from probmap.distributed import (
         DistributedMappingError,
         DistributedOptions,
@@ -78,7 +77,7 @@ def run_map_distributed(
         raise CliError(f"{exc} (no map written; --allow-partial writes the others)") from None
     mapping = write_map(output, result.as_mapping_result())
     _inputs_table(result)
-    rows = _mapping_rows(mapping)
+    rows = mapping_rows(mapping)
     rows.append(("mode", f"{result.mode} ({result.tasks} tasks on {result.workers} workers)"))
     print_summary("probmap map (distributed)", rows)
     if result.failed:

@@ -78,13 +78,13 @@ def localize_command(
         from rich.table import Table
 
         from probmap.datasets.carmen import load_scans
-        from probmap.filters.localize import (
+        from probmap.grid.io import read_map_server
+        from probmap.pipelines.localize import (
             LocalizeConfig,
             localize_scans,
             match_times,
             trajectory_errors,
         )
-        from probmap.grid.io import read_map_server
 
         if particles <= 0:
             raise CliError(f"--particles must be positive, got {particles}")

@@ -7,43 +7,13 @@ from typing import Any
 
 import typer
 
-from probmap.cli.common import cli_errors, print_summary
+from probmap.cli.common import cli_errors, mapping_rows, print_summary
 
 
 def _fmt(v: object) -> str:
     if isinstance(v, float):
         return f"{v:.0f}" if v.is_integer() else f"{v:.4g}"
     return str(v)
-
-
-def _mapping_rows(result: Any) -> list[tuple[str, str]]:
-    s = result.stats
-    spec = result.grid.spec
-    rows = [
-        ("scans", f"{s.scans:,}"),
-        (
-            "beams",
-            f"{s.beams:,} ({s.hits:,} hits, {s.max_range:,} max-range, {s.dropped:,} dropped)",
-        ),
-        ("cells updated", f"{s.cell_updates:,}"),
-        (
-            "map size",
-            f"{spec.width} x {spec.height} cells at {spec.resolution:g} m "
-            f"({spec.width * spec.resolution:.1f} x {spec.height * spec.resolution:.1f} m)",
-        ),
-        ("observed cells", f"{int(result.grid.observed.sum()):,}"),
-        (
-            "time",
-            f"{result.parse_seconds + result.map_seconds + result.write_seconds:.2f} s "
-            f"(parse {result.parse_seconds:.2f}, map {result.map_seconds:.2f}, "
-            f"write {result.write_seconds:.2f})",
-        ),
-    ]
-    if result.skipped_lines:
-        rows.append(("skipped bad lines", f"{result.skipped_lines:,}"))
-    for f in result.files:
-        rows.append(("wrote", str(f)))
-    return rows
 
 
 def map_command(
@@ -176,7 +146,7 @@ def map_command(
             }
             result = map_log(log, cfg, progress=tick, bag_options=bag_options)
         result = write_map(output, result)
-        rows = _mapping_rows(result)
+        rows = mapping_rows(result)
         if to_bag is not None:
             from probmap.datasets.rosbag import RosBag, write_map_to_bag
 
@@ -202,12 +172,12 @@ def demo_command(
             raise ValueError("choose one of --localize and --semantic")
         if semantic:
             from probmap.cli.semantic import print_semantic_demo
-            from probmap.grid.semantic_sim import run_semantic_demo
+            from probmap.pipelines.semantic import run_semantic_demo
 
             print_semantic_demo(run_semantic_demo(output))
             return
         if localize:
-            from probmap.filters.demo import run_localize_demo
+            from probmap.pipelines.demo import run_localize_demo
 
             summary = run_localize_demo(output)
             print_summary("probmap demo --localize", [(k, _fmt(v)) for k, v in summary.items()])
@@ -216,7 +186,7 @@ def demo_command(
 
         prefix = check_output_prefix(output / "map")
         demo = run_mapping_demo(prefix, seed=seed)
-        rows = _mapping_rows(demo.mapping)
+        rows = mapping_rows(demo.mapping)
         rows.insert(
             0,
             (

@@ -94,8 +94,8 @@ def compare_command(
         from rich.console import Console
         from rich.table import Table
 
+        from probmap.pipelines.landmark_slam import default_ekf_config, evaluate, run_landmark_slam
         from probmap.slam.ekf import EKFSLAM
-        from probmap.slam.pipeline import default_ekf_config, evaluate, run_landmark_slam
 
         ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
         ekf = EKFSLAM(

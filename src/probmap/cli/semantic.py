@@ -11,7 +11,7 @@ from probmap.cli.common import cli_errors, print_summary
 
 
 def print_semantic_demo(summary: dict[str, Any]) -> None:
-    """Print what :func:`probmap.grid.semantic_sim.run_semantic_demo` returned (for ``demo``)."""
+    """Print what :func:`probmap.pipelines.semantic.run_semantic_demo` returned (for ``demo``)."""
     from rich.console import Console
     from rich.table import Table
 

@@ -107,7 +107,7 @@ def run_and_report(
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-    from probmap.slam.pipeline import evaluate, run_landmark_slam, write_slam_outputs
+    from probmap.pipelines.landmark_slam import evaluate, run_landmark_slam, write_slam_outputs
 
     console = Console(stderr=True)
     with Progress(
@@ -156,8 +156,8 @@ def ekf_command(
     metrics.json and slam.png into OUTPUT."""
     limit_threads(threads)
     with cli_errors():
+        from probmap.pipelines.landmark_slam import default_ekf_config
         from probmap.slam.ekf import EKFSLAM
-        from probmap.slam.pipeline import default_ekf_config
 
         ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
         ekf = EKFSLAM(

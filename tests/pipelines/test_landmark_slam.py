@@ -1,8 +1,10 @@
+"""The landmark-SLAM pipeline (probmap.pipelines.landmark_slam): run and evaluate an EKF."""
+
 import numpy as np
 
 from probmap.datasets.simulation import simulate_landmarks
+from probmap.pipelines.landmark_slam import dead_reckoning, evaluate, run_landmark_slam
 from probmap.slam.ekf import EKFSLAM
-from probmap.slam.pipeline import dead_reckoning, evaluate, run_landmark_slam
 
 
 def test_pipeline_runs_and_evaluates_simulation():

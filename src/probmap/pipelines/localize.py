@@ -1,0 +1,291 @@
+"""Localization pipeline: a grid map + a laser log with odometry -> an MCL trajectory.
+
+Used by ``probmap localize``; the core algorithm is :class:`~probmap.filters.mcl.MonteCarloLocalization`.
+The filter updates when the odometry has moved ``update_distance`` or turned ``update_angle``
+since the last update (between updates scans are skipped, as in ROS amcl), using every
+``beam_step``-th beam with the likelihood field model.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from probmap.grid.forward import GridGeometry
+
+__all__ = [
+    "LocalizationRun",
+    "LocalizeConfig",
+    "localize_scans",
+    "match_times",
+    "trajectory_errors",
+]
+
+
+@dataclass(frozen=True)
+class LocalizeConfig:
+    """Parameters of a localization run.
+
+    Parameters
+    ----------
+    n_particles : int
+    global_localization : bool
+        Start from particles uniform over free space instead of around ``initial_pose``.
+    augmented : bool
+        Augmented MCL (random particles, Table 8.3); always on for global localization.
+    initial_pose : (x, y, theta) or None
+        Start pose in the map frame; None takes the first odometry pose (the odometry frame
+        is then assumed to coincide with the map frame at the start).
+    initial_std : (float, float, float)
+        Standard deviations (m, m, rad) of the initial Gaussian.
+    alphas : (float, float, float, float)
+        Odometry model noise (Table 5.6).
+    sigma_hit, z_hit, z_rand, max_distance : float
+        Likelihood field parameters (Table 6.3).
+    max_range : float or None
+        Readings at or beyond it are "no return"; None: 80 m or the log's maximum, the smaller.
+    update_distance, update_angle : float
+        Motion (m, rad) that triggers a filter update.
+    beam_step : int
+        Use every ``beam_step``-th beam.
+    free_threshold : float
+        Cells with occupancy probability below this are free space for random particles.
+    seed : int
+    """
+
+    n_particles: int = 2000
+    global_localization: bool = False
+    augmented: bool = False
+    initial_pose: tuple[float, float, float] | None = None
+    initial_std: tuple[float, float, float] = (0.1, 0.1, 0.05)
+    alphas: tuple[float, float, float, float] = (0.3, 0.1, 0.1, 0.3)
+    sigma_hit: float = 0.15
+    z_hit: float = 0.9
+    z_rand: float = 0.1
+    max_distance: float = 1.0
+    max_range: float | None = None
+    update_distance: float = 0.1
+    update_angle: float = 0.1
+    beam_step: int = 3
+    free_threshold: float = 0.3
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.n_particles <= 0:
+            raise ValueError(f"n_particles must be positive, got {self.n_particles}")
+        if self.beam_step < 1:
+            raise ValueError(f"beam_step must be >= 1, got {self.beam_step}")
+        if not (self.update_distance >= 0 and self.update_angle >= 0):
+            raise ValueError("update_distance and update_angle must be non-negative")
+
+
+@dataclass(frozen=True, eq=False)
+class LocalizationRun:
+    """The estimated trajectory, one row per filter update.
+
+    Attributes
+    ----------
+    times : (T,) ndarray
+        Scan timestamps (s).
+    poses : (T, 3) ndarray
+        Best-cluster pose estimates in the map frame (m, rad).
+    spread : (T,) ndarray
+        Positional spread ``sqrt(var_x + var_y)`` of the particles (m).
+    scan_index : (T,) int ndarray
+        Index of the scan each row used.
+    """
+
+    times: NDArray[np.float64]
+    poses: NDArray[np.float64]
+    spread: NDArray[np.float64]
+    scan_index: NDArray[np.int64]
+
+
+def localize_scans(
+    spec: GridGeometry,
+    probability: ArrayLike,
+    times: ArrayLike,
+    ranges: ArrayLike,
+    angles: ArrayLike,
+    odometry: ArrayLike,
+    log_max_range: float,
+    config: LocalizeConfig | None = None,
+    *,
+    start: int = 0,
+    stop: int | None = None,
+    max_updates: int | None = None,
+    always_update: ArrayLike | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> LocalizationRun:
+    """Run MCL over a scan sequence.
+
+    Parameters
+    ----------
+    spec : GridGeometry
+        Map geometry.
+    probability : (H, W) array_like
+        Occupancy probability (NaN unknown) or boolean map.
+    times : (S,) array_like
+        Scan timestamps (s).
+    ranges : (S, B) array_like
+        Ranges (m).
+    angles : (B,) array_like
+        Beam angles (rad) in the laser frame (the laser is assumed at the robot centre).
+    odometry : (S, 3) array_like
+        Odometry pose at each scan (odometry frame).
+    log_max_range : float
+        The log's maximum range (m).
+    config : LocalizeConfig
+    start, stop : int
+        Scan range to process.
+    max_updates : int, optional
+        Stop after this many filter updates.
+    always_update : array_like of int, optional
+        Scan indexes where the filter updates whatever the motion (e.g. the scans that have
+        a reference pose, so that errors can be measured there).
+    progress : callable, optional
+        ``progress(done, total)`` in scans.
+    """
+    from probmap.filters.mcl import FreeSpaceSampler, MCLConfig, MonteCarloLocalization
+    from probmap.grid.forward import LikelihoodField
+    from probmap.models.sampling import OdometryMotionModel
+
+    cfg = config or LocalizeConfig()
+    t = np.asarray(times, dtype=np.float64)
+    r = np.asarray(ranges, dtype=np.float64)
+    a = np.asarray(angles, dtype=np.float64)
+    odo = np.asarray(odometry, dtype=np.float64)
+    s_count = t.shape[0]
+    if s_count == 0:
+        raise ValueError("the log holds no scans")
+    if r.ndim != 2 or r.shape[0] != s_count or odo.shape != (s_count, 3):
+        raise ValueError(
+            f"need ranges (S, B) and odometry (S, 3) for S={s_count} scans, got {r.shape}, "
+            f"{odo.shape}"
+        )
+    if a.shape != (r.shape[1],):
+        raise ValueError(f"angles must be one (B,) row shared by all scans, got {a.shape}")
+    if not np.all(np.isfinite(odo)):
+        raise ValueError("the log's odometry holds non-finite poses")
+    stop = s_count if stop is None else min(stop, s_count)
+    if not 0 <= start < stop:
+        raise ValueError(f"empty scan range [{start}, {stop})")
+    max_range = min(80.0, float(log_max_range)) if cfg.max_range is None else cfg.max_range
+    prob = np.asarray(probability)
+    lf = LikelihoodField(
+        spec,
+        prob,
+        max_range=max_range,
+        sigma_hit=cfg.sigma_hit,
+        z_hit=cfg.z_hit,
+        z_rand=cfg.z_rand,
+        max_distance=cfg.max_distance,
+    )
+    if prob.dtype == np.bool_:
+        free_mask = ~prob
+    else:
+        free_mask = np.nan_to_num(prob.astype(np.float64), nan=1.0) < cfg.free_threshold
+    free = FreeSpaceSampler(spec, free_mask & (lf.distance > 0.15))
+    augmented = cfg.augmented or cfg.global_localization
+    rng = np.random.default_rng(cfg.seed)
+    mcl = MonteCarloLocalization(
+        lf,
+        OdometryMotionModel(*cfg.alphas),
+        rng,
+        MCLConfig(n_particles=cfg.n_particles, augmented=augmented),
+        free,
+    )
+    if cfg.global_localization:
+        mcl.initialize_global()
+    else:
+        pose0 = odo[start] if cfg.initial_pose is None else np.asarray(cfg.initial_pose, float)
+        mcl.initialize_pose(pose0, np.diag(np.square(cfg.initial_std)))
+    sel = slice(None, None, cfg.beam_step)
+    beams = np.ascontiguousarray(a[sel])
+    rows: list[tuple[float, float, float, float, float, int]] = []
+    forced = np.zeros(s_count, dtype=bool)
+    if always_update is not None:
+        idx = np.asarray(always_update, dtype=np.int64)
+        forced[idx[(idx >= 0) & (idx < s_count)]] = True
+    last = start
+    for k in range(start + 1, stop):
+        d = odo[k] - odo[last]
+        turn = abs((d[2] + math.pi) % (2 * math.pi) - math.pi)
+        small = math.hypot(d[0], d[1]) < cfg.update_distance and turn < cfg.update_angle
+        if small and not forced[k]:
+            continue
+        est = mcl.update_scan(odo[last], odo[k], r[k, sel], beams)
+        last = k
+        p = est.best_cluster
+        rows.append((t[k], p[0], p[1], p[2], est.spread, k))
+        if progress is not None and len(rows) % 50 == 0:
+            progress(k - start, stop - start)
+        if max_updates is not None and len(rows) >= max_updates:
+            break
+    if progress is not None:
+        progress(stop - start, stop - start)
+    arr = np.array(rows, dtype=np.float64).reshape(-1, 6)
+    return LocalizationRun(arr[:, 0], arr[:, 1:4], arr[:, 4], arr[:, 5].astype(np.int64))
+
+
+def match_times(
+    times: ArrayLike, ref_times: ArrayLike, max_dt: float = 0.02
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Pairs ``(i, j)`` with ``|times[i] - ref_times[j]| <= max_dt``, nearest ``i`` per ``j``.
+
+    ``times`` must be sorted ascending.
+    """
+    t = np.asarray(times, dtype=np.float64)
+    rt = np.asarray(ref_times, dtype=np.float64)
+    if t.size == 0 or rt.size == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    i = (
+        np.clip(np.searchsorted(t, rt), 1, max(t.size - 1, 1))
+        if t.size > 1
+        else np.zeros(rt.size, dtype=np.int64)
+    )
+    if t.size > 1:
+        i = np.where(np.abs(t[i - 1] - rt) < np.abs(t[i] - rt), i - 1, i)
+    ok = np.abs(t[i] - rt) <= max_dt
+    return i[ok].astype(np.int64), np.flatnonzero(ok).astype(np.int64)
+
+
+def trajectory_errors(
+    run: LocalizationRun, ref_times: ArrayLike, ref_poses: ArrayLike, max_dt: float = 0.02
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Position and heading errors at the reference poses that have an update within ``max_dt``
+    (the nearest update in time when several do).
+
+    Returns
+    -------
+    position_error : (M,) ndarray
+        Metres.
+    heading_error : (M,) ndarray
+        Absolute radians.
+    """
+    rt = np.asarray(ref_times, dtype=np.float64)
+    rp = np.asarray(ref_poses, dtype=np.float64)
+    if rt.ndim != 1 or rp.shape != (rt.shape[0], 3) or rt.size == 0:
+        raise ValueError(f"reference needs times (M,) and poses (M, 3), got {rt.shape}, {rp.shape}")
+    order = np.argsort(rt)
+    rt, rp = rt[order], rp[order]
+    j = (
+        np.clip(np.searchsorted(rt, run.times), 1, rt.size - 1)
+        if rt.size > 1
+        else np.zeros(run.times.size, dtype=np.int64)
+    )
+    if rt.size > 1:
+        j = np.where(np.abs(rt[j - 1] - run.times) < np.abs(rt[j] - run.times), j - 1, j)
+    gap = np.abs(rt[j] - run.times)
+    ok = np.flatnonzero(gap <= max_dt)
+    # one error per reference pose: the update nearest to it in time
+    ok = ok[np.argsort(gap[ok], kind="stable")]
+    _, first = np.unique(j[ok], return_index=True)
+    ok = np.sort(ok[first])
+    d = run.poses[ok] - rp[j[ok]]
+    heading = np.abs((d[:, 2] + np.pi) % (2 * np.pi) - np.pi)
+    return np.hypot(d[:, 0], d[:, 1]), heading

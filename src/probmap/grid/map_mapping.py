@@ -38,7 +38,7 @@ from probmap.grid.logodds import logit
 from probmap.grid.spec import GridSpec
 
 if TYPE_CHECKING:  # pragma: no cover
-    pass
+    from probmap.grid.occupancy import InverseSensorModel, OccupancyGrid
 
 __all__ = [
     "BeamIndex",
@@ -47,6 +47,7 @@ __all__ = [
     "MapMappingConfig",
     "MapMappingResult",
     "SweepRecord",
+    "cone_log_odds_grid",
     "cone_offsets",
     "map_mapping",
 ]
@@ -220,6 +221,59 @@ def cone_offsets(opening: float, subrays: int) -> NDArray[np.float64]:
     if subrays == 1:
         return np.zeros(1)
     return np.linspace(-0.5 * opening, 0.5 * opening, subrays)
+
+
+def cone_log_odds_grid(
+    poses: ArrayLike,
+    ranges: ArrayLike,
+    angles: ArrayLike,
+    max_range: float,
+    spec: GridSpec,
+    *,
+    opening: float = 0.0,
+    subrays: int = 1,
+    model: InverseSensorModel | None = None,
+    p0: float = 0.5,
+) -> OccupancyGrid:
+    """The log-odds map (Table 9.1) of cone readings on a fixed grid.
+
+    Each cone is one measurement: its sub-rays all carry the cone's reading, so the cells of
+    the cone before the reading are marked free and those at the reading occupied, each at
+    most once per cone. With ``subrays = 1`` this is the ordinary laser log-odds map.
+
+    Returns
+    -------
+    OccupancyGrid
+        On ``spec``; the parts of beams that leave it are cropped away.
+    """
+    from probmap.grid.occupancy import OccupancyGrid
+
+    P = np.atleast_2d(np.asarray(poses, dtype=np.float64))
+    R = np.asarray(ranges, dtype=np.float64)
+    A = np.asarray(angles, dtype=np.float64)
+    if A.ndim == 1:
+        A = np.broadcast_to(A[None, :], R.shape)
+    offs = cone_offsets(opening, subrays)
+    s, b = R.shape
+    cone_poses = np.repeat(P, b, axis=0)
+    cone_angles = (A.reshape(s * b, 1) + offs[None, :]).copy()
+    cone_ranges = np.repeat(R.reshape(s * b, 1), offs.shape[0], axis=1)
+    grid = OccupancyGrid(spec.resolution, p0=p0, model=model, spec=spec)
+    grid.integrate_scans(cone_poses, cone_ranges, cone_angles, max_range=max_range)
+    if grid.spec == spec:
+        return grid
+    # the grid grew on the same lattice for beams that leave ``spec``: crop it back
+    ox = round((spec.origin[0] - grid.spec.origin[0]) / spec.resolution)
+    oy = round((spec.origin[1] - grid.spec.origin[1]) / spec.resolution)
+    h, w = spec.shape
+    return OccupancyGrid.from_log_odds(
+        spec,
+        grid.log_odds[oy : oy + h, ox : ox + w],
+        p0=p0,
+        clamp=grid.clamp,
+        observed=grid.observed[oy : oy + h, ox : ox + w],
+        model=grid.model,
+    )
 
 
 def _scan_inputs(
@@ -627,8 +681,6 @@ def map_mapping(
     index = BeamIndex.build(poses, ranges, angles, max_range, cfg, spec=spec)
     t1 = time.perf_counter()
     if init is None and cfg.init == "log-odds":
-        from probmap.grid.sonar import cone_log_odds_grid
-
         grid = cone_log_odds_grid(
             poses, ranges, angles, max_range, index.spec, opening=cfg.opening,
             subrays=cfg.subrays,

@@ -6,6 +6,10 @@ nearest obstacle anywhere in its cone, i.e. the smallest range over the sub-rays
 sensor of Probabilistic Robotics Figure 9.8 and section 9.4: in a corridor with an open door a
 cone wider than the door sees the door frame, and the log-odds map (Table 9.1 with the
 inverse model applied to the whole cone) closes the door, while the MAP map keeps it open.
+
+The log-odds baseline, :func:`~probmap.grid.map_mapping.cone_log_odds_grid`, lives beside the
+MAP mapper that starts from it and is re-exported here (``sonar`` imports ``map_mapping``, never
+the other way round).
 """
 
 from __future__ import annotations
@@ -16,8 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from probmap.grid.map_mapping import cone_offsets
-from probmap.grid.occupancy import InverseSensorModel, OccupancyGrid
+# the log-odds baseline lives beside the MAP mapper it initialises; re-exported here
+from probmap.grid.map_mapping import cone_log_odds_grid, cone_offsets
 from probmap.grid.raycast import cast_rays
 from probmap.grid.spec import GridSpec
 
@@ -72,57 +76,6 @@ def simulate_cone_ranges(
         hit = z < max_range
         z[hit] = np.clip(z[hit] + rng.normal(0.0, noise, int(hit.sum())), 1e-3, max_range - 1e-6)
     return z
-
-
-def cone_log_odds_grid(
-    poses: ArrayLike,
-    ranges: ArrayLike,
-    angles: ArrayLike,
-    max_range: float,
-    spec: GridSpec,
-    *,
-    opening: float = 0.0,
-    subrays: int = 1,
-    model: InverseSensorModel | None = None,
-    p0: float = 0.5,
-) -> OccupancyGrid:
-    """The log-odds map (Table 9.1) of cone readings on a fixed grid.
-
-    Each cone is one measurement: its sub-rays all carry the cone's reading, so the cells of
-    the cone before the reading are marked free and those at the reading occupied, each at
-    most once per cone. With ``subrays = 1`` this is the ordinary laser log-odds map.
-
-    Returns
-    -------
-    OccupancyGrid
-        On ``spec``; the parts of beams that leave it are cropped away.
-    """
-    P = np.atleast_2d(np.asarray(poses, dtype=np.float64))
-    R = np.asarray(ranges, dtype=np.float64)
-    A = np.asarray(angles, dtype=np.float64)
-    if A.ndim == 1:
-        A = np.broadcast_to(A[None, :], R.shape)
-    offs = cone_offsets(opening, subrays)
-    s, b = R.shape
-    cone_poses = np.repeat(P, b, axis=0)
-    cone_angles = (A.reshape(s * b, 1) + offs[None, :]).copy()
-    cone_ranges = np.repeat(R.reshape(s * b, 1), offs.shape[0], axis=1)
-    grid = OccupancyGrid(spec.resolution, p0=p0, model=model, spec=spec)
-    grid.integrate_scans(cone_poses, cone_ranges, cone_angles, max_range=max_range)
-    if grid.spec == spec:
-        return grid
-    # the grid grew on the same lattice for beams that leave ``spec``: crop it back
-    ox = round((spec.origin[0] - grid.spec.origin[0]) / spec.resolution)
-    oy = round((spec.origin[1] - grid.spec.origin[1]) / spec.resolution)
-    h, w = spec.shape
-    return OccupancyGrid.from_log_odds(
-        spec,
-        grid.log_odds[oy : oy + h, ox : ox + w],
-        p0=p0,
-        clamp=grid.clamp,
-        observed=grid.observed[oy : oy + h, ox : ox + w],
-        model=grid.model,
-    )
 
 
 @dataclass(frozen=True, eq=False)

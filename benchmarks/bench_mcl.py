@@ -214,8 +214,9 @@ def main() -> None:
     lx, ly = lx[valid], ly[valid]
     b = lx.size
 
-    mcl = MonteCarloLocalization(lf, motion, rng, MCLConfig(n_particles=n, resample_threshold=1.0))
-    mcl.initialize_pose(world.poses[k - 1], np.diag([0.05, 0.05, 0.02]))
+    cov = np.diag([0.05, 0.05, 0.02])
+    cfg = MCLConfig(n_particles=n, resample_threshold=1.0)
+    mcl = MonteCarloLocalization.from_pose(lf, motion, rng, world.poses[k - 1], cov, cfg)
 
     def pm_update() -> None:
         mcl.predict_and_weight(odo0, odo1, lx, ly, lf, motion)

@@ -108,14 +108,15 @@ def test_intel_kidnapped_robot_recovers_with_augmented_mcl(intel):
         grid.spec, prob, max_range=80.0, sigma_hit=0.2, z_hit=0.5, z_rand=0.5, max_distance=1.0
     )
     free = FreeSpaceSampler(grid.spec, (np.nan_to_num(prob, nan=1.0) < 0.3) & (lf.distance > 0.15))
-    mcl = MonteCarloLocalization(
+    mcl = MonteCarloLocalization.from_pose(
         lf,
         OdometryMotionModel(0.3, 0.1, 0.1, 0.3),
         np.random.default_rng(0),
+        ref_p[ref_idx[0]],
+        np.diag([0.01, 0.01, 0.0025]),
         MCLConfig(n_particles=5000, augmented=True),
         free,
     )
-    mcl.initialize_pose(ref_p[ref_idx[0]], np.diag([0.01, 0.01, 0.0025]))
     forced = np.zeros(len(raw.times), dtype=bool)
     forced[raw_idx] = True
 

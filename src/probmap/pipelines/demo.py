@@ -155,14 +155,13 @@ def run_localize_demo(out_dir: str | os.PathLike[str], seed: int = 0) -> dict[st
     )
     free = FreeSpaceSampler(world.spec, lf.distance > 0.2)
     rng = np.random.default_rng(seed)
-    mcl = MonteCarloLocalization(
+    mcl = MonteCarloLocalization.uniform(
         lf,
         OdometryMotionModel(0.1, 0.1, 0.1, 0.1),
         rng,
-        MCLConfig(n_particles=10000, augmented=True),
         free,
+        MCLConfig(n_particles=10000, augmented=True),
     )
-    mcl.initialize_global()
     rows = []
     errors = []
     for k in range(1, len(world.poses)):

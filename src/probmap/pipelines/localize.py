@@ -192,18 +192,14 @@ def localize_scans(
     free = FreeSpaceSampler(spec, free_mask & (lf.distance > 0.15))
     augmented = cfg.augmented or cfg.global_localization
     rng = np.random.default_rng(cfg.seed)
-    mcl = MonteCarloLocalization(
-        lf,
-        OdometryMotionModel(*cfg.alphas),
-        rng,
-        MCLConfig(n_particles=cfg.n_particles, augmented=augmented),
-        free,
-    )
+    motion = OdometryMotionModel(*cfg.alphas)
+    mcl_cfg = MCLConfig(n_particles=cfg.n_particles, augmented=augmented)
     if cfg.global_localization:
-        mcl.initialize_global()
+        mcl = MonteCarloLocalization.uniform(lf, motion, rng, free, mcl_cfg)
     else:
         pose0 = odo[start] if cfg.initial_pose is None else np.asarray(cfg.initial_pose, float)
-        mcl.initialize_pose(pose0, np.diag(np.square(cfg.initial_std)))
+        cov0 = np.diag(np.square(cfg.initial_std))
+        mcl = MonteCarloLocalization.from_pose(lf, motion, rng, pose0, cov0, mcl_cfg, free)
     sel = slice(None, None, cfg.beam_step)
     beams = np.ascontiguousarray(a[sel])
     rows: list[tuple[float, float, float, float, float, int]] = []

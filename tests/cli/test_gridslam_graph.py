@@ -99,6 +99,17 @@ def test_log_without_odometry(tmp_path):
     assert not list(tmp_path.glob("out*"))
 
 
+@pytest.mark.parametrize("value", ["0.0", "-1.0", "nan", "80.0", "90.0"])
+@pytest.mark.parametrize("method", ["graph", "rbpf"])
+def test_log_without_one_usable_reading(tmp_path, value, method):
+    # every range NaN, zero, negative or at/over max range: an error, not an empty map
+    log = _flaser_log(tmp_path / "blind.clf", [(0.3 * i, 0.0, 0.0) for i in range(20)])
+    log.write_text(log.read_text().replace(" 2.0", f" {value}"))
+    res = run("slam", "grid", log, "-o", tmp_path / "out", "--method", method)
+    _one_line_error(res, "blind.clf", "no usable laser reading")
+    assert not list(tmp_path.glob("out*"))
+
+
 def test_truncated_log(tmp_path):
     full = _flaser_log(tmp_path / "full.clf", [(0.3 * i, 0.0, 0.0) for i in range(400)])
     data = bz2.compress(full.read_bytes())

@@ -118,7 +118,8 @@ def load_laser_log(
     DatasetError
         Unreadable or malformed input (naming the file and line).
     ValueError
-        A log without odometry (every pose the same), or fewer than two scans.
+        A log without odometry (every pose the same), without one usable range reading, or
+        with fewer than two scans.
     """
     from probmap.datasets.carmen import load_scans
     from probmap.datasets.rosbag import is_bag, load_bag_scans
@@ -148,6 +149,7 @@ def load_laser_log(
         )
     if len(batch.times) < 2:
         raise ValueError(f"{path}: graph SLAM needs at least 2 scans, found {len(batch.times)}")
+    _require_readings(path, np.asarray(batch.ranges), float(batch.max_range))
     laser = np.asarray(batch.laser_poses)
     if not np.isfinite(laser).all():
         raise ValueError(f"{path}: the scans' odometry poses are not finite")
@@ -157,6 +159,18 @@ def load_laser_log(
             "odometry to predict the motion between scans"
         )
     return batch
+
+
+def _require_readings(path: object, ranges: NDArray, max_range: float) -> None:
+    """Refuse a log without one usable reading (NaN, inf, zero or negative everywhere, or
+    only max-range returns): SLAM on it would write an empty map and exit as if it worked."""
+    with np.errstate(invalid="ignore"):
+        usable = int(np.count_nonzero((ranges > 0) & (ranges < max_range)))
+    if usable == 0:
+        raise ValueError(
+            f"{path}: no usable laser reading in {len(ranges)} scans (every range is NaN, "
+            f"zero, negative or at the maximum range {max_range:g} m)"
+        )
 
 
 def run_graph_slam(
@@ -260,6 +274,7 @@ def slam_log(
     if end_time is not None:
         keep = times <= times[0] + end_time
         times, ranges, robot = times[keep], ranges[keep], robot[keep]
+    _require_readings(path, ranges, float(batch.max_range))
     return run_grid_slam(
         times, ranges, angles, robot, float(batch.max_range), config, mount=mount,
         progress=progress,

@@ -34,15 +34,16 @@ def field(world):
     )
 
 
-def _mcl(field, seed, **cfg):
+def _mcl(field, seed, start, **cfg):
+    """MCL on the simulated floor plan: ``start`` is ``(mean, cov)`` to track from a known pose
+    or ``"global"`` for particles uniform over the free space."""
     free = FreeSpaceSampler(field.spec, field.distance > 0.2)
-    return MonteCarloLocalization(
-        field,
-        OdometryMotionModel(0.1, 0.1, 0.1, 0.1),
-        np.random.default_rng(seed),
-        MCLConfig(**cfg),
-        free,
-    )
+    motion = OdometryMotionModel(0.1, 0.1, 0.1, 0.1)
+    rng = np.random.default_rng(seed)
+    if isinstance(start, str) and start == "global":
+        return MonteCarloLocalization.uniform(field, motion, rng, free, MCLConfig(**cfg))
+    mean, cov = start
+    return MonteCarloLocalization.from_pose(field, motion, rng, mean, cov, MCLConfig(**cfg), free)
 
 
 def test_fused_kernel_matches_reference(field):
@@ -92,10 +93,9 @@ def test_fused_kernel_matches_reference(field):
 
 def test_fused_update_equals_generic_update(world, field):
     # same noise draws -> same particles and weights through both code paths
-    a, b = _mcl(field, 3, n_particles=300), _mcl(field, 3, n_particles=300)
     cov = np.diag([0.01, 0.01, 0.005])
-    a.initialize_pose(world.poses[0], cov)
-    b.initialize_pose(world.poses[0], cov)
+    a = _mcl(field, 3, (world.poses[0], cov), n_particles=300)
+    b = _mcl(field, 3, (world.poses[0], cov), n_particles=300)
     a.update_scan(world.odometry[0], world.odometry[1], world.ranges[1], world.angles)
     b.predict(world.odometry[0], world.odometry[1])
     b.correct(world.ranges[1], world.angles)
@@ -104,8 +104,7 @@ def test_fused_update_equals_generic_update(world, field):
 
 
 def test_tracking_from_known_start(world, field):
-    mcl = _mcl(field, 0, n_particles=500)
-    mcl.initialize_pose(world.poses[0], np.diag([0.02, 0.02, 0.01]))
+    mcl = _mcl(field, 0, (world.poses[0], np.diag([0.02, 0.02, 0.01])), n_particles=500)
     err, dr = [], []
     for k in range(1, len(world.poses)):
         est = mcl.update_scan(
@@ -123,8 +122,7 @@ def test_global_localization_converges(world, field):
     # 100 updates see enough of it; the corridor alone is genuinely ambiguous.
     start, converged = 200, 0
     for seed in range(5):
-        mcl = _mcl(field, seed, n_particles=8000, augmented=True)
-        mcl.initialize_global()
+        mcl = _mcl(field, seed, "global", n_particles=8000, augmented=True)
         errs = []
         for k in range(start + 1, start + 101):
             est = mcl.update_scan(
@@ -142,8 +140,8 @@ def test_kidnapped_robot_recovers_only_with_augmented_mcl(world, field):
     for seed in (1, 2):
         final = {}
         for augmented in (True, False):
-            mcl = _mcl(field, seed, n_particles=3000, augmented=augmented)
-            mcl.initialize_pose(world.poses[0], np.diag([0.02, 0.02, 0.01]))
+            start = (world.poses[0], np.diag([0.02, 0.02, 0.01]))
+            mcl = _mcl(field, seed, start, n_particles=3000, augmented=augmented)
             steps = list(range(1, jump_from)) + list(range(jump_to + 1, jump_to + 90))
             for k in steps:
                 est = mcl.update_scan(
@@ -174,8 +172,8 @@ def test_kld_sampling_adapts_the_particle_count(world, field):
     peaked[:3] = 1 / 3
     assert kld_resample(spread, peaked, rng, cfg).size == 200  # three bins: n_min
     # tracking with KLD-sampling keeps the count near n_min and stays accurate
-    mcl = _mcl(field, 1, n_particles=2000, kld=cfg, resample_threshold=1.0)
-    mcl.initialize_pose(world.poses[0], np.diag([0.02, 0.02, 0.01]))
+    start = (world.poses[0], np.diag([0.02, 0.02, 0.01]))
+    mcl = _mcl(field, 1, start, n_particles=2000, kld=cfg, resample_threshold=1.0)
     errs, counts = [], []
     for k in range(1, 150):
         est = mcl.update_scan(
@@ -192,8 +190,10 @@ def test_landmark_mcl_with_velocity_model():
     model = VelocityMotionModel(0.05, 0.01, 0.01, 0.05, 0.001, 0.001)
     true = np.array([0.0, 0.0, 0.0])
     odo = true.copy()
-    mcl = MonteCarloLocalization(lm, model, np.random.default_rng(0), MCLConfig(n_particles=1000))
-    mcl.initialize_pose(true, np.diag([0.01, 0.01, 0.01]))
+    mcl = MonteCarloLocalization.from_pose(
+        lm, model, np.random.default_rng(0), true, np.diag([0.01, 0.01, 0.01]),
+        MCLConfig(n_particles=1000),
+    )  # fmt: skip
     err, dr = [], []
     for t in range(300):
         u = np.array([0.5, 0.3 * math.sin(t / 20)])
@@ -235,21 +235,26 @@ class _Impossible:
 
 def test_all_zero_weights_reinitialise_and_warn(field):
     free = FreeSpaceSampler(field.spec, field.distance > 0.2)
-    mcl = MonteCarloLocalization(
+    mcl = MonteCarloLocalization.from_pose(
         _Impossible(),
         OdometryMotionModel(),
         np.random.default_rng(0),
+        [5.0, 6.0, 0.0],
+        np.eye(3) * 0.01,
         MCLConfig(n_particles=100),
         free,
     )
-    mcl.initialize_pose([5.0, 6.0, 0.0], np.eye(3) * 0.01)
     with pytest.warns(ParticleFilterWarning, match="reinitialised"):
         mcl.correct(None)
     est = mcl.estimate()
     assert np.all(np.isfinite(est.mean)) and np.all(np.isfinite(mcl.weights))
     assert est.spread > 2.0  # spread over the building again
     plain = MonteCarloLocalization(
-        _Impossible(), OdometryMotionModel(), np.random.default_rng(0), MCLConfig(n_particles=10)
+        _Impossible(),
+        OdometryMotionModel(),
+        np.random.default_rng(0),
+        MCLConfig(n_particles=10),
+        particles=np.zeros((10, 3)),
     )
     with pytest.warns(ParticleFilterWarning, match="weights reset"):
         plain.correct(None)

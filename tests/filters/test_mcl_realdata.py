@@ -38,13 +38,14 @@ def test_mrclam_landmark_mcl_against_vicon(shared_data, robot):
     lm = RangeBearingLandmarks(
         ids, np.array([truth[i] for i in ids]), 0.3, 0.03, outlier_probability=0.1
     )
-    mcl = MonteCarloLocalization(
+    mcl = MonteCarloLocalization.from_pose(
         lm,
         VelocityMotionModel(2, 1, 2, 2, 0.1, 0.1),
         np.random.default_rng(0),
+        ds.initial_pose,
+        np.diag([0.01, 0.01, 0.01]),
         MCLConfig(n_particles=2000),
     )
-    mcl.initialize_pose(ds.initial_pose, np.diag([0.01, 0.01, 0.01]))
     exact = VelocityMotionModel(0, 0, 0, 0, 0, 0)
     rng = np.random.default_rng(1)
     dead = ds.initial_pose.copy()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -35,21 +36,36 @@ def grid_command(
     laser_frame: str | None = typer.Option(
         None, "--laser-frame", help="ROS bag: the scans' frame (default: their header.frame_id)."
     ),
-    particles: int = typer.Option(30, "--particles", "-n", help="rbpf: number of particles."),
-    linear_update: float = typer.Option(
-        0.5, "--linear-update", help="rbpf: process a scan after this many metres of travel."
+    config: Path | None = typer.Option(
+        None,
+        "--config",
+        help="A YAML configuration: GraphSlamConfig fields (graph) or GridSlamConfig fields "
+        "(rbpf; the options below override it). Fields left out keep their defaults.",
     ),
-    angular_update: float = typer.Option(
-        0.25, "--angular-update", help="rbpf: ... or after this many radians of rotation."
+    particles: int | None = typer.Option(
+        None, "--particles", "-n", help="rbpf: number of particles [default: 30]."
     ),
-    seed: int = typer.Option(0, "--seed", help="rbpf: random seed."),
-    guard: bool = typer.Option(
-        True, "--guard/--no-guard", help="rbpf: keep the odometry along featureless corridors."
+    linear_update: float | None = typer.Option(
+        None,
+        "--linear-update",
+        help="rbpf: process a scan after this many metres of travel [default: 0.5].",
+    ),
+    angular_update: float | None = typer.Option(
+        None,
+        "--angular-update",
+        help="rbpf: ... or after this many radians of rotation [default: 0.25].",
+    ),
+    seed: int | None = typer.Option(None, "--seed", help="rbpf: random seed [default: 0]."),
+    guard: bool | None = typer.Option(
+        None,
+        "--guard/--no-guard",
+        help="rbpf: keep the odometry along featureless corridors [default: guard].",
     ),
 ) -> None:
     """Grid SLAM from a raw log or ROS bag: writes the map (PREFIX.yaml/.pgm/.npz/.png, as
     'probmap map'), PREFIX.trajectory.csv (robot pose at every scan time) and, for the graph
-    method, the pose graph PREFIX.g2o and PREFIX.slam.png (map, trajectory, loop closures)."""
+    method, the pose graph PREFIX.g2o and PREFIX.slam.png (map, trajectory, loop closures), and
+    PREFIX.config.yaml (the configuration used, with the probmap version)."""
     with cli_errors():
         if method not in ("graph", "rbpf"):
             raise ValueError(f"--method must be 'graph' or 'rbpf', got {method!r}")
@@ -61,22 +77,45 @@ def grid_command(
             "fixed_frame": fixed_frame,
             "laser_frame": laser_frame,
         }
+        rbpf_options = {
+            "particles": particles,
+            "linear_update": linear_update,
+            "angular_update": angular_update,
+            "seed": seed,
+            "degeneracy_guard": guard,
+        }
         if method == "graph":
-            _graph(log, output, end_time, bag_options)
+            _graph(log, output, end_time, bag_options, config)
         else:
             if any(v is not None for v in bag_options.values()):
                 raise ValueError("--method rbpf reads CARMEN logs only (no bag options)")
-            _rbpf(log, output, particles, linear_update, angular_update, end_time, seed, guard)
+            _rbpf(log, output, rbpf_options, end_time, config)
 
 
-def _graph(log: Path, output: Path, end_time: float | None, bag_options: dict) -> None:
+def _resolve(cls: type, path: Path | None, overrides: dict | None = None) -> Any:
+    """``cls`` from the YAML file ``path`` (defaults without one), then the options given."""
+    import dataclasses
+
+    from probmap.config import load_config
+
+    cfg = load_config(cls, path) if path is not None else cls()
+    given = {k: v for k, v in (overrides or {}).items() if v is not None}
+    return dataclasses.replace(cfg, **given) if given else cfg
+
+
+def _graph(
+    log: Path, output: Path, end_time: float | None, bag_options: dict, config: Path | None
+) -> None:
     import resource
 
     from rich.progress import Progress
 
+    from probmap.config import write_config
     from probmap.pipelines import check_output_prefix
     from probmap.pipelines.grid_slam import load_laser_log, run_graph_slam, write_graph_slam
+    from probmap.slam.graph_slam import GraphSlamConfig
 
+    cfg = _resolve(GraphSlamConfig, config)
     prefix = check_output_prefix(output)
     with Progress(transient=True) as bar:
         task = bar.add_task(f"reading {log.name}", total=None)
@@ -86,8 +125,9 @@ def _graph(log: Path, output: Path, end_time: float | None, bag_options: dict) -
         def tick(done: int, total: int) -> None:
             bar.update(task, completed=done, total=total)
 
-        run = run_graph_slam(batch, progress=tick)
+        run = run_graph_slam(batch, cfg, progress=tick)
     files = write_graph_slam(prefix, run)
+    files.append(write_config(f"{prefix}.config.yaml", cfg))
     spec = run.grid.spec
     weights = run.closure_weights
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
@@ -115,32 +155,20 @@ def _graph(log: Path, output: Path, end_time: float | None, bag_options: dict) -
 
 
 def _rbpf(
-    log: Path,
-    output: Path,
-    particles: int,
-    linear_update: float,
-    angular_update: float,
-    end_time: float | None,
-    seed: int,
-    guard: bool,
+    log: Path, output: Path, options: dict, end_time: float | None, config: Path | None
 ) -> None:
     import warnings
 
     from rich.progress import Progress
 
+    from probmap.config import write_config
     from probmap.grid.io import save_map
     from probmap.pipelines import check_output_prefix
     from probmap.pipelines.grid_slam import slam_log, write_trajectory
     from probmap.slam.gridslam import GridSlamConfig
 
+    cfg = _resolve(GridSlamConfig, config, options)
     prefix = check_output_prefix(output)
-    cfg = GridSlamConfig(
-        particles=particles,
-        linear_update=linear_update,
-        angular_update=angular_update,
-        seed=seed,
-        degeneracy_guard=guard,
-    )
     with Progress(transient=True) as bar, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         task = bar.add_task(f"grid SLAM {log.name}", total=None)
@@ -153,17 +181,18 @@ def _rbpf(
         typer.echo(f"warning: {w.message}", err=True)
     files = save_map(prefix, result.grid)
     traj = write_trajectory(f"{prefix}.trajectory.csv", result.times, result.poses)
+    written = write_config(f"{prefix}.config.yaml", cfg)
     duration = float(result.times[-1] - result.times[0])
     spec = result.grid.spec
     rows = [
         ("scans", f"{len(result.times):,} ({result.processed:,} processed)"),
-        ("particles", f"{particles} ({result.resamples} resamplings)"),
+        ("particles", f"{cfg.particles} ({result.resamples} resamplings)"),
         ("failed matches", f"{result.failed_matches:,}"),
         ("map", f"{spec.width} x {spec.height} cells at {spec.resolution:g} m"),
         ("map tiles", f"{result.map_bytes / 2**20:.1f} MiB (peak)"),
         ("time", f"{result.seconds:.1f} s ({duration / max(result.seconds, 1e-9):.1f}x real time)"),
     ]
-    rows += [("wrote", str(f)) for f in [*files, traj]]
+    rows += [("wrote", str(f)) for f in [*files, traj, written]]
     print_summary("grid SLAM (rbpf)", rows)
 
 

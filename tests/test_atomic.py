@@ -7,7 +7,7 @@ import stat
 
 import pytest
 
-from probmap._atomic import atomic_files, atomic_path, atomic_save, atomic_write
+from probmap._atomic import atomic_files, atomic_outputs, atomic_path, atomic_save, atomic_write
 
 
 def test_write_creates_file_and_leaves_no_temporary(tmp_path):
@@ -171,3 +171,107 @@ def test_path_writer_permissions_follow_the_umask_like_open(tmp_path):
     with atomic_path(tmp_path / "atomic") as tmp:
         tmp.write_bytes(b"")
     assert stat.S_IMODE((tmp_path / "atomic").stat().st_mode) == stat.S_IMODE(plain.stat().st_mode)
+
+
+# ----------------------------------------------------------------------------- output sets
+def test_output_set_commits_together_and_creates_the_folder(tmp_path):
+    out = tmp_path / "new" / "run"
+    with atomic_outputs() as outputs:
+        atomic_save(out / "a.csv", lambda f: f.write(b"a"))
+        with atomic_path(out / "b.png") as tmp:
+            tmp.write_bytes(b"b")
+        with atomic_outputs():  # a nested block joins the outer one
+            atomic_save(out / "c.json", lambda f: f.write(b"c"))
+        assert not (out / "a.csv").exists() and not (out / "b.png").exists()
+        assert outputs.targets == [out / "a.csv", out / "b.png", out / "c.json"]
+    assert sorted(os.listdir(out)) == ["a.csv", "b.png", "c.json"]
+    assert (out / "b.png").read_bytes() == b"b"
+    assert stat.S_IMODE(out.stat().st_mode) == 0o777 & ~_umask()
+    for name in ("a.csv", "b.png", "c.json"):
+        assert stat.S_IMODE((out / name).stat().st_mode) == 0o666 & ~_umask()
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+@pytest.mark.parametrize("error", [OSError("disk full"), KeyboardInterrupt()])
+def test_output_set_failure_leaves_nothing_and_removes_created_folders(tmp_path, error):
+    old = tmp_path / "old.csv"
+    old.write_bytes(b"old")
+    out = tmp_path / "new" / "run"
+    with pytest.raises(type(error)):
+        with atomic_outputs():
+            atomic_save(out / "a.csv", lambda f: f.write(b"a"))
+            atomic_save(old, lambda f: f.write(b"new"))
+            with atomic_path(out / "b.png") as tmp:
+                tmp.write_bytes(b"half")
+                raise error
+    assert sorted(os.listdir(tmp_path)) == ["old.csv"] and old.read_bytes() == b"old"
+
+
+def test_output_set_writer_error_names_the_target(tmp_path):
+    def full(f):
+        raise OSError(28, "No space left on device")
+
+    with pytest.raises(OSError, match=r"cannot write .*x\.yaml: No space left"):
+        with atomic_outputs():
+            atomic_save(tmp_path / "x.yaml", full)
+    assert os.listdir(tmp_path) == []
+
+
+def test_output_set_failed_rename_puts_every_target_back(tmp_path):
+    a, b = tmp_path / "a.csv", tmp_path / "b.png"
+    a.write_bytes(b"old a")
+    b.mkdir()  # a folder where a file should go: the last rename cannot happen
+    (b / "keep").write_bytes(b"k")
+    with pytest.raises(IsADirectoryError, match="b.png"):
+        with atomic_outputs():
+            atomic_save(tmp_path / "new.txt", lambda f: f.write(b"n"))
+            atomic_save(a, lambda f: f.write(b"new a"))
+            atomic_save(b, lambda f: f.write(b"new b"))
+    assert sorted(os.listdir(tmp_path)) == ["a.csv", "b.png"] and a.read_bytes() == b"old a"
+    assert os.listdir(b) == ["keep"]
+
+
+def test_output_set_folder_and_not_a_folder(tmp_path):
+    afile = tmp_path / "afile"
+    afile.write_bytes(b"")
+    with pytest.raises(NotADirectoryError, match="afile is not a folder"):
+        with atomic_outputs():
+            atomic_save(afile / "sub" / "x", lambda f: f.write(b"x"))
+    with pytest.raises(RuntimeError):
+        with atomic_outputs() as outputs:
+            assert outputs.folder(tmp_path / "d" / "e").is_dir()
+            raise RuntimeError
+    assert sorted(os.listdir(tmp_path)) == ["afile"]
+
+
+def test_outside_an_output_set_a_missing_folder_is_still_an_error(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        atomic_save(tmp_path / "missing" / "x", lambda f: f.write(b"x"))
+    assert os.listdir(tmp_path) == []
+
+
+def test_output_set_rename_failing_midway_is_rolled_back(tmp_path, monkeypatch):
+    import probmap._atomic as mod
+
+    a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    b.write_bytes(b"old b")
+    real = os.replace
+    calls = []
+
+    def flaky(src, dst):
+        calls.append(dst)
+        if len(calls) == 3 and str(dst) == str(c):
+            raise OSError(5, "Input/output error")
+        return real(src, dst)
+
+    monkeypatch.setattr(mod.os, "replace", flaky)
+    with pytest.raises(OSError, match="Input/output"):
+        with atomic_outputs():
+            for p in (a, b, c):
+                atomic_save(p, lambda f: f.write(b"new"))
+    assert sorted(os.listdir(tmp_path)) == ["b"] and b.read_bytes() == b"old b"

@@ -9,21 +9,37 @@ This module is the package's one writer of output files:
 - :func:`atomic_write` / :func:`atomic_save`: one file, written through an open file object;
 - :func:`atomic_files`: several files, all or nothing;
 - :func:`atomic_path`: one file or folder written by a library that wants a *path*
-  (``savefig``, ``np.savetxt``, a ROS bag writer).
+  (``savefig``, ``np.savetxt``, a ROS bag writer);
+- :func:`atomic_outputs`: a command's whole set of files, all or nothing. Inside it every write
+  above is *staged*: its temporary file is complete and synced, but the renames onto the targets
+  happen together when the outermost ``atomic_outputs`` block ends without an error. Missing
+  output folders are created when the first file is written into them; an error (or Ctrl-C)
+  anywhere in the block removes every temporary file and every folder the block created, and
+  leaves every target as it was.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import secrets
 import shutil
 import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import ExitStack, contextmanager, suppress
+from contextvars import ContextVar
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["atomic_files", "atomic_path", "atomic_save", "atomic_write"]
+__all__ = [
+    "OutputSet",
+    "atomic_files",
+    "atomic_outputs",
+    "atomic_path",
+    "atomic_save",
+    "atomic_write",
+]
 
 _WRITE_MODES = ("w", "wt", "wb")
 
@@ -51,6 +67,206 @@ def _naming(exc: OSError, path: Path) -> OSError:
     """The same kind of error, with a message that names the target and its folder."""
     reason = exc.strerror or str(exc)
     return type(exc)(exc.errno, f"cannot write {path}: {reason} ({path.parent})", str(path))
+
+
+def _named(exc: BaseException, targets: Sequence[Path]) -> BaseException:
+    """An ``OSError`` raised by a writer that does not say which output it was writing (a full
+    disk, a failing device): the same kind of error naming the targets; anything else as is."""
+    if not isinstance(exc, OSError) or not targets:
+        return exc
+    text = str(exc)
+    if any(str(t) in text or t.name in text for t in targets):
+        return exc
+    names = ", ".join(str(t) for t in targets)
+    reason = exc.strerror or text or type(exc).__name__
+    try:
+        return type(exc)(exc.errno, f"cannot write {names}: {reason}", str(targets[0]))
+    except TypeError:  # pragma: no cover - an OSError subclass with another signature
+        return exc
+
+
+# ----------------------------------------------------------------------------- output sets
+@dataclass(eq=False)
+class _Staged:
+    tmp: Path  # the complete temporary file (or folder)
+    target: Path
+    workdir: Path | None = None  # atomic_path's private folder, removed afterwards
+
+
+@dataclass(eq=False)
+class OutputSet:
+    """The files staged by one :func:`atomic_outputs` block (read-only for callers)."""
+
+    staged: dict[Path, _Staged] = field(default_factory=dict)
+    created: list[Path] = field(default_factory=list)
+
+    @property
+    def targets(self) -> list[Path]:
+        """The files that the block will write, in the order they were staged."""
+        return list(self.staged)
+
+    def folder(self, path: str | os.PathLike[str]) -> Path:
+        """Create the folder ``path`` and its missing parents now (mode 0o777 less the umask);
+        the ones created are removed again if the block fails. Returns ``path``."""
+        return _make_folder(Path(path), self)
+
+    def _stage(self, item: _Staged) -> None:
+        old = self.staged.pop(item.target, None)
+        if old is not None:  # written twice in one block: the last write wins, as without one
+            _discard(old)
+        self.staged[item.target] = item
+
+
+_ACTIVE: ContextVar[OutputSet | None] = ContextVar("probmap_atomic_outputs", default=None)
+
+
+def _make_folder(folder: Path, outputs: OutputSet | None) -> Path:
+    """Create ``folder`` and its missing parents, recording them in ``outputs``."""
+    missing: list[Path] = []
+    p = folder
+    while not p.exists() and not p.is_symlink():
+        missing.append(p)
+        if p.parent == p:  # pragma: no cover - a missing root
+            break
+        p = p.parent
+    if not p.is_dir():
+        raise NotADirectoryError(
+            errno.ENOTDIR, f"cannot create output folder {folder}: {p} is not a folder", str(p)
+        )
+    for d in reversed(missing):
+        try:
+            os.mkdir(d)
+        except FileExistsError:
+            if not d.is_dir():
+                raise
+            continue
+        except OSError as exc:
+            reason = exc.strerror or str(exc)
+            raise type(exc)(
+                exc.errno, f"cannot create output folder {d}: {reason}", str(d)
+            ) from None
+        if outputs is not None:
+            outputs.created.append(d)
+    return folder
+
+
+def _discard(item: _Staged) -> None:
+    if item.workdir is not None:
+        shutil.rmtree(item.workdir, ignore_errors=True)
+    else:
+        with suppress(OSError):
+            os.unlink(item.tmp)
+
+
+def _remove_created(outputs: OutputSet) -> None:
+    for d in reversed(outputs.created):
+        with suppress(OSError):
+            os.rmdir(d)  # only when empty: never a file that was there before
+
+
+def _backup(target: Path) -> Path | None:
+    """A hard link to an existing ``target``, so that a failed commit can put it back."""
+    for _ in range(10):
+        bak = target.parent / f".{target.name}.{secrets.token_hex(4)}.bak"
+        try:
+            os.link(target, bak)
+            return bak
+        except FileExistsError:  # pragma: no cover
+            continue
+        except OSError:  # no hard links here: the old file cannot be kept
+            return None
+    return None  # pragma: no cover
+
+
+def _commit(outputs: OutputSet) -> None:
+    """Move every staged file onto its target; on a failure put back what was there before."""
+    items = list(outputs.staged.values())
+    for it in items:
+        if it.target.is_dir() and not it.tmp.is_dir():
+            raise IsADirectoryError(
+                errno.EISDIR, f"cannot write {it.target}: a folder of that name exists",
+                str(it.target),
+            )  # fmt: skip
+    done: list[tuple[Path, Path | None, bool]] = []
+    try:
+        for it in items:
+            existed = it.target.exists() or it.target.is_symlink()
+            backup = _backup(it.target) if existed and not it.target.is_dir() else None
+            try:
+                os.replace(it.tmp, it.target)
+            except BaseException:
+                if backup is not None:
+                    with suppress(OSError):
+                        os.unlink(backup)
+                raise
+            done.append((it.target, backup, existed))
+    except BaseException:
+        for target, backup, existed in reversed(done):
+            with suppress(OSError):
+                if backup is not None:
+                    os.replace(backup, target)
+                elif not existed:
+                    if target.is_dir() and not target.is_symlink():
+                        shutil.rmtree(target, ignore_errors=True)
+                    else:
+                        os.unlink(target)
+        raise
+    finally:
+        for it in items:
+            if it.workdir is not None:
+                shutil.rmtree(it.workdir, ignore_errors=True)
+    for _, backup, _ in done:
+        if backup is not None:
+            with suppress(OSError):
+                os.unlink(backup)
+    for folder in {it.target.parent for it in items}:
+        _sync_folder(folder)
+
+
+@contextmanager
+def atomic_outputs() -> Iterator[OutputSet]:
+    """All-or-nothing for a set of output files written by any of this module's writers.
+
+    Every :func:`atomic_files`, :func:`atomic_write`, :func:`atomic_save` and
+    :func:`atomic_path` inside the block (in this thread or task, at any depth of calls) writes
+    its complete temporary file and *stages* it; when the block ends without an error the staged
+    files are renamed onto their targets, one after the other. Missing output folders are
+    created as files are written into them (:meth:`OutputSet.folder` creates one explicitly).
+
+    If anything raises inside the block -- a writer, the work between two writes, Ctrl-C
+    (``KeyboardInterrupt``) -- or a rename fails, the temporary files and the folders the block
+    created are removed, and targets already renamed are put back as they were (a file that did
+    not exist is removed, one that did is restored from a hard link where the file system has
+    them). A nested block joins the outer one: the outermost block commits.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> out = pathlib.Path(tempfile.mkdtemp()) / "run"
+    >>> with atomic_outputs():
+    ...     _ = atomic_save(out / "a.txt", lambda f: f.write(b"a"))
+    ...     (out / "a.txt").exists()
+    False
+    >>> sorted(p.name for p in out.iterdir())
+    ['a.txt']
+    """
+    active = _ACTIVE.get()
+    if active is not None:
+        yield active
+        return
+    outputs = OutputSet()
+    token = _ACTIVE.set(outputs)
+    try:
+        try:
+            yield outputs
+        finally:
+            _ACTIVE.reset(token)
+        _commit(outputs)
+    except BaseException:
+        for item in outputs.staged.values():
+            _discard(item)
+        _remove_created(outputs)
+        raise
 
 
 def _sync_folder(folder: Path) -> None:
@@ -114,11 +330,14 @@ def atomic_files(
     targets = [Path(p) for p in paths]
     if len(set(targets)) != len(targets):
         raise ValueError(f"duplicate targets in {[str(t) for t in targets]}")
+    outputs = _ACTIVE.get()
     temps: list[str] = []
     try:
         with ExitStack() as stack:
             files: list[IO[Any]] = []
             for t in targets:
+                if outputs is not None:
+                    _make_folder(t.parent if str(t.parent) else Path("."), outputs)
                 fd, tmp = _make_temp(t)
                 temps.append(tmp)
                 f: IO[Any]
@@ -127,18 +346,29 @@ def atomic_files(
                 else:
                     f = os.fdopen(fd, "w", encoding=encoding or "utf-8", newline="")
                 files.append(stack.enter_context(f))
-            yield files
-            for f in files:
-                f.flush()
-                os.fsync(f.fileno())
+            try:
+                yield files
+                for f in files:
+                    f.flush()
+                    os.fsync(f.fileno())
+            except BaseException as exc:
+                named = _named(exc, targets)
+                if named is exc:
+                    raise
+                raise named from None
+        if outputs is not None:
+            for tmp, t in zip(temps, targets, strict=True):
+                outputs._stage(_Staged(Path(tmp), t))
+            return
         for tmp, t in zip(temps, targets, strict=True):
             os.replace(tmp, t)
         for folder in {t.parent for t in targets}:
             _sync_folder(folder)
     except BaseException:
         for tmp in temps:
-            with suppress(OSError):
-                os.unlink(tmp)
+            if outputs is None or Path(tmp) not in {i.tmp for i in outputs.staged.values()}:
+                with suppress(OSError):
+                    os.unlink(tmp)
         raise
 
 
@@ -208,19 +438,34 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     'x,y'
     """
     target = Path(path)
+    outputs = _ACTIVE.get()
+    if outputs is not None:
+        _make_folder(target.parent if str(target.parent) else Path("."), outputs)
     try:
         workdir = Path(
             tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
         )
     except OSError as exc:
         raise _naming(exc, target) from None
+    staged = False
     try:
         tmp = workdir / target.name
-        yield tmp
+        try:
+            yield tmp
+        except BaseException as exc:
+            named = _named(exc, [target])
+            if named is exc:
+                raise
+            raise named from None
         if not tmp.exists():
             raise FileNotFoundError(f"cannot write {target}: the writer created no file")
         _sync_tree(tmp)
+        if outputs is not None:
+            outputs._stage(_Staged(tmp, target, workdir))
+            staged = True
+            return
         os.replace(tmp, target)
         _sync_folder(target.parent)
     finally:
-        shutil.rmtree(workdir, ignore_errors=True)
+        if not staged:
+            shutil.rmtree(workdir, ignore_errors=True)

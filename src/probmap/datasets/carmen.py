@@ -15,6 +15,13 @@ A CARMEN log holds one message per line, fields separated by whitespace::
 ``FLASER``/``RLASER`` the ``x y theta`` fields are the **laser** pose and ``odom_*`` the **robot**
 pose, both in the log's world frame (raw odometry in a raw log, SLAM estimates in a corrected log).
 
+Readings are classified as every reader does (:mod:`probmap.datasets.validate`): "no return"
+is a reading at or beyond the maximum range (81.83-81.91 m in the SICK logs) or ``+inf``; zero,
+negative, ``-inf`` and NaN readings are invalid, dropped and counted by :func:`load_scans`.
+Poses beyond :class:`~probmap.datasets.validate.PoseLimits` (a coordinate beyond 100 km, a jump
+of more than 10 m + 20 m/s between two messages of one type) make a bad line, as a malformed
+field does.
+
 The reader streams: the file is decompressed and parsed line by line, so memory stays at the size
 of the records kept by the caller. Compression is detected from the file's magic bytes, not its
 name.
@@ -38,12 +45,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from probmap.datasets.records import LaserScan, Odometry, ScanBatch
+from probmap.datasets.validate import PoseLimits, PoseTracker, validate_ranges
 from probmap.errors import BadLinesWarning, DatasetError
 
 __all__ = [
     "DEFAULT_MAX_RANGE",
     "BadLinesWarning",
     "CarmenLog",
+    "PoseLimits",
     "default_angle_step",
     "detect_compression",
     "load_scans",
@@ -241,6 +250,11 @@ class CarmenLog:
     skip_bad_lines : bool
         Skip malformed lines, count them in :attr:`skipped_lines` and warn once per pass
         (:class:`BadLinesWarning`), instead of raising :class:`DatasetError`.
+    pose_limits : PoseLimits or None
+        Physical limits on the logged poses (coordinates, and the increment from the previous
+        pose of the same message type and pose field); a pose beyond them makes a bad line
+        (see :mod:`probmap.datasets.validate`). None: the generous defaults of
+        :class:`PoseLimits`.
 
     Notes
     -----
@@ -265,6 +279,7 @@ class CarmenLog:
         angle_step: float | None = None,
         max_range: float | None = None,
         skip_bad_lines: bool = False,
+        pose_limits: PoseLimits | None = None,
     ) -> None:
         self.path = Path(path)
         if not self.path.is_file():
@@ -281,6 +296,9 @@ class CarmenLog:
         self.angle_step = None if angle_step is None else float(angle_step)
         self.max_range = None if max_range is None else float(max_range)
         self.skip_bad_lines = bool(skip_bad_lines)
+        if pose_limits is not None and not isinstance(pose_limits, PoseLimits):
+            raise TypeError(f"pose_limits must be a PoseLimits, got {type(pose_limits).__name__}")
+        self.pose_limits = pose_limits if pose_limits is not None else PoseLimits()
         self.name = _dataset_name(self.path)
         self._angles: dict[tuple[int, float, float], NDArray[np.float64]] = {}
         self._done: _PassState | None = None
@@ -343,6 +361,7 @@ class CarmenLog:
 
     def _read(self, *, scans: bool, odometry: bool) -> Iterator[LaserScan | Odometry]:
         state = _PassState(params={} if self._share is None else dict(self._share[2]))
+        tracker = PoseTracker(self.pose_limits)
         for lineno, line in self._lines():
             fields = line.split()
             if not fields:
@@ -354,17 +373,19 @@ class CarmenLog:
             try:
                 if kind == "FLASER" or kind == "RLASER":
                     scan = self._parse_flaser(fields, lineno, state.params)
+                    _check_poses(tracker, kind, scan.time, scan, _POSE_FIELDS)
                     state.scans += 1
                     if scans:
                         yield scan
                 elif kind == "ODOM":
                     # validated in every pass, built only when asked for
-                    odo = self._parse_odom(fields, lineno, odometry)
+                    odo = self._parse_odom(fields, lineno, odometry, tracker)
                     state.odometry += 1
                     if odo is not None:
                         yield odo
                 elif kind == "ROBOTLASER1":
                     scan = self._parse_robotlaser(fields, lineno)
+                    _check_poses(tracker, kind, scan.time, scan, _RL1_POSE_FIELDS)
                     state.scans += 1
                     if scans:
                         yield scan
@@ -447,6 +468,11 @@ class CarmenLog:
         res = _float_field(f, 4, "angular_resolution")
         if not (math.isfinite(start) and math.isfinite(res)):
             raise _LineError("start_angle and angular_resolution must be finite", "start_angle")
+        if res == 0.0 and n > 1:
+            raise _LineError(
+                f"must not be 0 with {n} readings (every beam would lie on one ray)",
+                "angular_resolution",
+            )
         msg_max = _float_field(f, 5, "maximum_range")
         ranges = _float_fields(f, 9, 9 + n, _names(n, ()))
         k = 10 + n + n_rem
@@ -473,7 +499,9 @@ class CarmenLog:
         )
 
     @staticmethod
-    def _parse_odom(f: list[str], lineno: int, build: bool) -> Odometry | None:
+    def _parse_odom(
+        f: list[str], lineno: int, build: bool, tracker: PoseTracker | None = None
+    ) -> Odometry | None:
         if len(f) != 10:
             _check_count(f, 10, "ODOM")
         try:
@@ -488,6 +516,11 @@ class CarmenLog:
             raise  # pragma: no cover
         if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(th)):
             _check_finite([x, y, th], f, 1, _ODOM_FIELDS)
+        if tracker is not None:
+            bad = tracker.check("ODOM", ipc, x, y, th)
+            if bad is not None:
+                raise _LineError(bad[1], _ODOM_FIELDS[bad[0]])
+            tracker.accept("ODOM", ipc, x, y, th)
         if not build:
             return None
         return Odometry(ipc, np.array((x, y, th)), tv, rv, logger, lineno)
@@ -502,6 +535,22 @@ class CarmenLog:
             if not math.isfinite(x) or (name.endswith("_max") and x <= 0.0):
                 raise _LineError(f"expected a positive finite number, got {f[2]!r}", name)
         params[name] = f[2]
+
+
+def _check_poses(
+    tracker: PoseTracker, kind: str, time: float, scan: LaserScan, names: Sequence[str]
+) -> None:
+    """Both poses of a laser line against :class:`PoseLimits` (a bad line if either fails);
+    the tracker records them only when both pass."""
+    lp, rp = scan.laser_pose, scan.robot_pose
+    laser = (float(lp[0]), float(lp[1]), float(lp[2]))
+    robot = (float(rp[0]), float(rp[1]), float(rp[2]))
+    for k, pose in ((0, laser), (3, robot)):
+        bad = tracker.check(f"{kind} {names[k]}", time, *pose)
+        if bad is not None:
+            raise _LineError(bad[1], names[k + bad[0]])
+    tracker.accept(f"{kind} {names[0]}", time, *laser)
+    tracker.accept(f"{kind} {names[3]}", time, *robot)
 
 
 def _dataset_name(path: Path) -> str:
@@ -525,6 +574,7 @@ def load_scans(
     skip_bad_lines: bool = False,
     sources: Sequence[str] = ("FLASER", "ROBOTLASER1"),
     dtype: type[np.floating] = np.float64,
+    pose_limits: PoseLimits | None = None,
 ) -> ScanBatch:
     """Read every front-laser scan of a CARMEN log into stacked arrays (for batch mapping).
 
@@ -537,7 +587,7 @@ def load_scans(
         a corrected log). ``"odometry"``: the robot pose fields (``odom_*``) composed with the
         laser mounting offset, ``laser = robot (+) (d, 0, 0)`` where ``d`` is PARAM
         ``robot_frontlaser_offset`` in metres along the robot's x axis (0 when absent).
-    start_angle, angle_step, max_range, skip_bad_lines
+    start_angle, angle_step, max_range, skip_bad_lines, pose_limits
         As for :class:`CarmenLog`.
     sources : sequence of str
         Message types to keep. Default: the front laser (``FLASER``, ``ROBOTLASER1``).
@@ -547,7 +597,9 @@ def load_scans(
     Returns
     -------
     ScanBatch
-        ``ranges`` (S, B); ``angles`` (B,) when all scans share one beam geometry, else (S, B).
+        ``ranges`` (S, B), validated (:func:`probmap.datasets.validate.validate_ranges`: NaN for
+        zero and invalid readings, the maximum range for ``+inf``) and counted in ``readings``;
+        ``angles`` (B,) when all scans share one beam geometry, else (S, B).
         ``max_range`` is the smallest of the scans' maximum ranges.
 
     Raises
@@ -562,6 +614,7 @@ def load_scans(
         angle_step=angle_step,
         max_range=max_range,
         skip_bad_lines=skip_bad_lines,
+        pose_limits=pose_limits,
     )
     batch = _stack(log, poses, sources, dtype, None)
     if batch is None:
@@ -634,15 +687,18 @@ def _stack(
         laser_poses = np.column_stack(
             (robot_poses[:, 0] + d * np.cos(th), robot_poses[:, 1] + d * np.sin(th), th)
         )
+    max_range = float(min(max_ranges))
+    ranges, report = validate_ranges(ranges, max_range, beams=beams)
     return ScanBatch(
         times=np.array(times, dtype=np.float64),
         ranges=ranges,
         angles=angles,
         laser_poses=laser_poses,
         robot_poses=robot_poses,
-        max_range=float(min(max_ranges)),
+        max_range=max_range,
         beams=beams,
         skipped_lines=log.skipped_lines,
+        readings=report,
     )
 
 
@@ -722,6 +778,7 @@ def load_share(
     skip_bad_lines: bool = False,
     sources: Sequence[str] = ("FLASER", "ROBOTLASER1"),
     dtype: type[np.floating] = np.float64,
+    pose_limits: PoseLimits | None = None,
 ) -> ScanBatch | None:
     """The scans of one share of a log, as :func:`load_scans` reads them from the whole log
     (same records, line numbers in errors, PARAM context); None when the share has none."""
@@ -732,6 +789,7 @@ def load_share(
         angle_step=angle_step,
         max_range=max_range,
         skip_bad_lines=skip_bad_lines,
+        pose_limits=pose_limits,
     )
     log._share = (share.text, share.first_line, share.params_before)
     return _stack(log, poses, sources, dtype, share.params_all)

@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from probmap._typing import FloatArray
+from probmap.datasets.validate import ReadingReport
 
 __all__ = ["LaserScan", "Odometry", "ScanBatch"]
 
@@ -106,7 +107,9 @@ class ScanBatch:
     times : ndarray, shape (S,), float64
         Scan timestamps in seconds.
     ranges : ndarray, shape (S, B), float64 or float32
-        Ranges in metres. When beam counts differ, rows are padded with NaN on the right
+        Ranges in metres, validated by :func:`probmap.datasets.validate.validate_ranges`: NaN
+        for zero and invalid readings (NaN, -inf, negative), ``+inf`` replaced by the maximum
+        range ("no return"). When beam counts differ, rows are padded with NaN on the right
         (NaN beams are dropped by the mapper) and ``beams`` holds each scan's true count.
     angles : ndarray, shape (B,) or (S, B), float64
         Beam angles in the laser frame: (B,) when every scan shares one geometry, otherwise
@@ -122,6 +125,9 @@ class ScanBatch:
         Number of real beams in each row of ``ranges``.
     skipped_lines : int
         Malformed lines skipped while reading (with ``skip_bad_lines=True``).
+    readings : ReadingReport or None
+        How the readings were classified (usable, no return, zero, invalid; beam counts);
+        None for a batch built by hand.
     """
 
     times: FloatArray
@@ -132,6 +138,7 @@ class ScanBatch:
     max_range: float
     beams: NDArray[np.int64]
     skipped_lines: int = 0
+    readings: ReadingReport | None = None
 
     def __len__(self) -> int:
         return int(self.times.shape[0])

@@ -10,8 +10,10 @@ What is read
 ------------
 - ``sensor_msgs/LaserScan`` and ``sensor_msgs/MultiEchoLaserScan`` (one echo, the first by
   default). Beam ``i`` lies at ``angle_min + i * angle_increment`` in the message's frame.
-  Readings below ``range_min`` (and NaN, -Inf) become NaN, which the mapper drops; readings at
-  or above ``range_max`` (and +Inf) become ``range_max``, the "no return" of the CARMEN records.
+  Readings below ``range_min`` (zero, negative, NaN and -Inf among them) are invalid and become
+  NaN, which every command drops; readings at or above ``range_max`` (and +Inf) are "no return"
+  and become ``range_max``, as in the CARMEN records. :func:`load_bag_scans` counts them in the
+  batch's ``readings`` (:mod:`probmap.datasets.validate`).
 - ``nav_msgs/Odometry``: its pose is a transform from ``header.frame_id`` (e.g. ``odom``) to
   ``child_frame_id`` (e.g. ``base_link``).
 - ``tf`` and ``tf_static`` (``tf2_msgs/TFMessage``): the transform tree. A scan's pose is the
@@ -40,6 +42,7 @@ from numpy.typing import NDArray
 from probmap._atomic import atomic_path
 from probmap._typing import FloatArray
 from probmap.datasets.records import LaserScan, Odometry, ScanBatch
+from probmap.datasets.validate import ReadingReport, validate_ranges
 from probmap.errors import BagError
 
 __all__ = [
@@ -564,10 +567,20 @@ def _ros1_multiecho(raw: bytes | memoryview, echo: int) -> tuple[float, str, Any
 
 def _clean_ranges(r: FloatArray, rmin: float, rmax: float) -> FloatArray:
     """NaN below ``range_min`` (and -Inf); ``range_max`` at or above it (and +Inf)."""
+    return _validated_ranges(r, rmin, rmax)[0]
+
+
+def _validated_ranges(r: FloatArray, rmin: float, rmax: float) -> tuple[FloatArray, ReadingReport]:
+    """:func:`_clean_ranges` and the classification of the raw readings (positive readings
+    below ``range_min`` count as invalid, like NaN)."""
     r = np.asarray(r, dtype=np.float64)
-    out = np.where(r >= rmax, rmax, r)
-    out[~(r >= rmin)] = np.nan  # catches NaN too
-    return out
+    with np.errstate(invalid="ignore"):
+        below = (r > 0) & (r < rmin)
+    _, report = validate_ranges(np.where(below, np.nan, r), rmax)
+    with np.errstate(invalid="ignore"):
+        out = np.where(r >= rmax, rmax, r)
+        out[~(r >= rmin) | (r <= 0)] = np.nan  # catches NaN too
+    return out, report
 
 
 @dataclass(frozen=True)
@@ -580,6 +593,7 @@ class _RawScan:
     max_range: float
     source: str
     index: int
+    report: ReadingReport | None = None
 
 
 class RosBag:
@@ -732,15 +746,17 @@ class RosBag:
                 a = amin + ainc * np.arange(len(r), dtype=np.float64)
                 a.flags.writeable = False
                 angle_cache[key] = a
+            cleaned, report = _validated_ranges(r, rmin, rmax)
             yield _RawScan(
                 stamp,
                 ts * _NS - start,
                 self.laser_frame or frame.lstrip("/"),
                 a,
-                _clean_ranges(r, rmin, rmax),
+                cleaned,
                 rmax,
                 conn.msgtype.rsplit("/", 1)[-1],
                 index,
+                report,
             )
 
     def _odometry(self, reader: Any, conns: Sequence[Any]) -> Iterator[tuple[Odometry, str, str]]:
@@ -992,7 +1008,11 @@ class RosBag:
         laser: list[FloatArray] = []
         robot: list[FloatArray] = []
         max_ranges: list[float] = []
+        report = ReadingReport()
         for scans, lp, rp in self._scan_chunks():
+            for s in scans:
+                if s.report is not None:
+                    report = report + s.report
             times.append(np.array([s.time for s in scans]))
             rows += [s.ranges for s in scans]
             angle_rows += [s.angles for s in scans]
@@ -1027,6 +1047,7 @@ class RosBag:
             robot_poses=np.concatenate(robot),
             max_range=float(min(max_ranges)),
             beams=beams,
+            readings=report,
         )
 
 

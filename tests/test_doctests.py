@@ -25,12 +25,13 @@ MIN_EXAMPLES = {
     "probmap.filters.resampling": 1,
     "probmap.grid.fit": 1,
     "probmap.grid.logodds": 1,
-    "probmap.grid.map_mapping": 1,
     "probmap.grid.occupancy": 1,
     "probmap.grid.raycast": 1,
     "probmap.grid.semantic": 1,
     "probmap.grid.semantic_io": 1,
     "probmap.grid.spec": 1,
+    "probmap.mapping.map_mapping": 1,
+    "probmap.models.beam": 1,
     "probmap.slam.posegraph": 1,
 }
 

@@ -176,21 +176,95 @@ def test_layer_rule_catches_every_form(tmp_path):
         assert len(layer_violations(path, source)) == n, source
 
 
+#: Where a one-release shim may forward a name: the packages of the target layout that receive
+#: code (the core, the pipelines, the metrics), never the upper readers, CLI or plots.
+SHIM_HOMES = (*CORE, "pipelines", "metrics")
+
+
+def _shim_table(node: ast.expr) -> dict[str, str]:
+    """``{name: new module}`` of the second argument of a ``moved()`` call, read from the source:
+    a dict literal (``**`` spreads included) and ``dict.fromkeys([names], "module")``."""
+    if isinstance(node, ast.Dict):
+        table: dict[str, str] = {}
+        for key, value in zip(node.keys, node.values, strict=True):
+            if key is None:
+                table.update(_shim_table(value))
+            else:
+                table[ast.literal_eval(key)] = ast.literal_eval(value)
+        return table
+    if isinstance(node, ast.Call) and ast.unparse(node.func) == "dict.fromkeys":
+        names, home = (ast.literal_eval(a) for a in node.args)
+        return dict.fromkeys(names, home)
+    raise AssertionError(f"cannot read the shim table {ast.unparse(node)!r}")
+
+
+def shim_tables() -> dict[str, dict[str, str]]:
+    """``{old module: {name: new module}}`` for every ``moved()`` shim in the package."""
+    found: dict[str, dict[str, str]] = {}
+    for path in sorted(SRC.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "moved":
+                found.setdefault(_module_of(path), {}).update(_shim_table(node.args[1]))
+    return found
+
+
+def _module_path(module: str) -> Path | None:
+    base = SRC.parent / module.replace(".", "/")
+    for candidate in (base.with_suffix(".py"), base / "__init__.py"):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def _top_level_names(path: Path) -> set[str]:
+    """Names a module defines or imports at its top level (not through ``__getattr__``)."""
+    names: set[str] = set()
+    for node in ast.parse(path.read_text(encoding="utf-8")).body:
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+            names.add(node.name)
+        elif isinstance(node, ast.Assign | ast.AnnAssign):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            names.update(t.id for t in targets if isinstance(t, ast.Name))
+        elif isinstance(node, ast.ImportFrom | ast.Import):
+            names.update((a.asname or a.name).split(".")[0] for a in node.names)
+    return names
+
+
 def test_shims_point_at_modules_that_exist():
-    """Every ``moved()`` shim in the core names modules that exist under ``probmap.pipelines``."""
-    targets = set()
-    for path in _core_files():
-        tree = ast.parse(path.read_text(encoding="utf-8"))
-        shim = _shim_targets(tree)
-        targets |= {
-            c.value
-            for c in ast.walk(tree)
-            if isinstance(c, ast.Constant) and id(c) in shim and str(c.value).startswith("probmap.")
-        }
-    assert targets, "no shims found (the check would be vacuous)"
-    for t in sorted(targets):
-        assert t.startswith("probmap.pipelines."), t
-        assert (SRC.parent / (t.replace(".", "/") + ".py")).is_file(), t
+    """Every ``moved()`` shim forwards each name to another module of the target layout that
+    exists and defines that name itself (not through a shim of its own)."""
+    tables = shim_tables()
+    assert {"probmap.grid.fit", "probmap.filters.localize"} <= set(tables), sorted(tables)
+    for old, table in sorted(tables.items()):
+        assert table, f"{old}: an empty shim"
+        for name, new in sorted(table.items()):
+            where = f"{old}.{name} -> {new}"
+            assert new != old and new.split(".")[0] == "probmap", where
+            assert new.split(".")[1] in SHIM_HOMES, where
+            path = _module_path(new)
+            assert path is not None, f"{where}: no such module"
+            assert name in _top_level_names(path), f"{where}: the new module does not define it"
+
+
+def test_shim_reader_reads_every_form():
+    """The shim reader on the three forms the package uses, so that the check cannot pass by
+    reading nothing."""
+    calls = {
+        "moved(__name__, {'fit_log': 'probmap.pipelines.fit'})": {
+            "fit_log": "probmap.pipelines.fit"
+        },
+        "moved(__name__, dict.fromkeys(['a', 'b'], 'probmap.sim.floorplan'))": {
+            "a": "probmap.sim.floorplan",
+            "b": "probmap.sim.floorplan",
+        },
+        "moved(__name__, {**dict.fromkeys(['a'], 'probmap.x'), 'b': 'probmap.y'})": {
+            "a": "probmap.x",
+            "b": "probmap.y",
+        },
+    }
+    for source, table in calls.items():
+        call = ast.parse(source).body[0].value  # type: ignore[attr-defined]
+        assert _shim_table(call.args[1]) == table, source
 
 
 # ----------------------------------------------------------------- module cycles
@@ -213,7 +287,7 @@ def module_graph() -> dict[str, set[str]]:
     ("a", "b"),
     [
         ("probmap.cli.mapping", "probmap.cli.distributed"),
-        ("probmap.grid.map_mapping", "probmap.grid.sonar"),
+        ("probmap.mapping.map_mapping", "probmap.mapping.sonar"),
     ],
 )
 def test_named_module_cycles_are_broken(a, b):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from probmap.grid.fit import _lambda_step, component_densities, fit_beam_model
-from probmap.grid.map_mapping import BeamModelParams
+from probmap.models.beam import BeamModelParams
 
 
 def sample_beam_model(p: BeamModelParams, zs: np.ndarray, zmax: float, seed: int) -> np.ndarray:

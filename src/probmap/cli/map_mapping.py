@@ -31,7 +31,7 @@ def run_map_method(
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from probmap.grid.map_mapping import MapMappingConfig, SweepRecord
+    from probmap.mapping.map_mapping import MapMappingConfig, SweepRecord
     from probmap.pipelines import check_output_prefix, map_log_map, write_map
 
     if not log.exists():

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from probmap._deprecation import moved
-from probmap.grid.map_mapping import BeamModelParams
+from probmap.models.beam import BeamModelParams
 
 __all__ = ["FitResult", "component_densities", "fit_beam_model"]
 

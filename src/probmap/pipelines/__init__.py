@@ -17,7 +17,7 @@ import numpy as np
 from probmap.grid.occupancy import InverseSensorModel, OccupancyGrid, ScanStats
 
 if TYPE_CHECKING:
-    from probmap.grid.map_mapping import MapMappingConfig, SweepRecord
+    from probmap.mapping.map_mapping import MapMappingConfig, SweepRecord
 
 
 @dataclass(frozen=True)
@@ -232,7 +232,7 @@ def map_log_map(
 
     from probmap.datasets.carmen import load_scans
     from probmap.grid.logodds import logit
-    from probmap.grid.map_mapping import MapMappingConfig, map_mapping
+    from probmap.mapping.map_mapping import MapMappingConfig, map_mapping
 
     cfg = config or MappingConfig(resolution=0.1)
     mcfg = replace(map_config or MapMappingConfig(), resolution=cfg.resolution)

@@ -13,7 +13,7 @@ import numpy as np
 
 from probmap.datasets.carmen import load_scans
 from probmap.grid.fit import FitResult, fit_beam_model
-from probmap.grid.map_mapping import BeamModelParams
+from probmap.models.beam import BeamModelParams
 
 __all__ = ["fit_log"]
 

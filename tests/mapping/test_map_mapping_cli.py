@@ -40,7 +40,7 @@ def _write_room_log(path: Path, n_scans: int = 30, seed: int = 0) -> None:
 
 
 def test_fit_sensor_model_writes_yaml(tmp_path):
-    from probmap.grid.map_mapping import BeamModelParams
+    from probmap.models.beam import BeamModelParams
     from probmap.pipelines.fit import fit_log
 
     log = tmp_path / "room.clf"

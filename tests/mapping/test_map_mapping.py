@@ -9,17 +9,17 @@ import math
 import numpy as np
 import pytest
 
-from probmap.grid import _map_kernels as _k
-from probmap.grid.map_mapping import (
+from probmap.grid.raycast import cast_rays
+from probmap.grid.spec import GridSpec
+from probmap.mapping import _map_kernels as _k
+from probmap.mapping.map_mapping import (
     BeamIndex,
-    BeamModelParams,
     MapMapper,
     MapMappingConfig,
     cone_offsets,
     map_mapping,
 )
-from probmap.grid.raycast import cast_rays
-from probmap.grid.spec import GridSpec
+from probmap.models.beam import BeamModelParams
 
 # ----------------------------------------------------------------------------- references
 
@@ -277,7 +277,7 @@ def test_objective_stays_finite_by_construction():
 
 def test_open_door_with_sonar_beats_log_odds():
     """Probabilistic Robotics 9.4: a wide cone in a corridor with an open door."""
-    from probmap.grid.sonar import cone_log_odds_grid, corridor_with_door
+    from probmap.mapping.sonar import cone_log_odds_grid, corridor_with_door
 
     w = corridor_with_door(step=0.2)
     cfg = MapMappingConfig(
@@ -419,7 +419,7 @@ def test_intel_corrected_converges(shared_data):
 def test_cone_reading_is_nearest_subray_to_a_wall(tilt):
     """A wall at x = 3 m: each sub-ray at angle a from the normal reads 3 / cos(a) (minus the
     sensor's x); the cone reads the smallest."""
-    from probmap.grid.sonar import simulate_cone_ranges
+    from probmap.mapping.sonar import simulate_cone_ranges
 
     spec = GridSpec(0.05, (-1.0, -5.0), (200, 120))
     occ = np.zeros(spec.shape, bool)

@@ -1,0 +1,1 @@
+"""probmap.mapping: maps from known poses beyond the per-cell filter: MAP mapping, sonar cones."""

@@ -61,6 +61,23 @@ def print_summary(
     (console or Console()).print(table)
 
 
+def readings_row(report: Any) -> tuple[str, str]:
+    """The one summary row every command that reads laser scans prints: how the readings of
+    the log were classified (:class:`probmap.datasets.validate.ReadingReport`)."""
+    return ("readings", report.describe())
+
+
+def input_rows(report: Any, skipped_lines: int = 0) -> list[tuple[str, str]]:
+    """:func:`readings_row` (when there is a report) and the skipped bad lines (when any): the
+    input part of every laser command's summary."""
+    rows = [] if report is None else [readings_row(report)]
+    if report is not None:
+        skipped_lines = max(skipped_lines, int(report.skipped_lines))
+    if skipped_lines:
+        rows.append(("skipped bad lines", f"{skipped_lines:,}"))
+    return rows
+
+
 def mapping_rows(result: Any) -> list[tuple[str, str]]:
     """The summary rows of a :class:`~probmap.pipelines.MappingResult` (``probmap map``, local or
     distributed): scans, beams, cells, map size, time, skipped lines, files written."""
@@ -72,6 +89,7 @@ def mapping_rows(result: Any) -> list[tuple[str, str]]:
             "beams",
             f"{s.beams:,} ({s.hits:,} hits, {s.max_range:,} max-range, {s.dropped:,} dropped)",
         ),
+        *input_rows(getattr(result, "readings", None), result.skipped_lines),
         ("cells updated", f"{s.cell_updates:,}"),
         (
             "map size",
@@ -86,8 +104,6 @@ def mapping_rows(result: Any) -> list[tuple[str, str]]:
             f"write {result.write_seconds:.2f})",
         ),
     ]
-    if result.skipped_lines:
-        rows.append(("skipped bad lines", f"{result.skipped_lines:,}"))
     for f in result.files:
         rows.append(("wrote", str(f)))
     return rows

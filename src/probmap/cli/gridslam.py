@@ -7,14 +7,20 @@ from typing import Any
 
 import typer
 
-from probmap.cli.common import cli_errors, print_summary
+from probmap.cli.common import cli_errors, input_rows, print_summary
 from probmap.cli.slam import slam_app
 
 
 @slam_app.command("grid")
 def grid_command(
     log: Path = typer.Argument(..., help="A raw CARMEN log (plain, .gz or .bz2) or a ROS bag."),
-    output: Path = typer.Option(..., "-o", "--output", help="Output prefix (PREFIX.yaml, ...)."),
+    output: str = typer.Option(
+        ...,
+        "-o",
+        "--output",
+        help="Output prefix (PREFIX.yaml, ...); an existing folder (or a name ending in /) "
+        "writes FOLDER/slam.*. Missing folders are created.",
+    ),
     method: str = typer.Option(
         "graph",
         "--method",
@@ -61,6 +67,11 @@ def grid_command(
         "--guard/--no-guard",
         help="rbpf: keep the odometry along featureless corridors [default: guard].",
     ),
+    skip_bad_lines: bool = typer.Option(
+        False,
+        "--skip-bad-lines",
+        help="Skip and count malformed or physically implausible log lines instead of failing.",
+    ),
 ) -> None:
     """Grid SLAM from a raw log or ROS bag: writes the map (PREFIX.yaml/.pgm/.npz/.png, as
     'probmap map'), PREFIX.trajectory.csv (robot pose at every scan time) and, for the graph
@@ -71,6 +82,9 @@ def grid_command(
             raise ValueError(f"--method must be 'graph' or 'rbpf', got {method!r}")
         if not log.exists():
             raise FileNotFoundError(f"{log}: no such file")
+        from probmap.pipelines import check_output_prefix
+
+        prefix = check_output_prefix(output, "slam")
         bag_options = {
             "scan_topic": scan_topic,
             "odom_topic": odom_topic,
@@ -85,11 +99,11 @@ def grid_command(
             "degeneracy_guard": guard,
         }
         if method == "graph":
-            _graph(log, output, end_time, bag_options, config)
+            _graph(log, prefix, end_time, bag_options, config, skip_bad_lines=skip_bad_lines)
         else:
             if any(v is not None for v in bag_options.values()):
                 raise ValueError("--method rbpf reads CARMEN logs only (no bag options)")
-            _rbpf(log, output, rbpf_options, end_time, config)
+            _rbpf(log, prefix, rbpf_options, end_time, config, skip_bad_lines=skip_bad_lines)
 
 
 def _resolve(cls: type, path: Path | None, overrides: dict | None = None) -> Any:
@@ -104,12 +118,20 @@ def _resolve(cls: type, path: Path | None, overrides: dict | None = None) -> Any
 
 
 def _graph(
-    log: Path, output: Path, end_time: float | None, bag_options: dict, config: Path | None
+    log: Path,
+    output: Path,
+    end_time: float | None,
+    bag_options: dict,
+    config: Path | None,
+    *,
+    skip_bad_lines: bool = False,
 ) -> None:
     import resource
+    import warnings
 
     from rich.progress import Progress
 
+    from probmap._atomic import atomic_outputs
     from probmap.config import write_config
     from probmap.pipelines import check_output_prefix
     from probmap.pipelines.grid_slam import load_laser_log, run_graph_slam, write_graph_slam
@@ -117,22 +139,30 @@ def _graph(
 
     cfg = _resolve(GraphSlamConfig, config)
     prefix = check_output_prefix(output)
-    with Progress(transient=True) as bar:
+    from probmap.errors import BadLinesWarning
+
+    with Progress(transient=True) as bar, warnings.catch_warnings():
+        # the summary reports skipped lines; no Python warning text on the terminal
+        warnings.simplefilter("ignore", BadLinesWarning)
         task = bar.add_task(f"reading {log.name}", total=None)
-        batch = load_laser_log(log, end_time=end_time, bag_options=bag_options)
+        batch = load_laser_log(
+            log, end_time=end_time, bag_options=bag_options, skip_bad_lines=skip_bad_lines
+        )
         bar.update(task, description=f"graph SLAM {log.name}")
 
         def tick(done: int, total: int) -> None:
             bar.update(task, completed=done, total=total)
 
         run = run_graph_slam(batch, cfg, progress=tick)
-    files = write_graph_slam(prefix, run)
-    files.append(write_config(f"{prefix}.config.yaml", cfg))
+    with atomic_outputs():  # every file or none
+        files = write_graph_slam(prefix, run)
+        files.append(write_config(f"{prefix}.config.yaml", cfg))
     spec = run.grid.spec
     weights = run.closure_weights
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
     rows = [
         ("scans", f"{len(run.times):,}"),
+        *input_rows(batch.readings, batch.skipped_lines),
         ("nodes", f"{run.nodes:,}"),
         ("submaps", f"{run.submaps:,}"),
         (
@@ -155,12 +185,19 @@ def _graph(
 
 
 def _rbpf(
-    log: Path, output: Path, options: dict, end_time: float | None, config: Path | None
+    log: Path,
+    output: Path,
+    options: dict,
+    end_time: float | None,
+    config: Path | None,
+    *,
+    skip_bad_lines: bool = False,
 ) -> None:
     import warnings
 
     from rich.progress import Progress
 
+    from probmap._atomic import atomic_outputs
     from probmap.config import write_config
     from probmap.grid.io import save_map
     from probmap.pipelines import check_output_prefix
@@ -176,16 +213,29 @@ def _rbpf(
         def tick(done: int, total: int) -> None:
             bar.update(task, completed=done, total=total)
 
-        result = slam_log(log, cfg, end_time=end_time, progress=tick)
+        reports: list = []
+        result = slam_log(
+            log,
+            cfg,
+            end_time=end_time,
+            progress=tick,
+            skip_bad_lines=skip_bad_lines,
+            readings=reports.append,
+        )
+    from probmap.errors import BadLinesWarning
+
     for w in caught:
-        typer.echo(f"warning: {w.message}", err=True)
-    files = save_map(prefix, result.grid)
-    traj = write_trajectory(f"{prefix}.trajectory.csv", result.times, result.poses)
-    written = write_config(f"{prefix}.config.yaml", cfg)
+        if not issubclass(w.category, BadLinesWarning):  # counted in the summary
+            typer.echo(f"warning: {w.message}", err=True)
+    with atomic_outputs():  # every file or none; a missing folder is created
+        files = save_map(prefix, result.grid)
+        traj = write_trajectory(f"{prefix}.trajectory.csv", result.times, result.poses)
+        written = write_config(f"{prefix}.config.yaml", cfg)
     duration = float(result.times[-1] - result.times[0])
     spec = result.grid.spec
     rows = [
         ("scans", f"{len(result.times):,} ({result.processed:,} processed)"),
+        *input_rows(reports[0] if reports else None),
         ("particles", f"{cfg.particles} ({result.resamples} resamplings)"),
         ("failed matches", f"{result.failed_matches:,}"),
         ("map", f"{spec.width} x {spec.height} cells at {spec.resolution:g} m"),
@@ -207,6 +257,11 @@ def match_command(
     window: float = typer.Option(0.3, "--window", help="Search half-width in x and y (m)."),
     angular_window: float = typer.Option(
         0.2, "--angular-window", help="Search half-width in heading (rad)."
+    ),
+    skip_bad_lines: bool = typer.Option(
+        False,
+        "--skip-bad-lines",
+        help="Skip and count malformed or physically implausible log lines instead of failing.",
     ),
 ) -> None:
     """Match one scan of a log against a map: prints the pose, its standard deviations and
@@ -233,10 +288,23 @@ def match_command(
             field = MatchField.from_occupied(occ, m.spec, sigma)
         else:
             raise ValueError(f"{map_file}: expected a .npz or map_server .yaml map")
-        batch = load_scans(log, poses="corrected")
+        import warnings
+
+        from probmap.datasets.validate import require_usable, validate_ranges
+        from probmap.errors import BadLinesWarning
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", BadLinesWarning)  # counted in the summary
+            batch = load_scans(log, poses="corrected", skip_bad_lines=skip_bad_lines)
         n = len(batch.times)
         if not 0 <= scan < n:
             raise ValueError(f"--scan must lie in 0..{n - 1} for {log}, got {scan}")
+        if batch.readings is not None:
+            require_usable(batch.readings, log, batch.max_range)
+        _, one = validate_ranges(
+            batch.ranges[scan : scan + 1], batch.max_range, beams=batch.beams[scan : scan + 1]
+        )
+        require_usable(one, f"{log}, scan {scan}", batch.max_range)
         angles = np.asarray(batch.angles)
         angles = angles if angles.ndim == 1 else angles[scan]
         guess = np.asarray(batch.laser_poses[scan], dtype=np.float64).copy()
@@ -257,6 +325,7 @@ def match_command(
                 ),
                 ("std dev", f"x={sd[0]:.4f} m y={sd[1]:.4f} m theta={sd[2]:.5f} rad"),
                 ("score", f"{res.score:.3f} ({res.points} endpoints)"),
+                *input_rows(batch.readings, batch.skipped_lines),
             ],
         )
 

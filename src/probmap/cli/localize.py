@@ -8,7 +8,7 @@ from typing import Any
 import typer
 
 from probmap._atomic import atomic_path
-from probmap.cli.common import CliError, cli_errors, print_summary
+from probmap.cli.common import CliError, cli_errors, input_rows, print_summary
 
 
 def _plot(ax: Any, spec: Any, probability: Any, poses: Any, reference: Any | None) -> None:
@@ -32,7 +32,7 @@ def _plot(ax: Any, spec: Any, probability: Any, poses: Any, reference: Any | Non
     ax.legend(loc="upper right")
 
 
-def _read_reference(path: Path, offset: float) -> tuple[Any, Any]:
+def _read_reference(path: Path, offset: float, skip_bad_lines: bool = False) -> tuple[Any, Any]:
     """Reference (times (M,), poses (M, 3)) from a CSV (time,x,y,theta) or a CARMEN log."""
     import numpy as np
 
@@ -46,14 +46,19 @@ def _read_reference(path: Path, offset: float) -> tuple[Any, Any]:
         return data[:, 0] + offset, data[:, 1:4]
     from probmap.datasets.carmen import load_scans
 
-    ref = load_scans(path)
+    ref = load_scans(path, skip_bad_lines=skip_bad_lines)
     return ref.times + offset, ref.laser_poses
 
 
 def localize_command(
     map_yaml: Path = typer.Argument(..., help="map_server YAML map (e.g. from probmap map)."),
     log: Path = typer.Argument(..., help="Laser log with odometry: CARMEN, plain, .gz or .bz2."),
-    output: Path = typer.Option(..., "-o", "--output", help="Output folder."),
+    output: Path = typer.Option(
+        ...,
+        "-o",
+        "--output",
+        help="Output folder (created when missing): trajectory.csv and trajectory.png.",
+    ),
     particles: int = typer.Option(2000, "--particles", "-n", help="Number of particles."),
     global_: bool = typer.Option(
         False, "--global", help="Global localization: start from particles over free space."
@@ -69,6 +74,11 @@ def localize_command(
     seed: int = typer.Option(0, "--seed", help="Random seed."),
     start: int = typer.Option(0, "--start", help="First scan to use."),
     stop: int | None = typer.Option(None, "--stop", help="Scan to stop before."),
+    skip_bad_lines: bool = typer.Option(
+        False,
+        "--skip-bad-lines",
+        help="Skip and count malformed or physically implausible log lines instead of failing.",
+    ),
 ) -> None:
     """Track (or globally localize) the robot of a laser log on a map with MCL."""
     with cli_errors():
@@ -77,8 +87,10 @@ def localize_command(
         from rich.progress import Progress
         from rich.table import Table
 
+        from probmap._atomic import atomic_outputs
         from probmap.datasets.carmen import load_scans
         from probmap.grid.io import read_map_server
+        from probmap.pipelines import check_output_folder
         from probmap.pipelines.localize import (
             LocalizeConfig,
             localize_scans,
@@ -91,10 +103,18 @@ def localize_command(
         for p in (map_yaml, log):
             if not p.exists():
                 raise FileNotFoundError(f"{p}: no such file")
-        if output.exists() and not output.is_dir():
-            raise CliError(f"{output}: exists and is not a folder")
+        check_output_folder(output)
+        import warnings
+
+        from probmap.datasets.validate import require_usable
+        from probmap.errors import BadLinesWarning
+
         m = read_map_server(map_yaml)
-        batch = load_scans(log, poses="odometry")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", BadLinesWarning)  # counted in the summary
+            batch = load_scans(log, poses="odometry", skip_bad_lines=skip_bad_lines)
+        if batch.readings is not None:
+            require_usable(batch.readings, log, batch.max_range)
         odo = np.asarray(batch.robot_poses)
         if odo.shape[0] < 2 or np.all(odo == odo[0]):
             raise CliError(f"{log}: no odometry (every scan carries the same robot pose)")
@@ -104,7 +124,9 @@ def localize_command(
         ref_t = ref_p = None
         always = None
         if reference is not None:
-            ref_t, ref_p = _read_reference(reference, reference_offset)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", BadLinesWarning)
+                ref_t, ref_p = _read_reference(reference, reference_offset, skip_bad_lines)
             always, _ = match_times(batch.times, ref_t)
             if always.size == 0:
                 raise CliError(
@@ -132,36 +154,37 @@ def localize_command(
                 always_update=always,
                 progress=tick,
             )
-        output.mkdir(parents=True, exist_ok=True)
+        errors = None
+        if ref_t is not None and ref_p is not None:
+            errors = trajectory_errors(run, ref_t, ref_p)
+            if errors[0].size == 0:
+                raise CliError("no update coincides with a reference pose")
         rows = np.column_stack([run.times, run.poses, run.spread])
         traj = output / "trajectory.csv"
-        with atomic_path(traj) as tmp:
-            np.savetxt(
-                tmp, rows, delimiter=",", fmt="%.6f", header="time,x,y,theta,spread", comments=""
-            )
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        fig, ax = plt.subplots(figsize=(8, 8))
-        _plot(ax, m.spec, m.probability, run.poses, ref_p)
         plot = output / "trajectory.png"
-        with atomic_path(plot) as tmp:
-            fig.savefig(tmp, dpi=120, format="png")
-        plt.close(fig)
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(8, 8))
+        _plot(fig.add_subplot(), m.spec, m.probability, run.poses, ref_p)
+        with atomic_outputs():  # both files or neither; a missing folder is created
+            with atomic_path(traj) as tmp:
+                np.savetxt(
+                    tmp, rows, delimiter=",", fmt="%.6f", header="time,x,y,theta,spread",
+                    comments="",
+                )  # fmt: skip
+            with atomic_path(plot) as tmp:
+                fig.savefig(tmp, dpi=120, format="png")
 
         console = Console()
         summary_rows = [
+            *input_rows(batch.readings, batch.skipped_lines),
             ("updates", f"{run.times.size:,}"),
             ("final spread", f"{run.spread[-1]:.3f} m" if run.spread.size else "-"),
             ("wrote", f"{traj}, {plot}"),
         ]
         print_summary(f"probmap localize {log.name}", summary_rows, console=console)
-        if ref_t is not None and ref_p is not None:
-            err, head = trajectory_errors(run, ref_t, ref_p)
-            if err.size == 0:
-                raise CliError("no update coincides with a reference pose")
+        if errors is not None:
+            err, head = errors
             table = Table(title=f"error against {reference.name if reference else ''}")
             for col in ("", "n", "median", "mean", "95th pct", "max"):
                 table.add_column(col, justify="right")

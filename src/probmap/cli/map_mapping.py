@@ -11,7 +11,7 @@ from typing import Any
 
 import typer
 
-from probmap.cli.common import cli_errors, print_summary
+from probmap.cli.common import cli_errors, input_rows, print_summary
 
 
 def run_map_method(
@@ -67,6 +67,7 @@ def run_map_method(
             f"{result.stats.beams:,} ({result.stats.hits:,} windowed, "
             f"{result.stats.max_range:,} max-range, {result.stats.dropped:,} dropped)",
         ),
+        *input_rows(result.readings, result.skipped_lines),
         ("beam-cell dependencies", f"{result.stats.cell_updates:,}"),
         ("map size", f"{spec.width} x {spec.height} cells at {spec.resolution:g} m"),
         (
@@ -89,8 +90,12 @@ def run_map_method(
 
 def fit_sensor_model_command(
     log: Path = typer.Argument(..., help="Laser log: CARMEN .clf/.log, plain, .gz or .bz2."),
-    output: Path | None = typer.Option(
-        None, "-o", "--output", help="Write the fitted parameters to this YAML file."
+    output: str | None = typer.Option(
+        None,
+        "-o",
+        "--output",
+        help="Write the fitted parameters to this YAML file; an existing folder (or a name "
+        "ending in /) gets FOLDER/beam_model.yaml. Missing folders are created.",
     ),
     resolution: float = typer.Option(
         0.05, "--resolution", "-r", help="Cell size (m) of the map the ranges are cast in."
@@ -103,7 +108,9 @@ def fit_sensor_model_command(
         "corrected", "--poses", help="corrected: the scans' laser poses; odometry: odometry."
     ),
     skip_bad_lines: bool = typer.Option(
-        False, "--skip-bad-lines", help="Skip and count malformed log lines."
+        False,
+        "--skip-bad-lines",
+        help="Skip and count malformed or physically implausible log lines instead of failing.",
     ),
 ) -> None:
     """Fit the beam model's parameters to a log by EM (Probabilistic Robotics Table 6.2)."""
@@ -112,36 +119,46 @@ def fit_sensor_model_command(
 
         import yaml
 
-        from probmap._atomic import atomic_write
+        from probmap._atomic import atomic_outputs, atomic_write
+        from probmap.pipelines import check_output_prefix
         from probmap.pipelines.fit import fit_log
 
         if not log.exists():
             raise FileNotFoundError(f"{log}: no such file")
-        if output is not None and not output.parent.resolve().is_dir():
-            raise FileNotFoundError(f"output folder {output.parent} does not exist")
-        fit = fit_log(
-            log,
-            resolution=resolution,
-            every=every,
-            max_range=max_range,
-            poses=poses,
-            skip_bad_lines=skip_bad_lines,
-        )
+        target = None if output is None else check_output_prefix(output, "beam_model.yaml")
+        import warnings
+
+        from probmap.errors import BadLinesWarning
+
+        reports: list = []
+        with warnings.catch_warnings():
+            # the summary reports skipped lines; no Python warning text on the terminal
+            warnings.simplefilter("ignore", BadLinesWarning)
+            fit = fit_log(
+                log,
+                resolution=resolution,
+                every=every,
+                max_range=max_range,
+                poses=poses,
+                skip_bad_lines=skip_bad_lines,
+                readings=reports.append,
+            )
         params = dataclasses.asdict(fit.params)
         rows = [(k, f"{v:.6g}") for k, v in params.items()]
         rows += [
-            ("readings", f"{fit.readings:,}"),
+            *input_rows(reports[0] if reports else None),
+            ("readings fitted", f"{fit.readings:,}"),
             (
                 "mean log-likelihood",
                 f"{fit.log_likelihood[0]:.4f} -> {fit.log_likelihood[-1]:.4f} in "
                 f"{fit.iterations} iterations" + ("" if fit.converged else " (not converged)"),
             ),
         ]
-        if output is not None:
+        if target is not None:
             doc = {"beam_model": {k: float(v) for k, v in params.items()}}
-            with atomic_write(output, "w") as fh:
+            with atomic_outputs(), atomic_write(target, "w") as fh:
                 yaml.safe_dump(doc, fh, sort_keys=False)
-            rows.append(("wrote", str(output)))
+            rows.append(("wrote", str(target)))
         print_summary(f"probmap fit-sensor-model {log.name}", rows)
 
 

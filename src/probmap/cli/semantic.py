@@ -7,7 +7,7 @@ from typing import Any
 
 import typer
 
-from probmap.cli.common import cli_errors, print_summary
+from probmap.cli.common import cli_errors, input_rows, print_summary
 
 
 def print_semantic_demo(summary: dict[str, Any]) -> None:
@@ -41,11 +41,13 @@ def print_semantic_demo(summary: dict[str, Any]) -> None:
 
 def semantic_command(
     scans: Path = typer.Argument(..., help="Labelled scans (.npz: poses, ranges, angles, ...)."),
-    output: Path = typer.Option(
+    output: str = typer.Option(
         ...,
         "-o",
         "--output",
-        help="Output prefix: PREFIX.{npz,png} and PREFIX.occupancy.{yaml,pgm,npz,png}.",
+        help="Output prefix: PREFIX.{npz,png} and PREFIX.occupancy.{yaml,pgm,npz,png}; an "
+        "existing folder (or a name ending in /) writes FOLDER/semantic.*. Missing folders are "
+        "created.",
     ),
     resolution: float = typer.Option(0.05, "--resolution", "-r", help="Cell size in metres."),
     p_hit: float = typer.Option(0.7, "--p-hit", help="p(not free) at a beam's endpoint."),
@@ -64,17 +66,29 @@ def semantic_command(
 
         from rich.progress import Progress
 
+        from probmap._atomic import atomic_outputs
         from probmap.grid.semantic import LabelledInverseModel
         from probmap.grid.semantic_io import read_labelled_scans, write_semantic_maps
+        from probmap.pipelines import check_output_prefix
 
         if not scans.exists():
             raise FileNotFoundError(f"{scans}: no such file")
         if chunk < 1:
             raise ValueError(f"--chunk must be >= 1, got {chunk}")
-        if output.name in ("", ".", "..") or not output.parent.is_dir():
-            raise ValueError(f"output prefix {output}: folder {output.parent} does not exist")
+        prefix = check_output_prefix(output, "semantic")
         t0 = time.perf_counter()
         data = read_labelled_scans(scans)
+        # the one reading rule of every command: zero and invalid readings dropped, +inf no return
+        import dataclasses
+
+        from probmap.datasets.validate import require_usable, validate_ranges
+
+        cleaned, readings = validate_ranges(data.ranges, data.max_range)
+        require_usable(readings, scans, data.max_range)
+        if cleaned is not data.ranges:
+            import numpy as np
+
+            data = dataclasses.replace(data, ranges=np.asarray(cleaned, dtype=np.float64))
         model = LabelledInverseModel(
             p_hit=p_hit, p_miss=p_miss, p_correct=p_correct, max_clear_range=max_clear
         )
@@ -88,7 +102,8 @@ def semantic_command(
                 stats = s if stats is None else stats + s
                 bar.update(task, completed=min(start + chunk, len(data)))
         t2 = time.perf_counter()
-        files = write_semantic_maps(output, grid)
+        with atomic_outputs():  # the six files or none
+            files = write_semantic_maps(prefix, grid)
         t3 = time.perf_counter()
         cls = grid.classify()
         rows = [("scans", f"{len(data):,}")]
@@ -99,6 +114,7 @@ def semantic_command(
                     f"{stats.beams:,} ({stats.hits:,} hits, {stats.max_range:,} max-range, "
                     f"{stats.dropped:,} dropped)",
                 ),
+                *input_rows(readings),
                 ("cells updated", f"{stats.cell_updates:,}"),
             ]
         spec = grid.spec

@@ -37,7 +37,7 @@ import os
 import warnings
 import zlib
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import IO
 
@@ -81,9 +81,10 @@ _NUMERIC_PARAMS = (
 class _LineError(Exception):
     """A malformed line; turned into a :class:`DatasetError` with the file and line number."""
 
-    def __init__(self, message: str, field: str | None = None) -> None:
+    def __init__(self, message: str, field: str | None = None, what: str = "malformed") -> None:
         super().__init__(message)
         self.field = field
+        self.what = what  # "malformed", or "implausible" for a pose beyond PoseLimits
 
 
 # ---------------------------------------------------------------------------- files
@@ -394,20 +395,20 @@ class CarmenLog:
             except _LineError as exc:
                 if not self.skip_bad_lines:
                     raise DatasetError(
-                        f"malformed {kind} line: {exc}",
+                        f"{exc.what} {kind} line: {exc}",
                         path=self.path,
                         line=lineno,
                         field=exc.field,
                     ) from None
                 state.skipped += 1
                 if not state.first_error:
-                    state.first_error = f"line {lineno}: malformed {kind} line: {exc}"
+                    state.first_error = f"line {lineno}: {exc.what} {kind} line: {exc}"
         if state.messages == 0 and self._share is None:
             raise DatasetError("empty log (no messages)", path=self.path)
         if state.skipped:
             warnings.warn(
-                f"{self.path}: skipped {state.skipped} malformed line(s); first at "
-                f"{state.first_error}",
+                f"{self.path}: skipped {state.skipped} bad (malformed or implausible) "
+                f"line(s); first at {state.first_error}",
                 BadLinesWarning,
                 stacklevel=3,
             )
@@ -517,10 +518,10 @@ class CarmenLog:
         if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(th)):
             _check_finite([x, y, th], f, 1, _ODOM_FIELDS)
         if tracker is not None:
-            bad = tracker.check("ODOM", ipc, x, y, th)
+            bad = tracker.check("ODOM pose", ipc, x, y, th)
             if bad is not None:
-                raise _LineError(bad[1], _ODOM_FIELDS[bad[0]])
-            tracker.accept("ODOM", ipc, x, y, th)
+                raise _LineError(bad[1], _ODOM_FIELDS[bad[0]], "implausible")
+            tracker.accept("ODOM pose", ipc, x, y, th)
         if not build:
             return None
         return Odometry(ipc, np.array((x, y, th)), tv, rv, logger, lineno)
@@ -546,11 +547,11 @@ def _check_poses(
     laser = (float(lp[0]), float(lp[1]), float(lp[2]))
     robot = (float(rp[0]), float(rp[1]), float(rp[2]))
     for k, pose in ((0, laser), (3, robot)):
-        bad = tracker.check(f"{kind} {names[k]}", time, *pose)
+        bad = tracker.check(f"{kind} {'laser' if k == 0 else 'robot'} pose", time, *pose)
         if bad is not None:
-            raise _LineError(bad[1], names[k + bad[0]])
-    tracker.accept(f"{kind} {names[0]}", time, *laser)
-    tracker.accept(f"{kind} {names[3]}", time, *robot)
+            raise _LineError(bad[1], names[k + bad[0]], "implausible")
+    tracker.accept(f"{kind} laser pose", time, *laser)
+    tracker.accept(f"{kind} robot pose", time, *robot)
 
 
 def _dataset_name(path: Path) -> str:
@@ -689,6 +690,7 @@ def _stack(
         )
     max_range = float(min(max_ranges))
     ranges, report = validate_ranges(ranges, max_range, beams=beams)
+    report = replace(report, skipped_lines=log.skipped_lines)
     return ScanBatch(
         times=np.array(times, dtype=np.float64),
         ranges=ranges,

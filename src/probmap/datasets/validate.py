@@ -75,6 +75,8 @@ class ReadingReport:
         Readings of each class.
     beam_counts : tuple of (int, int)
         ``(beams per scan, scans)`` for every beam count seen, most frequent first.
+    skipped_lines : int
+        Lines of the log skipped as malformed or physically implausible (``skip_bad_lines``).
     """
 
     scans: int = 0
@@ -84,6 +86,7 @@ class ReadingReport:
     zero: int = 0
     invalid: int = 0
     beam_counts: tuple[tuple[int, int], ...] = field(default=())
+    skipped_lines: int = 0
 
     def __add__(self, other: ReadingReport) -> ReadingReport:
         counts: dict[int, int] = dict(self.beam_counts)
@@ -97,6 +100,7 @@ class ReadingReport:
             self.zero + other.zero,
             self.invalid + other.invalid,
             _sorted_counts(counts),
+            self.skipped_lines + other.skipped_lines,
         )
 
     @property

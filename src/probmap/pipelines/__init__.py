@@ -87,18 +87,70 @@ class MappingResult:
     files: tuple[Path, ...] = ()
     skipped_lines: int = 0
     extra: dict[str, float] = field(default_factory=dict)
+    readings: Any = None
+    """The :class:`~probmap.datasets.validate.ReadingReport` of the log (None for a simulation)."""
 
 
-def check_output_prefix(prefix: str | os.PathLike[str]) -> Path:
-    """Fail early, before any work, when the output folder is missing or not writable."""
+def _check_folder(folder: Path, what: str) -> None:
+    """``folder`` is usable for output: it is a writable folder, or it is missing and its
+    nearest existing parent is a writable folder (it will be created when the files are
+    written). Creates nothing."""
+    p = folder
+    while not p.exists() and not p.is_symlink() and p.parent != p:
+        p = p.parent
+    if not p.is_dir():
+        if p == folder:
+            raise NotADirectoryError(f"{what} {folder} exists and is not a folder")
+        raise NotADirectoryError(f"{what} {folder}: {p} exists and is not a folder")
+    if not os.access(p, os.W_OK | os.X_OK):
+        raise PermissionError(f"{what} {folder}: {p} is not writable")
+
+
+def check_output_folder(folder: str | os.PathLike[str]) -> Path:
+    """The output rule for commands that write into a folder (``slam ekf|seif``, ``localize``,
+    ``demo``): check ``folder`` before any work, create nothing.
+
+    A missing folder (and its missing parents) is fine: it is created when the files are
+    written (:func:`probmap._atomic.atomic_outputs`) and removed again if the command fails.
+
+    Raises
+    ------
+    NotADirectoryError
+        When ``folder``, or the nearest existing parent of it, is not a folder.
+    PermissionError
+        When that folder is not writable.
+    """
+    p = Path(folder)
+    _check_folder(p, "output folder")
+    return p
+
+
+def check_output_prefix(prefix: str | os.PathLike[str], default_name: str | None = None) -> Path:
+    """The output rule for commands that write ``PREFIX.*`` files or one named file (``map``,
+    ``slam grid``, ``semantic``, ``fit-sensor-model``, ``optimize``, ...): check ``prefix``
+    before any work and return the prefix to write; create nothing.
+
+    - ``prefix`` naming an existing folder, or ending with a path separator (``outdir/``),
+      means ``prefix/default_name``: the files go inside that folder under the command's
+      default name.
+    - A missing output folder is fine: it is created when the files are written
+      (:func:`probmap._atomic.atomic_outputs`) and removed again if the command fails.
+
+    Raises
+    ------
+    ValueError
+        When ``prefix`` has no file name part and the command has no default name.
+    NotADirectoryError, PermissionError
+        When the output folder (or its nearest existing parent) is not a writable folder.
+    """
+    text = os.fspath(prefix)
     p = Path(prefix)
+    if text.endswith(("/", os.sep)) or p.is_dir() or p.name in ("", ".", ".."):
+        if default_name is None:
+            raise ValueError(f"output prefix {text} needs a file name part")
+        p = p / default_name
     folder = p.parent if str(p.parent) else Path(".")
-    if not folder.is_dir():
-        raise FileNotFoundError(f"output folder {folder} does not exist")
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise PermissionError(f"output folder {folder} is not writable")
-    if p.name in ("", ".", ".."):
-        raise ValueError(f"output prefix {prefix!s} needs a file name part")
+    _check_folder(folder, "output folder")
     return p
 
 
@@ -140,6 +192,7 @@ def map_log(
         )
     t1 = time.perf_counter()
     max_range = float(cfg.max_range if cfg.max_range is not None else batch.max_range)
+    report = _require_readings(path, batch, max_range)
     grid = cfg.make_grid()
     stats = ScanStats(0, 0, 0, 0, 0, 0)
     n = len(batch.times)
@@ -157,22 +210,51 @@ def map_log(
     t2 = time.perf_counter()
     return MappingResult(
         grid=grid,
-        stats=stats,
+        stats=_without_padding(stats, batch),
         parse_seconds=t1 - t0,
         map_seconds=t2 - t1,
         skipped_lines=int(getattr(batch, "skipped_lines", 0)),
+        readings=report,
     )
 
 
-def write_map(prefix: str | os.PathLike[str], result: MappingResult) -> MappingResult:
-    """Write ``PREFIX.yaml``, ``.pgm``, ``.npz`` and ``.png`` atomically; returns the result
-    with the files and the write time filled in."""
+def _require_readings(path: object, batch: Any, max_range: float) -> Any:
+    """The batch's reading report (against ``max_range``, the one the mapper uses); a log
+    without one usable reading is a :class:`~probmap.errors.DatasetError` naming ``path``."""
     from dataclasses import replace
 
+    from probmap.datasets.validate import require_usable, validate_ranges
+
+    report = batch.readings
+    if report is None or max_range != float(batch.max_range):
+        _, report = validate_ranges(np.asarray(batch.ranges), max_range, beams=batch.beams)
+        report = replace(report, skipped_lines=int(getattr(batch, "skipped_lines", 0)))
+    require_usable(report, path, max_range)
+    return report
+
+
+def _without_padding(stats: ScanStats, batch: Any) -> ScanStats:
+    """``stats`` with the padding of short scans (NaN cells of a batch of mixed beam counts)
+    counted neither as beams nor as dropped readings."""
+    from dataclasses import replace
+
+    pad = int(np.asarray(batch.ranges).size - int(np.asarray(batch.beams).sum()))
+    if pad <= 0:
+        return stats
+    return replace(stats, beams=stats.beams - pad, dropped=max(0, stats.dropped - pad))
+
+
+def write_map(prefix: str | os.PathLike[str], result: MappingResult) -> MappingResult:
+    """Write ``PREFIX.yaml``, ``.pgm``, ``.npz`` and ``.png`` all-or-nothing (creating a missing
+    folder); returns the result with the files and the write time filled in."""
+    from dataclasses import replace
+
+    from probmap._atomic import atomic_outputs
     from probmap.grid.io import save_map
 
     t0 = time.perf_counter()
-    files = save_map(prefix, result.grid)
+    with atomic_outputs():  # a missing folder is created (and removed again on failure)
+        files = save_map(prefix, result.grid)
     return replace(
         result, files=tuple(Path(f) for f in files), write_seconds=time.perf_counter() - t0
     )
@@ -196,7 +278,8 @@ def run_mapping_demo(
     Accuracy is the fraction of observed cells whose trinary class at p = 0.5 matches the true
     map (see :func:`probmap.grid.simworld.map_accuracy`).
     """
-    from probmap.grid.simworld import map_accuracy, simulate_laser_world
+    from probmap.metrics.map import map_accuracy
+    from probmap.sim.floorplan import simulate_laser_world
 
     t0 = time.perf_counter()
     world = simulate_laser_world(seed=seed, resolution=0.05, range_noise=0.02, dropout=0.01)
@@ -242,6 +325,7 @@ def map_log_map(
     )
     t1 = time.perf_counter()
     max_range = float(cfg.max_range if cfg.max_range is not None else batch.max_range)
+    report = _require_readings(path, batch, max_range)
     res = map_mapping(
         np.asarray(batch.laser_poses), batch.ranges, np.asarray(batch.angles), max_range, mcfg,
         progress=progress,
@@ -254,13 +338,13 @@ def map_log_map(
         res.spec, lo, p0=cfg.p0, clamp=cfg.clamp, observed=res.observed | res.occupied
     )
     ranges = np.asarray(batch.ranges)
-    n_total = int(ranges.size)
+    n_total = int(np.asarray(batch.beams).sum())  # padding of short scans is no beam
     stats = ScanStats(
         scans=int(ranges.shape[0]),
         beams=n_total,
         hits=res.index.beams,
         max_range=res.index.max_range_beams,
-        dropped=res.index.dropped,
+        dropped=max(0, res.index.dropped - (int(ranges.size) - n_total)),
         cell_updates=res.index.entries,
     )
     extra = {
@@ -279,4 +363,5 @@ def map_log_map(
         map_seconds=t2 - t1,
         skipped_lines=int(getattr(batch, "skipped_lines", 0)),
         extra=extra,
+        readings=report,
     )

@@ -8,12 +8,17 @@ expected ranges.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from probmap.datasets.carmen import load_scans
 from probmap.grid.fit import FitResult, fit_beam_model
 from probmap.models.beam import BeamModelParams
+
+if TYPE_CHECKING:
+    from probmap.datasets.validate import ReadingReport
 
 __all__ = ["fit_log"]
 
@@ -27,19 +32,33 @@ def fit_log(
     poses: str = "corrected",
     skip_bad_lines: bool = False,
     init: BeamModelParams | None = None,
+    readings: Callable[[ReadingReport], None] | None = None,
 ) -> FitResult:
     """Fit the beam model to a CARMEN log with known poses.
 
     The map is the log-odds map of the log itself (Table 9.1), thresholded at p = 0.5; the
     expected ranges come from exact ray casting in it. Every ``every``-th scan is used.
+    Readings are validated as in every command (:mod:`probmap.datasets.validate`: zero and
+    invalid readings are dropped); ``readings``, when given, is called with their report.
+
+    Raises
+    ------
+    DatasetError
+        A malformed log, or one without a single usable reading (naming the file).
     """
     from probmap.grid.occupancy import OccupancyGrid
     from probmap.grid.raycast import cast_rays
 
     if every < 1:
         raise ValueError(f"every must be >= 1, got {every}")
+    from probmap.datasets.validate import require_usable
+
     batch = load_scans(path, poses=poses, max_range=max_range, skip_bad_lines=skip_bad_lines)
     mr = float(max_range if max_range is not None else batch.max_range)
+    if batch.readings is not None:
+        require_usable(batch.readings, path, mr)
+        if readings is not None:
+            readings(batch.readings)
     P = np.asarray(batch.laser_poses)
     R = np.asarray(batch.ranges)
     A = np.asarray(batch.angles)

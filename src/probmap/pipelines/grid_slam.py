@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from probmap._atomic import atomic_write
+from probmap._atomic import atomic_outputs, atomic_write
 from probmap.grid.occupancy import OccupancyGrid
 
 if TYPE_CHECKING:
@@ -149,7 +149,13 @@ def load_laser_log(
         )
     if len(batch.times) < 2:
         raise ValueError(f"{path}: graph SLAM needs at least 2 scans, found {len(batch.times)}")
-    _require_readings(path, np.asarray(batch.ranges), float(batch.max_range))
+    report = _require_readings(
+        path, np.asarray(batch.ranges), float(batch.max_range), batch.beams, batch.skipped_lines
+    )
+    if batch.readings is not None and report != batch.readings:
+        from dataclasses import replace as _replace
+
+        batch = _replace(batch, readings=report)  # the scans kept by end_time
     laser = np.asarray(batch.laser_poses)
     if not np.isfinite(laser).all():
         raise ValueError(f"{path}: the scans' odometry poses are not finite")
@@ -161,16 +167,24 @@ def load_laser_log(
     return batch
 
 
-def _require_readings(path: object, ranges: NDArray, max_range: float) -> None:
+def _require_readings(
+    path: object,
+    ranges: NDArray,
+    max_range: float,
+    beams: NDArray | None = None,
+    skipped_lines: int = 0,
+) -> Any:
     """Refuse a log without one usable reading (NaN, inf, zero or negative everywhere, or
-    only max-range returns): SLAM on it would write an empty map and exit as if it worked."""
-    with np.errstate(invalid="ignore"):
-        usable = int(np.count_nonzero((ranges > 0) & (ranges < max_range)))
-    if usable == 0:
-        raise ValueError(
-            f"{path}: no usable laser reading in {len(ranges)} scans (every range is NaN, "
-            f"zero, negative or at the maximum range {max_range:g} m)"
-        )
+    only max-range returns): SLAM on it would write an empty map and exit as if it worked.
+    The one rule of every command: :func:`probmap.datasets.validate.require_usable`."""
+    from dataclasses import replace
+
+    from probmap.datasets.validate import require_usable, validate_ranges
+
+    _, report = validate_ranges(ranges, max_range, beams=beams)
+    report = replace(report, skipped_lines=int(skipped_lines))
+    require_usable(report, path, max_range)
+    return report
 
 
 def run_graph_slam(
@@ -253,16 +267,21 @@ def slam_log(
     *,
     end_time: float | None = None,
     progress: Callable[[int, int], None] | None = None,
+    skip_bad_lines: bool = False,
+    readings: Callable[[Any], None] | None = None,
 ) -> GridSlamResult:
     """Read a raw CARMEN log and run :func:`~probmap.slam.gridslam.run_grid_slam` on its front-laser scans.
 
-    ``end_time`` keeps the scans of the first ``end_time`` seconds only.
+    ``end_time`` keeps the scans of the first ``end_time`` seconds only; ``skip_bad_lines``
+    skips and counts malformed or implausible lines instead of failing. ``readings``, when
+    given, is called with the :class:`~probmap.datasets.validate.ReadingReport` of the scans
+    used.
     """
     from probmap.datasets.carmen import load_scans
     from probmap.geometry.se2 import between
     from probmap.slam.gridslam import run_grid_slam
 
-    batch = load_scans(path, poses="odometry", dtype=np.float32)
+    batch = load_scans(path, poses="odometry", dtype=np.float32, skip_bad_lines=skip_bad_lines)
     times = np.asarray(batch.times, dtype=np.float64)
     ranges = np.asarray(batch.ranges)
     angles = np.asarray(batch.angles, dtype=np.float64)
@@ -274,7 +293,9 @@ def slam_log(
     if end_time is not None:
         keep = times <= times[0] + end_time
         times, ranges, robot = times[keep], ranges[keep], robot[keep]
-    _require_readings(path, ranges, float(batch.max_range))
+    report = _require_readings(path, ranges, float(batch.max_range), None, batch.skipped_lines)
+    if readings is not None:
+        readings(report)
     return run_grid_slam(
         times, ranges, angles, robot, float(batch.max_range), config, mount=mount,
         progress=progress,
@@ -295,14 +316,15 @@ def write_trajectory(path: str | os.PathLike[str], times: ArrayLike, poses: Arra
 def write_graph_slam(prefix: str | os.PathLike[str], run: GraphSlamRun) -> list[Path]:
     """Write ``PREFIX.yaml/.pgm/.npz/.png`` (the map), ``PREFIX.trajectory.csv`` (robot pose
     at every scan time), ``PREFIX.g2o`` (the optimized pose graph, laser poses) and
-    ``PREFIX.slam.png`` (map, trajectory and accepted closures, axes in metres), each
-    atomically. Returns the paths written."""
+    ``PREFIX.slam.png`` (map, trajectory and accepted closures, axes in metres),
+    all-or-nothing (a missing folder is created). Returns the paths written."""
     from probmap.grid.io import save_map
     from probmap.viz.grid_slam import save_graph_slam_figure
 
     prefix = Path(prefix)
-    files = list(save_map(prefix, run.grid))
-    files.append(write_trajectory(f"{prefix}.trajectory.csv", run.times, run.poses))
-    files.append(run.slam.write_g2o(f"{prefix}.g2o"))
-    files.append(save_graph_slam_figure(f"{prefix}.slam.png", run, title=prefix.name))
+    with atomic_outputs():
+        files = list(save_map(prefix, run.grid))
+        files.append(write_trajectory(f"{prefix}.trajectory.csv", run.times, run.poses))
+        files.append(run.slam.write_g2o(f"{prefix}.g2o"))
+        files.append(save_graph_slam_figure(f"{prefix}.slam.png", run, title=prefix.name))
     return files

@@ -36,6 +36,7 @@ from numpy.typing import ArrayLike
 
 from probmap._atomic import atomic_write
 from probmap._typing import FloatArray, IntArray
+from probmap.datasets.validate import text_lines
 from probmap.errors import DatasetError
 
 __all__ = [
@@ -156,56 +157,55 @@ def read_pose_graph(path: str | os.PathLike[str], *, skip_unknown: bool = False)
     edge_lines: list[tuple[int, str, int, int]] = []
     has_vertices = False
     toro = g2o = False
-    with open(path) as f:
-        for lineno, line in enumerate(f, start=1):
-            parts = line.split()
-            if not parts or parts[0].startswith("#"):
+    for lineno, line in text_lines(path):
+        parts = line.split()
+        if not parts or parts[0].startswith("#"):
+            continue
+        tag = parts[0]
+        need = _COUNTS.get(tag)
+        if need is None:
+            if skip_unknown:
+                unknown += 1
                 continue
-            tag = parts[0]
-            need = _COUNTS.get(tag)
-            if need is None:
-                if skip_unknown:
-                    unknown += 1
-                    continue
-                raise DatasetError(f"unknown record type {tag!r}", path=path, line=lineno)
-            if len(parts) < need:
-                raise DatasetError(
-                    f"{tag} needs {need - 1} fields, found {len(parts) - 1}", path=path, line=lineno
-                )
-            try:
-                n_ids = _INT_FIELDS.get(tag, 1)
-                ids = [int(p) for p in parts[1 : 1 + n_ids]]
-                vals = [float(p) for p in parts[1 + n_ids : need]]
-            except ValueError as exc:
-                raise DatasetError(f"bad number in {tag}: {exc}", path=path, line=lineno) from None
-            if not all(math.isfinite(v) for v in vals):
-                raise DatasetError(f"non-finite value in {tag}", path=path, line=lineno)
-            if tag in ("VERTEX_SE2", "VERTEX2", "VERTEX_XY"):
-                has_vertices = True
-                vid = ids[0]
-                if vid in g.poses or vid in g.landmarks:
-                    raise DatasetError(f"duplicate vertex id {vid}", path=path, line=lineno)
-                if tag == "VERTEX_XY":
-                    g.landmarks[vid] = np.array(vals)
-                else:
-                    g.poses[vid] = np.array(vals)
-                    toro |= tag == "VERTEX2"
-                    g2o |= tag == "VERTEX_SE2"
-            elif tag == "FIX":
-                g.fixed.append(ids[0])
-            elif tag == "EQUIV":
-                g.equivalences.append((ids[0], ids[1]))
-            elif tag in ("EDGE_SE2", "EDGE2"):
-                info = _upper_to_full(vals[3:], 3) if tag == "EDGE_SE2" else _toro_to_full(vals[3:])
-                g.pose_edges.append(PoseEdge(ids[0], ids[1], np.array(vals[:3]), info))
-                edge_lines.append((lineno, tag, ids[0], ids[1]))
-                toro |= tag == "EDGE2"
-                g2o |= tag == "EDGE_SE2"
+            raise DatasetError(f"unknown record type {tag!r}", path=path, line=lineno)
+        if len(parts) < need:
+            raise DatasetError(
+                f"{tag} needs {need - 1} fields, found {len(parts) - 1}", path=path, line=lineno
+            )
+        try:
+            n_ids = _INT_FIELDS.get(tag, 1)
+            ids = [int(p) for p in parts[1 : 1 + n_ids]]
+            vals = [float(p) for p in parts[1 + n_ids : need]]
+        except ValueError as exc:
+            raise DatasetError(f"bad number in {tag}: {exc}", path=path, line=lineno) from None
+        if not all(math.isfinite(v) for v in vals):
+            raise DatasetError(f"non-finite value in {tag}", path=path, line=lineno)
+        if tag in ("VERTEX_SE2", "VERTEX2", "VERTEX_XY"):
+            has_vertices = True
+            vid = ids[0]
+            if vid in g.poses or vid in g.landmarks:
+                raise DatasetError(f"duplicate vertex id {vid}", path=path, line=lineno)
+            if tag == "VERTEX_XY":
+                g.landmarks[vid] = np.array(vals)
             else:
-                g.landmark_edges.append(
-                    LandmarkEdge(ids[0], ids[1], np.array(vals[:2]), _upper_to_full(vals[2:], 2))
-                )
-                edge_lines.append((lineno, tag, ids[0], ids[1]))
+                g.poses[vid] = np.array(vals)
+                toro |= tag == "VERTEX2"
+                g2o |= tag == "VERTEX_SE2"
+        elif tag == "FIX":
+            g.fixed.append(ids[0])
+        elif tag == "EQUIV":
+            g.equivalences.append((ids[0], ids[1]))
+        elif tag in ("EDGE_SE2", "EDGE2"):
+            info = _upper_to_full(vals[3:], 3) if tag == "EDGE_SE2" else _toro_to_full(vals[3:])
+            g.pose_edges.append(PoseEdge(ids[0], ids[1], np.array(vals[:3]), info))
+            edge_lines.append((lineno, tag, ids[0], ids[1]))
+            toro |= tag == "EDGE2"
+            g2o |= tag == "EDGE_SE2"
+        else:
+            g.landmark_edges.append(
+                LandmarkEdge(ids[0], ids[1], np.array(vals[:2]), _upper_to_full(vals[2:], 2))
+            )
+            edge_lines.append((lineno, tag, ids[0], ids[1]))
     g.format = "toro" if toro and not g2o else "g2o"
     if not has_vertices and g.pose_edges:
         _chain_odometry(g, edge_lines, path)

@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from probmap._typing import FloatArray, IntArray
+from probmap.datasets.validate import text_lines
 from probmap.errors import DatasetError
 
 __all__ = [
@@ -188,41 +189,40 @@ def read_numeric_table(
     skipped = 0
     last_t = -np.inf
     path = Path(path)
-    with open(path) as f:
-        for lineno, line in enumerate(f, start=1):
-            s = line.strip()
-            if not s or s.startswith("#"):
-                continue
-            parts = s.split()
-            if len(parts) < need:
+    for lineno, line in text_lines(path):
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        parts = s.split()
+        if len(parts) < need:
+            raise DatasetError(
+                f"expected {need} columns ({', '.join(columns[:need])}), found {len(parts)}",
+                path=path,
+                line=lineno,
+            )
+        vals = []
+        for j in range(min(ncol, len(parts))):
+            try:
+                vals.append(float(parts[j]))
+            except ValueError:
                 raise DatasetError(
-                    f"expected {need} columns ({', '.join(columns[:need])}), found {len(parts)}",
+                    f"not a number: {parts[j]!r}", path=path, line=lineno, field=columns[j]
+                ) from None
+        vals.extend([np.nan] * (ncol - len(vals)))
+        if not all(np.isfinite(vals[:need])):
+            skipped += 1
+            continue
+        if time_column is not None:
+            t = vals[time_column]
+            if t < last_t or (t == last_t and not allow_equal_times):
+                raise DatasetError(
+                    f"time {t} goes backwards (previous {last_t})",
                     path=path,
                     line=lineno,
+                    field=columns[time_column],
                 )
-            vals = []
-            for j in range(min(ncol, len(parts))):
-                try:
-                    vals.append(float(parts[j]))
-                except ValueError:
-                    raise DatasetError(
-                        f"not a number: {parts[j]!r}", path=path, line=lineno, field=columns[j]
-                    ) from None
-            vals.extend([np.nan] * (ncol - len(vals)))
-            if not all(np.isfinite(vals[:need])):
-                skipped += 1
-                continue
-            if time_column is not None:
-                t = vals[time_column]
-                if t < last_t or (t == last_t and not allow_equal_times):
-                    raise DatasetError(
-                        f"time {t} goes backwards (previous {last_t})",
-                        path=path,
-                        line=lineno,
-                        field=columns[time_column],
-                    )
-                last_t = t
-            rows.append(vals)
+            last_t = t
+        rows.append(vals)
     table = np.array(rows, dtype=np.float64).reshape(-1, ncol)
     return table, skipped
 

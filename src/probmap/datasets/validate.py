@@ -41,8 +41,10 @@ line (an error naming the file, line and field, or a skipped line with ``skip_ba
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+import os
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -54,8 +56,39 @@ __all__ = [
     "PoseTracker",
     "ReadingReport",
     "require_usable",
+    "text_lines",
     "validate_ranges",
 ]
+
+
+# ---------------------------------------------------------------------------- text files
+
+
+def text_lines(path: str | os.PathLike[str]) -> Iterator[tuple[int, str]]:
+    """``(line_number, text)`` of every line of a UTF-8 text file; a byte that is not UTF-8 is a
+    :class:`DatasetError` naming the file and the line (not a bare ``UnicodeDecodeError``).
+
+    Raises
+    ------
+    FileNotFoundError, IsADirectoryError
+        As :func:`open` (the message names the file).
+    DatasetError
+        The file is not UTF-8 text (a binary file, a Latin-1 export, ...).
+    """
+    p = Path(path)
+    with open(p, "rb") as f:
+        for lineno, raw in enumerate(f, start=1):
+            try:
+                line = raw.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                bad = raw[exc.start : exc.start + 1].hex()
+                raise DatasetError(
+                    f"not a UTF-8 text file: byte 0x{bad} at column {exc.start + 1} "
+                    "cannot be decoded",
+                    path=p,
+                    line=lineno,
+                ) from None
+            yield lineno, line.replace("\r\n", "\n")
 
 
 # ---------------------------------------------------------------------------- readings

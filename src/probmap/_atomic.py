@@ -99,6 +99,7 @@ class OutputSet:
 
     staged: dict[Path, _Staged] = field(default_factory=dict)
     created: list[Path] = field(default_factory=list)
+    create_folders: bool = True
 
     @property
     def targets(self) -> list[Path]:
@@ -224,7 +225,7 @@ def _commit(outputs: OutputSet) -> None:
 
 
 @contextmanager
-def atomic_outputs() -> Iterator[OutputSet]:
+def atomic_outputs(*, create_folders: bool = True) -> Iterator[OutputSet]:
     """All-or-nothing for a set of output files written by any of this module's writers.
 
     Every :func:`atomic_files`, :func:`atomic_write`, :func:`atomic_save` and
@@ -237,7 +238,8 @@ def atomic_outputs() -> Iterator[OutputSet]:
     (``KeyboardInterrupt``) -- or a rename fails, the temporary files and the folders the block
     created are removed, and targets already renamed are put back as they were (a file that did
     not exist is removed, one that did is restored from a hard link where the file system has
-    them). A nested block joins the outer one: the outermost block commits.
+    them). A nested block joins the outer one: the outermost block commits, and its
+    ``create_folders`` applies (``False``: a missing folder is an error, as outside a block).
 
     Examples
     --------
@@ -254,7 +256,7 @@ def atomic_outputs() -> Iterator[OutputSet]:
     if active is not None:
         yield active
         return
-    outputs = OutputSet()
+    outputs = OutputSet(create_folders=create_folders)
     token = _ACTIVE.set(outputs)
     try:
         try:
@@ -336,7 +338,7 @@ def atomic_files(
         with ExitStack() as stack:
             files: list[IO[Any]] = []
             for t in targets:
-                if outputs is not None:
+                if outputs is not None and outputs.create_folders:
                     _make_folder(t.parent if str(t.parent) else Path("."), outputs)
                 fd, tmp = _make_temp(t)
                 temps.append(tmp)
@@ -439,7 +441,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """
     target = Path(path)
     outputs = _ACTIVE.get()
-    if outputs is not None:
+    if outputs is not None and outputs.create_folders:
         _make_folder(target.parent if str(target.parent) else Path("."), outputs)
     try:
         workdir = Path(

@@ -186,5 +186,5 @@ def test_bad_method_missing_file_and_bad_options(tmp_path):
         "rbpf",
     )
     _one_line_error(run("slam", "grid", log, "-o", tmp_path / "o", "--end-time", "-3"), "end_time")
-    _one_line_error(run("slam", "grid", log, "-o", tmp_path / "no" / "o"), "does not exist")
+    _one_line_error(run("slam", "grid", log, "-o", log / "o"), "ok.clf", "not a folder")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ok.clf"]

@@ -94,13 +94,15 @@ def _assert_one_line_error(res, *needles):
 
 
 def test_map_errors(tmp_path):
-    out = tmp_path / "out" / "m"
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    out = afile / "m"  # a missing output folder is created, a file in its place is an error
     _assert_one_line_error(
         run("map", str(tmp_path / "missing.clf"), "-o", str(tmp_path / "m")), "missing.clf"
     )
     log = tmp_path / "ok.clf"
     _write_log(log)
-    _assert_one_line_error(run("map", str(log), "-o", str(out)), "out")
+    _assert_one_line_error(run("map", str(log), "-o", str(out)), "afile", "not a folder")
     bad = tmp_path / "bad.clf"
     text = log.read_text().splitlines(keepends=True)
     text.insert(5, "FLASER 180 1.0 2.0 oops\n")

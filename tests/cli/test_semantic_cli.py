@@ -49,8 +49,9 @@ def test_semantic_command_bad_input(tmp_path):
     res = runner.invoke(app, ["semantic", str(tmp_path / "none.npz"), "-o", str(tmp_path / "o")])
     assert res.exit_code == 1 and "no such file" in res.output
     good, _ = _scans_file(tmp_path / "good.npz")
-    res = runner.invoke(app, ["semantic", str(good), "-o", str(tmp_path / "nodir" / "o")])
-    assert res.exit_code == 1 and "does not exist" in res.output
+    (tmp_path / "afile").write_text("")
+    res = runner.invoke(app, ["semantic", str(good), "-o", str(tmp_path / "afile" / "o")])
+    assert res.exit_code == 1 and "not a folder" in res.output
     res = runner.invoke(app, ["semantic", str(good), "-o", str(tmp_path / "o"), "--p-hit", "2"])
     assert res.exit_code == 1 and "p_hit" in res.output
 

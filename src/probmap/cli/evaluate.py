@@ -25,8 +25,12 @@ def relations_command(
     poses: str = typer.Option(
         "robot", "--poses", help="For a CARMEN log: robot (odom fields) or laser poses."
     ),
-    output: Path | None = typer.Option(
-        None, "-o", "--output", help="Also write the figures as JSON."
+    output: str | None = typer.Option(
+        None,
+        "-o",
+        "--output",
+        help="Also write the figures as JSON; an existing folder (or a name ending in /) gets "
+        "FOLDER/relations.json. Missing folders are created.",
     ),
 ) -> None:
     """Relation error of a trajectory: mean and std of translational and rotational errors."""
@@ -36,9 +40,11 @@ def relations_command(
         from rich.console import Console
         from rich.table import Table
 
-        from probmap._atomic import atomic_write
+        from probmap._atomic import atomic_outputs, atomic_write
         from probmap.metrics.relations import read_relations, read_trajectory, relation_errors
+        from probmap.pipelines import check_output_prefix
 
+        target = None if output is None else check_output_prefix(output, "relations.json")
         times, xy = read_trajectory(trajectory, poses=poses)
         rel = read_relations(relations)
         s = relation_errors(times, xy, rel, tolerance=tolerance).summary()
@@ -61,8 +67,8 @@ def relations_command(
         console.print(
             f"{int(s['relations'])} relations evaluated, {int(s['missing'])} without poses"
         )
-        if output is not None:
-            with atomic_write(output, "w") as f:
+        if target is not None:
+            with atomic_outputs(), atomic_write(target, "w") as f:
                 json.dump(s, f, indent=2)
 
 

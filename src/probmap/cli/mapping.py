@@ -22,8 +22,12 @@ def map_command(
         help="Laser log(s): CARMEN .clf/.log (plain, .gz, .bz2) or ROS bag. Several logs are "
         "mapped together on a Dask cluster.",
     ),
-    output: Path = typer.Option(
-        ..., "-o", "--output", help="Output prefix: writes PREFIX.{yaml,pgm,npz,png}."
+    output: str = typer.Option(
+        ...,
+        "-o",
+        "--output",
+        help="Output prefix: writes PREFIX.{yaml,pgm,npz,png}; an existing folder (or a name "
+        "ending in /) writes FOLDER/map.*. Missing folders are created.",
     ),
     resolution: float = typer.Option(0.05, "--resolution", "-r", help="Cell size in metres."),
     max_range: float | None = typer.Option(
@@ -89,14 +93,29 @@ def map_command(
 
         from rich.progress import Progress
 
+        from probmap._atomic import atomic_outputs
         from probmap.datasets.carmen import BadLinesWarning
-        from probmap.pipelines import MappingConfig, check_output_prefix, map_log, write_map
+        from probmap.pipelines import (
+            MappingConfig,
+            check_output_folder,
+            check_output_prefix,
+            map_log,
+            write_map,
+        )
 
         for path in logs:
             if not path.exists() and not allow_partial:
                 raise FileNotFoundError(f"{path}: no such file")
         log = logs[0]
-        check_output_prefix(output)
+        prefix = check_output_prefix(output, "map")
+        if to_bag is not None:
+            from probmap.datasets.rosbag import is_bag
+
+            if not is_bag(log):
+                raise ValueError(f"--to-bag needs a ROS bag as input; {log} is not one")
+            check_output_folder(to_bag.parent if str(to_bag.parent) else Path("."))
+            if to_bag.suffix != ".bag" and to_bag.exists():
+                raise FileExistsError(f"--to-bag {to_bag}: a ROS 2 bag folder exists already")
         cfg = MappingConfig(
             resolution=resolution,
             max_range=max_range,
@@ -113,7 +132,7 @@ def map_command(
 
             run_map_distributed(
                 logs,
-                output,
+                prefix,
                 cfg,
                 workers=workers,
                 scheduler=scheduler,
@@ -128,7 +147,7 @@ def map_command(
 
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", BadLinesWarning)
-                run_map_method(log, output, cfg)
+                run_map_method(log, prefix, cfg)
             return
         with Progress(transient=True) as bar, warnings.catch_warnings():
             # the summary table reports skipped lines; no Python warning text on the terminal
@@ -145,18 +164,26 @@ def map_command(
                 "laser_frame": laser_frame,
             }
             result = map_log(log, cfg, progress=tick, bag_options=bag_options)
-        result = write_map(output, result)
-        rows = mapping_rows(result)
-        if to_bag is not None:
-            from probmap.datasets.rosbag import RosBag, write_map_to_bag
+        with atomic_outputs() as outputs:  # the map files and the bag: all or none
+            result = write_map(prefix, result)
+            rows = mapping_rows(result)
+            if to_bag is not None:
+                from probmap.datasets.rosbag import RosBag, write_map_to_bag
 
-            frame = RosBag(log, **bag_options).resolve_frames()[0]
-            rows.append(("wrote", str(write_map_to_bag(to_bag, result.grid, frame_id=frame))))
+                frame = RosBag(log, **bag_options).resolve_frames()[0]
+                outputs.folder(to_bag.parent if str(to_bag.parent) else Path("."))
+                rows.append(("wrote", str(write_map_to_bag(to_bag, result.grid, frame_id=frame))))
         print_summary(f"probmap map {log.name}", rows)
 
 
 def demo_command(
-    output: Path = typer.Option(Path("probmap-demo"), "-o", "--output", help="Output folder."),
+    output: Path = typer.Option(
+        Path("probmap-demo"),
+        "-o",
+        "--output",
+        help="Output folder (created when missing): map.*, or trajectory.csv (--localize), or "
+        "semantic.* and semantic.occupancy.* (--semantic).",
+    ),
     seed: int = typer.Option(0, "--seed", help="Seed of the simulated world."),
     localize: bool = typer.Option(
         False, "--localize", help="Run Monte Carlo localization on the simulated world instead."
@@ -167,9 +194,11 @@ def demo_command(
 ) -> None:
     """Map a simulated floor plan (no download) and report its accuracy against the truth."""
     with cli_errors():
-        output.mkdir(parents=True, exist_ok=True)
+        from probmap.pipelines import check_output_folder
+
         if localize and semantic:
             raise ValueError("choose one of --localize and --semantic")
+        check_output_folder(output)
         if semantic:
             from probmap.cli.semantic import print_semantic_demo
             from probmap.pipelines.semantic import run_semantic_demo

@@ -24,7 +24,13 @@ INIT_HELP = (
 
 def optimize_command(
     graph: Path = typer.Argument(..., help="Pose graph: g2o (VERTEX_SE2/EDGE_SE2) or TORO."),
-    output: Path = typer.Option(..., "-o", "--output", help="Optimized graph (g2o)."),
+    output: str = typer.Option(
+        ...,
+        "-o",
+        "--output",
+        help="Optimized graph (g2o); an existing folder (or a name ending in /) gets "
+        "FOLDER/optimized.g2o. Missing folders are created.",
+    ),
     robust: str = typer.Option("none", "--robust", help=ROBUST_HELP),
     robust_scale: float | None = typer.Option(None, "--robust-scale", help=SCALE_HELP),
     max_iterations: int = typer.Option(
@@ -44,9 +50,12 @@ def optimize_command(
         from rich.console import Console
         from rich.table import Table
 
+        from probmap._atomic import atomic_outputs
         from probmap.datasets.g2o import pose_graph_arrays, read_pose_graph, with_poses, write_g2o
+        from probmap.pipelines import check_output_prefix
         from probmap.slam.posegraph import OptimizerConfig, optimize_pose_graph
 
+        target = check_output_prefix(output, "optimized.g2o")
         if init not in ("auto", "given", "lago"):
             raise ValueError(f"--init must be auto, given or lago, got {init!r}")
         if robust not in ("none", "huber", "cauchy", "dcs"):
@@ -78,7 +87,8 @@ def optimize_command(
             )
         except ValueError as exc:
             raise ValueError(f"{graph}: {exc}") from None
-        write_g2o(output, with_poses(g, a.ids, r.poses))
+        with atomic_outputs():  # a missing folder is created
+            write_g2o(target, with_poses(g, a.ids, r.poses))
 
         table = Table(title=f"pose-graph optimization of {graph.name}")
         table.add_column("")
@@ -101,7 +111,7 @@ def optimize_command(
             table.add_row("edges with weight < 0.5", f"{int((r.weights < 0.5).sum()):,}")
         console = Console()
         console.print(table)
-        console.print(f"wrote {output}")
+        console.print(f"wrote {target}")
 
 
 def register(app: typer.Typer) -> None:

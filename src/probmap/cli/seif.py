@@ -36,7 +36,9 @@ def _label(max_active: int, context_hops: int) -> str:
 @slam_app.command("seif")
 def seif_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
-    output: Path = typer.Option(..., "-o", "--output", help="Output folder."),
+    output: Path = typer.Option(
+        ..., "-o", "--output", help="Output folder (created when missing)."
+    ),
     max_active: int = typer.Option(10, "--max-active", help=MAX_ACTIVE_HELP),
     context_hops: int = typer.Option(0, "--context-hops", help=CONTEXT_HELP),
     data_dir: Path | None = typer.Option(
@@ -57,7 +59,9 @@ def seif_command(
     limit_threads(threads)
     with cli_errors():
         from probmap.cli.slam import run_and_report
+        from probmap.pipelines import check_output_folder
 
+        check_output_folder(output)
         ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
         title = f"SEIF SLAM ({_label(max_active, context_hops)})"
         run_and_report(_seif(ds, max_active, context_hops), ds, output, title, plot)

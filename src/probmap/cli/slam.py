@@ -103,11 +103,16 @@ def metrics_rows(m: dict[str, Any]) -> list[tuple[str, str]]:
 def run_and_report(
     estimator: Any, dataset: Any, output: Path, title: str, plot: bool
 ) -> dict[str, Any]:
-    """Run with a progress bar, evaluate, write outputs and a plot, print the metrics table."""
+    """Run with a progress bar, evaluate, write outputs and a plot (all or none), print the
+    metrics table."""
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
+    from probmap._atomic import atomic_outputs
+    from probmap.pipelines import check_output_folder
     from probmap.pipelines.landmark_slam import evaluate, run_landmark_slam, write_slam_outputs
+
+    check_output_folder(output)
 
     console = Console(stderr=True)
     with Progress(
@@ -125,11 +130,12 @@ def run_and_report(
     metrics = evaluate(result, dataset)
     metrics["dataset"] = getattr(dataset, "name", "")
     metrics["estimator"] = title
-    files = write_slam_outputs(result, metrics, output)
-    if plot:
-        from probmap.viz.slam import save_slam_figure
+    with atomic_outputs():  # a missing folder is created; a failed picture leaves no CSV
+        files = write_slam_outputs(result, metrics, output)
+        if plot:
+            from probmap.viz.slam import save_slam_figure
 
-        files.append(save_slam_figure(output / "slam.png", result, dataset, title=title))
+            files.append(save_slam_figure(output / "slam.png", result, dataset, title=title))
     rows = [*metrics_rows(metrics), *(("wrote", str(f)) for f in files)]
     print_summary(f"{title} on {metrics['dataset']}", rows)
     return metrics
@@ -138,7 +144,9 @@ def run_and_report(
 @slam_app.command("ekf")
 def ekf_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
-    output: Path = typer.Option(..., "-o", "--output", help="Output folder."),
+    output: Path = typer.Option(
+        ..., "-o", "--output", help="Output folder (created when missing)."
+    ),
     data_dir: Path | None = typer.Option(
         None, "--data-dir", help="Data directory for registered names (default $PROBMAP_DATA)."
     ),
@@ -156,9 +164,11 @@ def ekf_command(
     metrics.json and slam.png into OUTPUT."""
     limit_threads(threads)
     with cli_errors():
+        from probmap.pipelines import check_output_folder
         from probmap.pipelines.landmark_slam import default_ekf_config
         from probmap.slam.ekf import EKFSLAM
 
+        check_output_folder(output)
         ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
         ekf = EKFSLAM(
             ds.motion_model,

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from probmap._atomic import atomic_files
+from probmap._atomic import atomic_files, atomic_outputs
 from probmap.errors import SemanticFileError
 from probmap.grid.semantic import (
     LabelledInverseModel,
@@ -289,7 +289,8 @@ def save_semantic_png(
 def write_semantic_maps(prefix: str | os.PathLike[str], grid: SemanticGrid) -> list[Path]:
     """Write ``PREFIX.npz`` and ``PREFIX.png`` (semantic map and colour image, together
     all-or-nothing), then the derived occupancy grid as ``PREFIX.occupancy.{yaml,pgm,npz,png}``
-    (map_server format, :func:`probmap.grid.io.save_map`). Returns the six files."""
+    (map_server format, :func:`probmap.grid.io.save_map`), the six files all or none. Returns
+    the six files."""
     from probmap.grid.io import save_map
 
     base = Path(prefix)
@@ -297,10 +298,12 @@ def write_semantic_maps(prefix: str | os.PathLike[str], grid: SemanticGrid) -> l
         raise ValueError(f"output prefix {os.fspath(prefix)!r} needs a file name part")
     paths = [base.parent / f"{base.name}.npz", base.parent / f"{base.name}.png"]
     npz, png = semantic_npz_bytes(grid), semantic_png_bytes(grid)
-    with atomic_files(paths) as (fn, fp):
-        fn.write(npz)
-        fp.write(png)
-    occ = save_map(base.parent / f"{base.name}.occupancy", grid.to_occupancy())
+    occupancy = grid.to_occupancy()
+    with atomic_outputs(create_folders=False):
+        with atomic_files(paths) as (fn, fp):
+            fn.write(npz)
+            fp.write(png)
+        occ = save_map(base.parent / f"{base.name}.occupancy", occupancy)
     return [*paths, *occ]
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from probmap._atomic import atomic_write
+from probmap._atomic import atomic_outputs, atomic_write
 from probmap.grid.spec import GridSpec
 
 __all__ = ["LocalizationWorld", "run_localize_demo", "simulate_localization_world"]
@@ -148,7 +148,6 @@ def run_localize_demo(out_dir: str | os.PathLike[str], seed: int = 0) -> dict[st
     from probmap.models.sampling import OdometryMotionModel
 
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     world = simulate_localization_world(seed)
     lf = LikelihoodField(
         world.spec, world.occupied, max_range=world.max_range, sigma_hit=0.3, z_hit=0.5, z_rand=0.5
@@ -174,11 +173,12 @@ def run_localize_demo(out_dir: str | os.PathLike[str], seed: int = 0) -> dict[st
     err = np.asarray(errors)
     bad = np.flatnonzero(err >= 0.3)
     converged = 0 if bad.size == 0 else int(bad[-1]) + 1
-    _write_csv_atomic(
-        out / "trajectory.csv",
-        ["step", "x", "y", "theta", "spread", "true_x", "true_y", "true_theta"],
-        np.asarray(rows),
-    )
+    with atomic_outputs():  # creates a missing out_dir (removed again if the write fails)
+        _write_csv_atomic(
+            out / "trajectory.csv",
+            ["step", "x", "y", "theta", "spread", "true_x", "true_y", "true_theta"],
+            np.asarray(rows),
+        )
     after = err[converged:] if converged < err.size else err[-1:]
     return {
         "steps": float(err.size),

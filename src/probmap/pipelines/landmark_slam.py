@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from probmap._atomic import atomic_save
+from probmap._atomic import atomic_outputs, atomic_save
 from probmap._typing import FloatArray, IntArray
 from probmap.datasets.landmarks import LandmarkDataset
 from probmap.geometry.se2 import wrap_angle
@@ -346,7 +346,9 @@ def _atomic_text(path: Path, text: str) -> Path:
 def write_slam_outputs(
     result: SlamResult, metrics: dict[str, Any], out_dir: str | os.PathLike[str]
 ) -> list[Path]:
-    """Write ``trajectory.csv``, ``landmarks.csv`` and ``metrics.json`` into ``out_dir`` atomically.
+    """Write ``trajectory.csv``, ``landmarks.csv`` and ``metrics.json`` into ``out_dir``,
+    all-or-nothing (inside an enclosing :func:`probmap._atomic.atomic_outputs` block, with the
+    rest of that block's files); a missing ``out_dir`` is created.
 
     ``trajectory.csv``: ``time,x,y,theta,var_x,var_y,var_theta``;
     ``landmarks.csv``: ``id,x,y,var_x,cov_xy,var_y`` (metres, radians, seconds).
@@ -354,19 +356,20 @@ def write_slam_outputs(
     from probmap.metrics.trajectory import write_metrics_json
 
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     tr = result.trajectory
     var = np.diagonal(result.pose_covariances, axis1=1, axis2=2)
     rows = np.column_stack([tr, var])
     buf = io.StringIO()
     buf.write("time,x,y,theta,var_x,var_y,var_theta\n")
     np.savetxt(buf, rows, delimiter=",", fmt=["%.6f"] + ["%.9g"] * 6)
-    files = [_atomic_text(out / "trajectory.csv", buf.getvalue())]
+    trajectory = buf.getvalue()
     buf = io.StringIO()
     buf.write("id,x,y,var_x,cov_xy,var_y\n")
     c = result.landmark_cov
     for i, (x, y), cv in zip(result.landmark_ids, result.landmark_xy, c, strict=True):
         buf.write(f"{int(i)},{x:.9g},{y:.9g},{cv[0, 0]:.9g},{cv[0, 1]:.9g},{cv[1, 1]:.9g}\n")
-    files.append(_atomic_text(out / "landmarks.csv", buf.getvalue()))
-    files.append(write_metrics_json(out / "metrics.json", metrics))
+    with atomic_outputs():
+        files = [_atomic_text(out / "trajectory.csv", trajectory)]
+        files.append(_atomic_text(out / "landmarks.csv", buf.getvalue()))
+        files.append(write_metrics_json(out / "metrics.json", metrics))
     return files

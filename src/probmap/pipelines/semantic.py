@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from probmap._atomic import atomic_outputs
 from probmap.grid.semantic import LabelledInverseModel, SemanticGrid
 from probmap.grid.semantic_io import write_semantic_maps
 from probmap.grid.semantic_sim import (
@@ -39,7 +40,6 @@ def run_semantic_demo(out_dir: str | os.PathLike[str], *, seed: int = 0) -> dict
         one-cell tolerance and strict), the calibration error, the files written.
     """
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     world = simulate_labelled_world(seed=seed, range_noise=0.01, label_noise=0.1, dropout=0.01)
     t1 = time.perf_counter()
@@ -49,7 +49,8 @@ def run_semantic_demo(out_dir: str | os.PathLike[str], *, seed: int = 0) -> dict
         world.poses, world.ranges, world.angles, labels=world.labels, max_range=world.max_range
     )
     t2 = time.perf_counter()
-    files = write_semantic_maps(out / "semantic", grid)
+    with atomic_outputs():  # all six files or none; a missing out_dir is created
+        files = write_semantic_maps(out / "semantic", grid)
     t3 = time.perf_counter()
     truth = truth_on_grid(grid.spec, world.truth, world.spec)
     wrong = world.labels != world.true_labels

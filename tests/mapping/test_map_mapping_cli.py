@@ -64,8 +64,8 @@ def test_fit_sensor_model_bad_input(tmp_path):
     assert "no such file" in res.output and "Traceback" not in res.output
     log = tmp_path / "room.clf"
     _write_room_log(log, n_scans=3)
-    res = runner.invoke(app, ["fit-sensor-model", str(log), "-o", str(tmp_path / "no" / "x.yaml")])
-    assert res.exit_code == 1 and "does not exist" in res.output
+    res = runner.invoke(app, ["fit-sensor-model", str(log), "-o", str(log / "x.yaml")])
+    assert res.exit_code == 1 and "not a folder" in res.output  # a missing folder is created
     res = runner.invoke(app, ["fit-sensor-model", str(log), "--every", "0"])
     assert res.exit_code == 1 and "every" in res.output
 
@@ -110,8 +110,8 @@ def test_map_method_bad_input(tmp_path):
     assert res.exit_code == 1 and "no such file" in res.output
     log = tmp_path / "room.clf"
     _write_room_log(log, n_scans=2)
-    res = runner.invoke(_map_app(), [str(log), "-o", str(tmp_path / "no" / "m")])
-    assert res.exit_code == 1 and "does not exist" in res.output
+    res = runner.invoke(_map_app(), [str(log), "-o", str(log / "m")])
+    assert res.exit_code == 1 and "not a folder" in res.output  # a missing folder is created
     bad = tmp_path / "bad.clf"
     bad.write_text("FLASER 3 1.0 oops\n")
     res = runner.invoke(_map_app(), [str(bad), "-o", str(tmp_path / "m")])

@@ -2,7 +2,7 @@
 
 Three workloads, each timed as: sequential (``map_log`` / one grid, in this process, the
 reference), then ``map_logs_distributed`` on a LocalCluster of 1 and of 2 single-threaded worker
-processes, started by ``probmap.distributed.local_cluster`` as ``probmap map --workers N`` does
+processes, started by ``probmap.pipelines.distributed.local_cluster`` as ``probmap map --workers N`` does
 (cluster start-up timed apart; every worker loads the compiled kernels before timing). Every
 time is the best of ``--repeat`` runs, sequential and Dask alike (the machine's other load only
 ever adds time):
@@ -45,7 +45,7 @@ def write_carmen(path: Path, poses: np.ndarray, ranges: np.ndarray, max_range: f
 
 
 def fleet(folder: Path, n: int) -> list[Path]:
-    from probmap.grid.simworld import simulate_laser_world
+    from probmap.sim.floorplan import simulate_laser_world
 
     out = []
     for seed in range(n):
@@ -71,7 +71,7 @@ def sequential(paths: list[Path], cfg) -> float:  # type: ignore[no-untyped-def]
 
 def warm_worker() -> None:
     """Import probmap and load the compiled kernels in a worker process."""
-    from probmap.distributed import integrate_increments
+    from probmap.grid.increments import integrate_increments
     from probmap.pipelines import MappingConfig
 
     angles = np.linspace(-1.5, 1.5, 5)
@@ -99,8 +99,12 @@ def main() -> None:
     from rich.console import Console
     from rich.table import Table
 
-    from probmap.distributed import DistributedOptions, local_cluster, map_logs_distributed
     from probmap.pipelines import MappingConfig
+    from probmap.pipelines.distributed import (
+        DistributedOptions,
+        local_cluster,
+        map_logs_distributed,
+    )
 
     intel = INTEL if INTEL.is_dir() else INTEL_ALT
     intel_log = intel / "intel.clf.bz2"

@@ -11,20 +11,22 @@ from typing import Any
 import numpy as np
 import pytest
 
-from probmap.distributed import (
-    DistributedMappingError,
-    DistributedOptions,
+from probmap.grid.increments import (
     IncrementGrid,
     clamping_bound,
     integrate_increments,
-    local_cluster,
-    map_logs_distributed,
     tree_sum,
 )
 from probmap.grid.logodds import logit
 from probmap.grid.occupancy import OccupancyGrid
-from probmap.grid.simworld import simulate_laser_world
 from probmap.pipelines import MappingConfig, map_log
+from probmap.pipelines.distributed import (
+    DistributedMappingError,
+    DistributedOptions,
+    local_cluster,
+    map_logs_distributed,
+)
+from probmap.sim.floorplan import simulate_laser_world
 
 distributed = pytest.importorskip("distributed")
 
@@ -40,7 +42,7 @@ def world(seed: int, **kw: object):
 
     The simulator places poses on multiples of 0.25 m, exactly on cell boundaries; there the
     cell of a pose depends on the rounding of ``(x - origin) / r``, i.e. on the grid's origin
-    (see the notes of :mod:`probmap.distributed`). Real logs do not sit on boundaries.
+    (see the notes of :mod:`probmap.grid.increments`). Real logs do not sit on boundaries.
     """
     from dataclasses import replace
 
@@ -184,7 +186,7 @@ def test_counts_switch_to_int32_beyond_uint16_scans() -> None:
 def test_reused_stamp_buffer_gives_fresh_results(monkeypatch) -> None:
     """Tasks share a per-thread stamp buffer: results do not depend on what ran before, also
     across the int32 wrap-around of the stamp ids."""
-    import probmap.distributed as dist
+    import probmap.grid.increments as dist
 
     a = world(6, size=(8.0, 12.0), step=0.5, n_beams=61)
     b = world(7, size=(20.0, 6.0), step=0.5, n_beams=61)
@@ -208,7 +210,7 @@ def test_reused_stamp_buffer_gives_fresh_results(monkeypatch) -> None:
 
 def test_final_log_odds_kernel_against_numpy() -> None:
     """The one-pass kernel vs the formula in numpy, clamped and unclamped, both count dtypes."""
-    from probmap.distributed import _levels
+    from probmap.grid.increments import _levels
     from probmap.grid.occupancy import ScanStats
 
     rng = np.random.default_rng(4)
@@ -365,10 +367,10 @@ def _slow_chunk(path: str, delay: float) -> IncrementGrid:
     """A task that takes a while, so a worker can be killed while it runs."""
     import time
 
-    from probmap.distributed import _log_task
+    from probmap.pipelines.distributed import _log_task
 
     time.sleep(delay)
-    return _log_task(path, NO_CLAMP, 64)
+    return _log_task(path, NO_CLAMP, 64, None)
 
 
 def test_killed_worker_does_not_change_the_result(client, fleet) -> None:
@@ -447,7 +449,7 @@ def _labelled(seed: int, soft: bool = False):
     from dataclasses import replace
 
     from probmap.grid.semantic_io import LabelledScans
-    from probmap.grid.semantic_sim import simulate_labelled_world
+    from probmap.sim.semantic import simulate_labelled_world
 
     w = simulate_labelled_world(seed=seed, size=(8.0, 12.0), step=0.5, n_beams=61, soft=soft)
     w = replace(w, poses=w.poses + np.array([0.0123, 0.0077, 0.0]))
@@ -489,7 +491,7 @@ def _on(grid, spec):  # type: ignore[no-untyped-def]
 
 @pytest.mark.parametrize("soft", [False, True])
 def test_semantic_increments_match_sequential(soft: bool) -> None:
-    from probmap.distributed import integrate_semantic_increments
+    from probmap.grid.increments import integrate_semantic_increments
 
     scans = [_labelled(1, soft), _labelled(2, soft)]
     wide = (1e-15, 1 - 1e-15)
@@ -521,8 +523,8 @@ def test_semantic_increments_match_sequential(soft: bool) -> None:
 
 
 def test_semantic_on_cluster(client, tmp_path: Path) -> None:
-    from probmap.distributed import map_labelled_distributed
     from probmap.grid.semantic_io import write_labelled_scans
+    from probmap.pipelines.distributed import map_labelled_distributed
 
     scans = [_labelled(3), _labelled(4)]
     paths = [write_labelled_scans(tmp_path / f"r{i}.npz", s) for i, s in enumerate(scans)]
@@ -545,7 +547,7 @@ def test_semantic_on_cluster(client, tmp_path: Path) -> None:
 
 def test_increments_clear_no_further_than_the_sequential_grid():
     """Max-range readings clear min(max_clear_range, max_range), as OccupancyGrid does."""
-    from probmap.distributed import integrate_increments
+    from probmap.grid.increments import integrate_increments
     from probmap.pipelines import MappingConfig
 
     rng = np.random.default_rng(5)
@@ -562,3 +564,97 @@ def test_increments_clear_no_further_than_the_sequential_grid():
     iy, ix = np.nonzero(grid.observed)
     c = a.spec.world_to_cell(grid.spec.cell_to_world(np.column_stack([ix, iy])))
     np.testing.assert_allclose(a.log_odds[c[:, 1], c[:, 0]], grid.log_odds[iy, ix], atol=1e-6)
+
+
+# ------------------------------------------------------------------ errors once, bags, blind logs
+def test_task_guard_returns_deterministic_errors_and_raises_the_rest() -> None:
+    """A bad input fails every try the same way: the task returns its message (no retry, no
+    worker traceback); anything else raises so that Dask retries it; a failure is passed on."""
+    from probmap.errors import DatasetError
+    from probmap.pipelines.distributed import _Failed, _task
+
+    def body(kind: str) -> str:
+        if kind == "dataset":
+            raise DatasetError("bad field", path="x.log", line=3)
+        if kind == "missing":
+            raise FileNotFoundError(2, "No such file or directory", "gone.log")
+        if kind == "memory":
+            raise MemoryError("out of memory")
+        return "ok"
+
+    guarded = _task(body)
+    assert guarded("fine") == "ok"
+    failed = guarded("dataset")
+    assert isinstance(failed, _Failed) and "x.log" in failed.message and "3" in failed.message
+    assert "gone.log" in guarded("missing").message
+    with pytest.raises(MemoryError):
+        guarded("memory")
+    upstream = _Failed("earlier task")
+    assert guarded(upstream) is upstream
+
+
+def test_bad_log_is_reported_once_without_retries_or_worker_tracebacks(
+    client, fleet, tmp_path: Path, capfd
+) -> None:
+    """A malformed log on the cluster: one clear error naming the file, the task run once (its
+    future holds the message, it did not error), and no 'Compute Failed' banner from a worker."""
+    from probmap.pipelines.distributed import _Failed, _log_task
+
+    bad = tmp_path / "garbled.log"
+    bad.write_text("FLASER 3 1.0 2.0\n")
+    fut = client.submit(_log_task, str(bad), NO_CLAMP, 64, None, retries=2, pure=False)
+    out = fut.result()
+    assert fut.status == "finished" and isinstance(out, _Failed) and "garbled.log" in out.message
+    with pytest.raises(DistributedMappingError, match="garbled.log") as info:
+        map_logs_distributed([fleet[0], bad], NO_CLAMP, client=client, progress=False)
+    assert str(info.value).count("garbled.log") == 1
+    import time
+
+    time.sleep(0.5)  # worker log lines travel asynchronously
+    err = capfd.readouterr().err
+    assert "Compute Failed" not in err and "Traceback" not in err
+
+
+def test_log_without_a_usable_reading_fails_on_the_cluster(client, fleet, tmp_path: Path) -> None:
+    """A log whose every range is NaN maps to nothing: an error naming it, not an empty map."""
+    w = world(11, size=(8.0, 12.0), step=0.5, n_beams=31)
+    blind = write_carmen(tmp_path / "blind.log", w.poses[:5], np.full((5, 31), np.nan), 8.0)
+    with pytest.raises(DistributedMappingError, match="blind.log"):
+        map_logs_distributed([fleet[0], blind], NO_CLAMP, client=client, progress=False)
+    with pytest.raises(DistributedMappingError, match="blind.log"):
+        map_logs_distributed([blind], NO_CLAMP, client=client, progress=False)
+
+
+def test_bags_on_the_cluster_map_like_map_log(client, tmp_path: Path) -> None:
+    """ROS bags with their topic options: the same map as ``map_log``, sequential and as
+    increments; bag options with a CARMEN log, or chunks of a bag, are refused up front."""
+    pytest.importorskip("rosbags")
+    import importlib.util
+
+    # the bag writer of the reader's tests (a module of tests, not of the package)
+    spec = importlib.util.spec_from_file_location(
+        "_bag_writer", Path(__file__).parent / "datasets" / "test_rosbag.py"
+    )
+    assert spec is not None and spec.loader is not None
+    helpers = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(helpers)
+    write_sim_bag = helpers.write_sim_bag
+
+    w = simulate_laser_world(seed=3, size=(8.0, 12.0), range_noise=0.01, dropout=0.01)
+    bag = write_sim_bag(tmp_path / "tour.bag", w, ros=1, source="odom")
+    opts = {"scan_topic": "/scan", "odom_topic": "/odom"}
+    cfg = MappingConfig(resolution=0.1, max_clear_range=None)
+    ref = map_log(bag, cfg, bag_options=opts)
+    seq = map_logs_distributed([bag], cfg, client=client, progress=False, bag_options=opts)
+    np.testing.assert_array_equal(seq.grid.log_odds, ref.grid.log_odds)
+    inc = map_logs_distributed([bag], cfg, client=client, progress=False, bag_options=opts,
+                               options=DistributedOptions(mode="increments"))  # fmt: skip
+    assert inc.stats.hits == ref.stats.hits and inc.stats.scans == ref.stats.scans
+    wrong = {"scan_topic": "/nope"}
+    with pytest.raises(DistributedMappingError, match="/nope"):
+        map_logs_distributed([bag], cfg, client=client, progress=False, bag_options=wrong)
+    log = write_carmen(tmp_path / "plain.log", w.poses[:5], w.ranges[:5], w.max_range)
+    with pytest.raises(ValueError, match="plain.log: topic/frame options apply to ROS bags"):
+        map_logs_distributed([bag, log], cfg, client=client, bag_options=opts)
+    with pytest.raises(ValueError, match="tour.bag: a ROS bag is read by one task"):
+        map_logs_distributed([bag], cfg, client=client, options=DistributedOptions(chunks=2))

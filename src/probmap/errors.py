@@ -5,7 +5,8 @@ Every class keeps its old import path too (``probmap.datasets.protocol.DatasetEr
 imports nothing from the package, so any layer may import it.
 
 Exceptions that belong to one layer stay there: :class:`probmap.cli.common.CliError` (the CLI's
-one-line errors) and :class:`probmap.distributed.DistributedMappingError` (it carries that
+one-line errors) and
+:class:`probmap.pipelines.distributed.DistributedMappingError` (it carries that
 pipeline's partial result).
 """
 

@@ -2,20 +2,20 @@
 
 ``probmap map`` (in :mod:`probmap.cli.mapping`) delegates here when it is given several logs,
 ``--workers`` or ``--scheduler``. This module only parses, delegates to
-:func:`probmap.distributed.map_logs_distributed`, and prints.
+:func:`probmap.pipelines.distributed.map_logs_distributed`, and prints.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import typer
 
 if TYPE_CHECKING:
-    from probmap.distributed import DistributedMappingResult
     from probmap.pipelines import MappingConfig
+    from probmap.pipelines.distributed import DistributedMappingResult
 
 
 def _inputs_table(result: DistributedMappingResult) -> None:
@@ -41,6 +41,7 @@ def run_map_distributed(
     scheduler: str | None = None,
     chunks: int = 1,
     allow_partial: bool = False,
+    bag_options: dict[str, Any] | None = None,
 ) -> DistributedMappingResult:
     """Map ``logs`` on a local (``workers``) or existing (``scheduler``) Dask cluster and write
     ``PREFIX.{yaml,pgm,npz,png}``; prints Dask's progress, the inputs and a summary.
@@ -49,12 +50,12 @@ def run_map_distributed(
     map of the other inputs is written, the failures listed, and the exit status is still 1.
     """
     from probmap.cli.common import CliError, mapping_rows, print_summary
-    from probmap.distributed import (
+    from probmap.pipelines import check_output_prefix, write_map
+    from probmap.pipelines.distributed import (
         DistributedMappingError,
         DistributedOptions,
         map_logs_distributed,
     )
-    from probmap.pipelines import check_output_prefix, write_map
 
     if workers is not None and scheduler is not None:
         raise CliError("give either --workers (a local cluster) or --scheduler, not both")
@@ -68,6 +69,7 @@ def run_map_distributed(
             progress=True,
             options=DistributedOptions(chunks=chunks),
             allow_partial=allow_partial,
+            bag_options=bag_options,
         )
     except ImportError as exc:
         raise CliError(str(exc)) from None

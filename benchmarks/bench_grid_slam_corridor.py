@@ -28,8 +28,8 @@ def main() -> None:
     from rich.table import Table
 
     from probmap.geometry.se2 import between
+    from probmap.sim.corridor import simulate_corridor_loop
     from probmap.slam.gridslam import GridSlamConfig, run_grid_slam
-    from probmap.slam.simcorridor import simulate_corridor_loop
 
     warnings.simplefilter("ignore", UserWarning)
     table = Table(title=f"featureless corridor loop, {args.particles} particles")

@@ -4,7 +4,7 @@ Usage::
 
     python benchmarks/bench_loop_closure.py [--trials 20] [--brute-trials 5] [--seed 0]
 
-The submap is the simulated building of ``probmap.grid.simworld`` (20 x 12 m, rooms off a
+The submap is the simulated building of ``probmap.sim.floorplan`` (20 x 12 m, rooms off a
 corridor, 0.05 m cells) mapped with the true poses, its match field ``sigma = 0.05 m`` (the
 graph-SLAM matcher's). Each trial takes a scan of the tour (180 endpoints, 8 m range, 180 deg)
 and a window centre off its true pose by up to 70 % of the window in x, y and heading; the
@@ -37,7 +37,7 @@ def main() -> None:
 
     from probmap.geometry.se2 import wrap_angle
     from probmap.grid.occupancy import OccupancyGrid
-    from probmap.grid.simworld import simulate_laser_world
+    from probmap.sim.floorplan import simulate_laser_world
     from probmap.slam.loop_closure import (
         PrecomputedGrids,
         branch_and_bound_search,

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from probmap.grid.map_mapping import MapMapper, MapMappingConfig, map_mapping
+from probmap.mapping.map_mapping import MapMapper, MapMappingConfig, map_mapping
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -172,7 +172,7 @@ def intel(log: Path, repeat: int, fig: Path | None = None) -> None:
 
 
 def synthetic() -> None:
-    from probmap.grid.simworld import simulate_laser_world
+    from probmap.sim.floorplan import simulate_laser_world
 
     rows = []
     for size in ((10.0, 6.0), (20.0, 12.0), (40.0, 24.0), (80.0, 24.0)):

@@ -188,7 +188,7 @@ def main() -> None:
     from probmap.filters.mcl import MCLConfig, MonteCarloLocalization
     from probmap.grid.forward import BeamModel, LikelihoodField
     from probmap.models.sampling import OdometryMotionModel
-    from probmap.pipelines.demo import simulate_localization_world
+    from probmap.sim.localization import simulate_localization_world
 
     world = simulate_localization_world(0)
     zmax = world.max_range

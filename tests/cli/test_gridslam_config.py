@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 from probmap.cli import register
 from probmap.cli.app import app
 from probmap.config import load_config
-from probmap.grid.simworld import simulate_laser_world
+from probmap.sim.floorplan import simulate_laser_world
 from probmap.slam.graph_slam import GraphSlamConfig
 from probmap.slam.gridslam import GridSlamConfig
 

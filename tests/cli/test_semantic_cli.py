@@ -8,7 +8,7 @@ from typer.testing import CliRunner
 from probmap.cli import register
 from probmap.cli.app import app
 from probmap.grid.semantic_io import LabelledScans, load_semantic, write_labelled_scans
-from probmap.grid.semantic_sim import simulate_labelled_world
+from probmap.sim.semantic import simulate_labelled_world
 
 register(app)
 runner = CliRunner()

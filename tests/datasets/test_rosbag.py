@@ -33,8 +33,8 @@ from probmap.datasets.rosbag import (  # noqa: E402
     write_map_to_bag,
     yaw_from_quaternion,
 )
-from probmap.grid.simworld import simulate_laser_world  # noqa: E402
 from probmap.pipelines import MappingConfig  # noqa: E402
+from probmap.sim.floorplan import simulate_laser_world  # noqa: E402
 
 REAL_BAG = "ros-bags/b0-2014-07-21-12-42-53-short.bag"
 OFFSET = np.array([0.20, 0.05, 0.10])  # base_link -> laser mounting (m, m, rad)

@@ -76,7 +76,7 @@ def test_probmap_map_on_a_simulated_bag_and_to_bag(tmp_path):
     from probmap.cli.app import app
     from probmap.datasets.rosbag import read_map_from_bag
     from probmap.grid.io import load_npz
-    from probmap.grid.simworld import simulate_laser_world
+    from probmap.sim.floorplan import simulate_laser_world
 
     register(app)
     world = simulate_laser_world(seed=3, size=(8.0, 12.0), range_noise=0.01)

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 from probmap.cli import register
 from probmap.cli.app import app
 from probmap.grid.forward import BeamModel
-from probmap.pipelines.demo import simulate_localization_world
+from probmap.sim.localization import simulate_localization_world
 
 register(app)
 runner = CliRunner()

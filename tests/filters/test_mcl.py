@@ -19,7 +19,7 @@ from probmap.filters.mcl import (
 from probmap.filters.particle import ParticleFilterWarning
 from probmap.grid.forward import LikelihoodField
 from probmap.models.sampling import OdometryMotionModel, VelocityMotionModel
-from probmap.pipelines.demo import simulate_localization_world
+from probmap.sim.localization import simulate_localization_world
 
 
 @pytest.fixture(scope="module")

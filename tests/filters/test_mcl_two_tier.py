@@ -24,8 +24,8 @@ from probmap.filters.mcl import (
     sample_pose_gaussian,
 )
 from probmap.grid.forward import LikelihoodField
-from probmap.grid.simworld import simulate_laser_world
 from probmap.models.sampling import OdometryMotionModel, VelocityMotionModel
+from probmap.sim.floorplan import simulate_laser_world
 
 COV0 = np.diag([0.02, 0.02, 0.01])
 

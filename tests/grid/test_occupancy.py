@@ -10,8 +10,9 @@ import pytest
 
 from probmap.grid.logodds import logit, prob
 from probmap.grid.occupancy import GridBoundsError, InverseSensorModel, OccupancyGrid
-from probmap.grid.simworld import map_accuracy, simulate_laser_world
 from probmap.grid.spec import GridSpec
+from probmap.metrics.map import map_accuracy
+from probmap.sim.floorplan import simulate_laser_world
 
 # --------------------------------------------------------------------------- reference
 

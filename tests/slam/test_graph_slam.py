@@ -136,7 +136,7 @@ def test_simulated_loop_beats_drifting_odometry_and_closes_the_loop(world, run):
 
 def test_simulated_loop_map_matches_the_truth(world, run):
     from probmap.grid.occupancy import OccupancyGrid
-    from probmap.grid.simworld import map_accuracy
+    from probmap.metrics.map import map_accuracy
 
     occ, spec, truth, odo, ranges, angles, max_range, _ = world
     slam, _ = run

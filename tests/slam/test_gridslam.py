@@ -9,7 +9,7 @@ import pytest
 from scipy.ndimage import distance_transform_edt
 
 from probmap.geometry.se2 import between, compose
-from probmap.grid.simworld import simulate_laser_world
+from probmap.sim.floorplan import simulate_laser_world
 from probmap.slam import _match_kernels as K
 from probmap.slam._tiles import TiledMaps
 from probmap.slam.gridslam import (
@@ -201,7 +201,7 @@ def test_rbpf_on_a_simulated_loop_beats_odometry(world):
     assert np.all((res.neff >= 1 - 1e-9) & (res.neff <= 4 + 1e-9))
     # the map agrees with the truth better than the map built with the drifting odometry
     from probmap.grid.occupancy import OccupancyGrid
-    from probmap.grid.simworld import map_accuracy
+    from probmap.metrics.map import map_accuracy
 
     odo_map = OccupancyGrid(0.05)
     odo_map.integrate_scans(world.odometry, world.ranges, world.angles, max_range=world.max_range)
@@ -302,7 +302,7 @@ def test_degeneracy_guard_keeps_a_featureless_corridor_loop_to_scale():
     """Failure mode and guard: along featureless corridors the plain matcher slides at every
     update (first of equal scores, pull onto the known map) and the loop comes out metres
     short, worse than the odometry; the guard keeps the odometry along the corridor."""
-    from probmap.slam.simcorridor import simulate_corridor_loop
+    from probmap.sim.corridor import simulate_corridor_loop
 
     w = simulate_corridor_loop(seed=0)  # 92 m loop, 1.1 laps, 8 m range in 36 m corridors
 
@@ -322,7 +322,7 @@ def test_degeneracy_guard_keeps_a_featureless_corridor_loop_to_scale():
 
 
 def test_corridor_plan_and_log_are_consistent():
-    from probmap.slam.simcorridor import corridor_plan, simulate_corridor_loop
+    from probmap.sim.corridor import corridor_plan, simulate_corridor_loop
 
     occ, spec = corridor_plan(20.0, 8.0, 2.0)
     assert occ.shape == (160, 400)

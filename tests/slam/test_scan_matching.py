@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from probmap.grid.occupancy import OccupancyGrid
-from probmap.grid.simworld import simulate_laser_world
 from probmap.grid.spec import GridSpec
+from probmap.sim.floorplan import simulate_laser_world
 from probmap.slam.scan_matching import (
     MatcherConfig,
     MatchField,

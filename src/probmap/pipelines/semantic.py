@@ -1,7 +1,7 @@
 """The semantic mapping demo (``probmap demo --semantic``): simulate a labelled floor plan, map it,
 write the map files and score the map against the truth.
 
-The simulator and the scores are :mod:`probmap.grid.semantic_sim`, the map
+The simulator is :mod:`probmap.sim.semantic`, the scores :mod:`probmap.metrics.map`, the map
 :class:`~probmap.grid.semantic.SemanticGrid`, the files :mod:`probmap.grid.semantic_io`; this
 module only runs them in order and returns plain values for the CLI to print.
 """
@@ -16,12 +16,8 @@ from typing import Any
 from probmap._atomic import atomic_outputs
 from probmap.grid.semantic import LabelledInverseModel, SemanticGrid
 from probmap.grid.semantic_io import write_semantic_maps
-from probmap.grid.semantic_sim import (
-    reliability,
-    semantic_iou,
-    simulate_labelled_world,
-    truth_on_grid,
-)
+from probmap.metrics.map import reliability, semantic_iou, truth_on_grid
+from probmap.sim.semantic import simulate_labelled_world
 
 __all__ = ["run_semantic_demo"]
 

@@ -1,109 +1,14 @@
-"""A simulated long loop of featureless corridors: the degenerate case of scan matching.
+"""Deprecated path of the simulated corridor loop, now :mod:`probmap.sim.corridor`.
 
-A rectangular ring corridor (``width`` metres wide) around a solid block, with straight walls
-and nothing on them. With a sensor range shorter than the corridor, a scan in the middle of a
-long side sees two parallel walls only: the scan constrains the pose across the corridor and
-in heading, not along it. A matcher that takes the best pose of a flat score (or is pulled
-back onto the known part of the map) slides along the corridor at every update, and the map
-of the loop comes out too short; grid SLAM tests use it to check the degeneracy guard.
+This path works for one release: importing it imports nothing of the new home, and each old
+name is forwarded, with a ``DeprecationWarning``, when it is looked up.
 """
 
 from __future__ import annotations
 
-import numpy as np
-from numpy.typing import NDArray
+from probmap._deprecation import moved
 
-from probmap.grid.raycast import cast_rays
-from probmap.grid.simworld import SimulatedLaserWorld
-from probmap.grid.spec import GridSpec
-
-
-def corridor_plan(
-    length: float = 40.0, height: float = 10.0, width: float = 2.0, resolution: float = 0.05
-) -> tuple[NDArray[np.bool_], GridSpec]:
-    """The true occupancy (H, W) of a ring corridor of ``width`` metres inside a
-    ``length`` x ``height`` metre rectangle, and its GridSpec (origin (0, 0))."""
-    if not (length > 2 * width + 1 and height > 2 * width + 1 and width > 0):
-        raise ValueError(f"need length, height > 2 width + 1 m, got {length}, {height}, {width}")
-    shape = (round(height / resolution), round(length / resolution))
-    spec = GridSpec(resolution, (0.0, 0.0), shape)
-    occ = np.zeros(spec.shape, dtype=bool)
-    t = max(1, round(0.15 / resolution))  # wall thickness in cells
-    occ[:t, :] = True
-    occ[-t:, :] = True
-    occ[:, :t] = True
-    occ[:, -t:] = True
-    i0, i1 = round(width / resolution), round((length - width) / resolution)
-    j0, j1 = round(width / resolution), round((height - width) / resolution)
-    occ[j0:j1, i0:i1] = True
-    return occ, spec
-
-
-def simulate_corridor_loop(
-    *,
-    seed: int = 0,
-    length: float = 40.0,
-    height: float = 10.0,
-    width: float = 2.0,
-    step: float = 0.1,
-    laps: float = 1.1,
-    n_beams: int = 181,
-    max_range: float = 8.0,
-    range_noise: float = 0.01,
-    pose_noise: tuple[float, float] = (0.03, 0.03),
-) -> SimulatedLaserWorld:
-    """A robot driving ``laps`` times counter-clockwise along the centre line of
-    :func:`corridor_plan` (a 2 (length + height) - 4 width metre loop).
-
-    Parameters
-    ----------
-    seed : int
-        Seed of the random generator.
-    length, height, width : float
-        Outer size of the ring and corridor width, metres.
-    step : float
-        Distance between scans, metres.
-    laps : float
-        Laps driven (> 1 revisits the start: the loop closure).
-    n_beams, max_range, range_noise : int, float, float
-        Laser: beams over 180 degrees, maximum range (metres) and range noise (metres).
-    pose_noise : tuple of float
-        Odometry drift per metre travelled: standard deviations (metres, radians).
-
-    Returns
-    -------
-    SimulatedLaserWorld
-        Scans every ``step`` metres, timestamps 0.1 s apart.
-    """
-    rng = np.random.default_rng(seed)
-    truth, spec = corridor_plan(length, height, width)
-    c = width / 2
-    way = np.array([[c, c], [length - c, c], [length - c, height - c], [c, height - c], [c, c]])
-    pts = [way[0]]
-    for a, b in zip(way[:-1], way[1:], strict=True):
-        n = int(np.ceil(np.hypot(*(b - a)) / step))
-        pts += [a + (b - a) * k / n for k in range(1, n + 1)]
-    lap = np.asarray(pts)
-    extra = int(len(lap) * (laps - 1.0))
-    xy = np.concatenate([lap, lap[1 : 1 + extra]]) if extra > 0 else lap
-    heading = np.arctan2(np.diff(xy[:, 1]), np.diff(xy[:, 0]))
-    poses = np.column_stack([xy, np.concatenate([heading, heading[-1:]])])
-    poses[:, 2] += rng.normal(0.0, 0.03, len(poses))  # wobble
-    angles = np.linspace(-np.pi / 2, np.pi / 2, n_beams)
-    ranges = cast_rays(truth, spec, poses, angles, max_range)
-    hit = ranges < max_range
-    noisy = np.clip(ranges + rng.normal(0.0, range_noise, ranges.shape), 1e-3, max_range - 1e-6)
-    ranges = np.where(hit, noisy, max_range)
-    # odometry: noisy relative motions in the robot frame, integrated
-    odo = poses.copy()
-    for k in range(1, len(poses)):
-        dx, dy = poses[k, :2] - poses[k - 1, :2]
-        cs, sn = np.cos(poses[k - 1, 2]), np.sin(poses[k - 1, 2])
-        fwd, lat = cs * dx + sn * dy, -sn * dx + cs * dy
-        dist = float(np.hypot(dx, dy))
-        fwd += rng.normal(0.0, pose_noise[0] * dist + 1e-12)
-        dth = poses[k, 2] - poses[k - 1, 2] + rng.normal(0.0, pose_noise[1] * dist + 1e-12)
-        cs, sn = np.cos(odo[k - 1, 2]), np.sin(odo[k - 1, 2])
-        odo[k] = odo[k - 1] + np.array([cs * fwd - sn * lat, sn * fwd + cs * lat, dth])
-    times = np.arange(len(poses), dtype=np.float64) * 0.1
-    return SimulatedLaserWorld(truth, spec, poses, odo, ranges, angles, float(max_range), times)
+__getattr__ = moved(
+    __name__,
+    dict.fromkeys(["corridor_plan", "simulate_corridor_loop"], "probmap.sim.corridor"),
+)

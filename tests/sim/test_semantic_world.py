@@ -1,6 +1,7 @@
-"""Semantic mapping of the simulated labelled world: IoU, calibration, and the scoring functions.
+"""The simulated labelled world and its semantic map: the world's labels, IoU and calibration.
 
-(The demo that also writes the map files: tests/pipelines/test_semantic.py.)
+(The scores on small closed-form cases: tests/metrics/test_map.py; the demo that also writes
+the map files: tests/pipelines/test_semantic.py.)
 """
 
 from __future__ import annotations
@@ -9,14 +10,8 @@ import numpy as np
 import pytest
 
 from probmap.grid.semantic import LabelledInverseModel
-from probmap.grid.semantic_sim import (
-    SEMANTIC_CLASSES,
-    map_labelled_world,
-    reliability,
-    semantic_iou,
-    simulate_labelled_world,
-    truth_on_grid,
-)
+from probmap.metrics.map import _dilate, reliability, semantic_iou, truth_on_grid
+from probmap.sim.semantic import SEMANTIC_CLASSES, map_labelled_world, simulate_labelled_world
 
 
 @pytest.fixture(scope="module")
@@ -96,42 +91,8 @@ def test_calibration(mapped):
     conf = pc.max(axis=-1)
     single = occ & (np.abs(conf - 0.9) < 0.02)
     top = pc.argmax(axis=-1) + 1
-    from probmap.grid.semantic_sim import _dilate
-
     right = np.zeros_like(single)
     for k in range(1, len(SEMANTIC_CLASSES)):
         right |= (top == k) & _dilate(truth == k, 1)
     assert single.sum() > 60
     assert abs(right[single].mean() - 0.9) < 0.06
-
-
-def test_semantic_iou_closed_form():
-    truth = np.zeros((6, 6), int)
-    truth[2, 1:5] = 1
-    pred = np.zeros((6, 6), int)
-    pred[2, 1:4] = 1
-    pred[2, 4] = 2  # one wrong cell
-    pred[5, 5] = 1  # one false wall far away
-    pred[0, 0] = -1  # unobserved: ignored
-    iou = semantic_iou(pred, truth, 3, tolerance=0)
-    # class 1: TP 3, FP 1 (5,5), FN 1 (2,4) -> 3/5 ; class 2: TP 0 FP 1 -> 0
-    assert iou[1] == pytest.approx(3 / 5)
-    assert iou[2] == 0.0
-    # class 0: TP = 36 cells - 1 unobserved - 4 predicted 1 - 1 predicted 2 = 30, FN (5,5) -> 30/31
-    assert iou[0] == pytest.approx(30 / 31)
-    tol = semantic_iou(pred, truth, 3, tolerance=1)
-    # with one cell of tolerance (2,4) is covered by predicted walls next to it; (5,5) is not
-    assert tol[1] == pytest.approx(3 / 4)
-    empty = semantic_iou(np.zeros((2, 2), int), np.zeros((2, 2), int), 2)
-    assert empty[0] == 1.0 and np.isnan(empty[1])
-
-
-def test_reliability_closed_form():
-    p = np.zeros((1, 4, 2))
-    p[0, :, 0] = [0.9, 0.9, 0.6, 0.6]
-    p[0, :, 1] = 1 - p[0, :, 0]
-    truth = np.array([[0, 1, 0, 0]])
-    rel = reliability(p, np.ones((1, 4), bool), truth, edges=np.array([0.5, 0.8, 1.0]), tolerance=0)
-    np.testing.assert_allclose(rel.confidence, [0.6, 0.9])
-    np.testing.assert_allclose(rel.accuracy, [1.0, 0.5])
-    assert rel.expected_calibration_error == pytest.approx(0.5 * 0.4 + 0.5 * 0.4)

@@ -1,0 +1,2 @@
+"""probmap.sim: seeded simulated worlds with ground truth (floor plans, lasers, labels, corridors,
+landmarks)."""

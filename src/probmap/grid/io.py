@@ -641,13 +641,30 @@ def load_npz(path: str | os.PathLike[str]) -> OccupancyGrid:
         raise MapFileError(f"expected a bool array of shape {lo.shape}", path=p, field="observed")
     if origin.shape != (2,) or clamp_a.shape != (2,):
         raise MapFileError("origin and clamp must hold two numbers", path=p, field="origin")
+    for name, vals in (("origin", origin), ("resolution", [res]), ("p0", [p0]), ("clamp", clamp_a)):
+        if not np.isfinite(vals).all():
+            raise MapFileError(f"must be finite, got {list(map(float, vals))}", path=p, field=name)
+    if not np.isfinite(lo).all():
+        bad = int(np.count_nonzero(~np.isfinite(lo)))
+        raise MapFileError(f"{bad:,} cells hold NaN or inf", path=p, field="log_odds")
     try:
         spec = GridSpec(res, (float(origin[0]), float(origin[1])), (shape[0], shape[1]))
-        return OccupancyGrid.from_log_odds(
+        grid = OccupancyGrid.from_log_odds(
             spec, lo, p0=p0, clamp=(float(clamp_a[0]), float(clamp_a[1])), observed=seen
         )
     except ValueError as exc:
         raise MapFileError(f"inconsistent map ({exc})", path=p) from None
+    # stored log odds lie within the clamp (float32 rounding allowed); outside it they would
+    # never be reached by an update and break the map's probabilities
+    tol = 1e-4 * max(1.0, abs(grid.l_min), abs(grid.l_max))
+    if lo.size and (float(lo.min()) < grid.l_min - tol or float(lo.max()) > grid.l_max + tol):
+        raise MapFileError(
+            f"values {float(lo.min()):g}..{float(lo.max()):g} lie outside the clamp bounds "
+            f"[{grid.l_min:g}, {grid.l_max:g}] (logit of clamp {grid.clamp})",
+            path=p,
+            field="log_odds",
+        )
+    return grid
 
 
 # ---------------------------------------------------------------------------- preview

@@ -57,6 +57,19 @@ def _check(x: ArrayLike, u: ArrayLike, dt: float) -> tuple[FloatArray, FloatArra
     return x, u, dt
 
 
+def _finite(v: object) -> bool:
+    """A real, finite number (bools and NaN excluded)."""
+    try:
+        return not isinstance(v, bool) and math.isfinite(float(v))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return False
+
+
+def _check_reference_dt(dt: float | None) -> None:
+    if dt is not None and not (_finite(dt) and dt > 0):
+        raise ValueError(f"reference_dt must be a finite number > 0 s, got {dt}")
+
+
 @dataclass(frozen=True)
 class VelocityModel:
     """Unicycle velocity motion model, ``u = (v, w)`` in m/s and rad/s (Table 5.3, no final turn).
@@ -88,12 +101,15 @@ class VelocityModel:
     reference_dt: float | None = None
 
     def __post_init__(self) -> None:
-        if len(self.alphas) != 4 or any(a < 0 for a in self.alphas):
-            raise ValueError(f"alphas must be 4 non-negative numbers, got {self.alphas}")
+        if len(self.alphas) != 4 or not all(_finite(a) and a >= 0 for a in self.alphas):
+            raise ValueError(f"alphas must be 4 finite non-negative numbers, got {self.alphas}")
+        if not (_finite(self.sigma_v) and _finite(self.sigma_w)):
+            raise ValueError(
+                f"sigma_v and sigma_w must be finite, got {self.sigma_v}, {self.sigma_w}"
+            )
         if self.sigma_v < 0 or self.sigma_w < 0:
             raise ValueError("sigma_v and sigma_w must be >= 0")
-        if self.reference_dt is not None and self.reference_dt <= 0:
-            raise ValueError("reference_dt must be > 0")
+        _check_reference_dt(self.reference_dt)
 
     def predict(
         self, x: ArrayLike, u: ArrayLike, dt: float
@@ -188,10 +204,21 @@ class AckermannModel:
     reference_dt: float | None = None
 
     def __post_init__(self) -> None:
-        if not self.wheelbase > 0:
-            raise ValueError(f"wheelbase must be > 0, got {self.wheelbase}")
+        if not (_finite(self.wheelbase) and self.wheelbase > 0):
+            raise ValueError(f"wheelbase must be a finite number > 0, got {self.wheelbase}")
+        if not _finite(self.encoder_offset):
+            raise ValueError(f"encoder_offset must be finite, got {self.encoder_offset}")
+        if len(self.reference_point) != 2 or not all(_finite(v) for v in self.reference_point):
+            raise ValueError(
+                f"reference_point must be 2 finite numbers, got {self.reference_point}"
+            )
+        if not (_finite(self.sigma_v) and _finite(self.sigma_steer)):
+            raise ValueError(
+                f"sigma_v and sigma_steer must be finite, got {self.sigma_v}, {self.sigma_steer}"
+            )
         if self.sigma_v < 0 or self.sigma_steer < 0:
             raise ValueError("sigma_v and sigma_steer must be >= 0")
+        _check_reference_dt(self.reference_dt)
 
     def predict(
         self, x: ArrayLike, u: ArrayLike, dt: float

@@ -81,6 +81,28 @@ class LocalizeConfig:
             raise ValueError(f"beam_step must be >= 1, got {self.beam_step}")
         if not (self.update_distance >= 0 and self.update_angle >= 0):
             raise ValueError("update_distance and update_angle must be non-negative")
+        # NaN or inf anywhere would give NaN trajectories: refuse it here, naming the field
+        if self.initial_pose is not None and (
+            len(self.initial_pose) != 3 or not all(math.isfinite(v) for v in self.initial_pose)
+        ):
+            raise ValueError(f"initial_pose must be 3 finite numbers, got {self.initial_pose}")
+        for name in ("initial_std", "alphas"):
+            vals = getattr(self, name)
+            if not all(math.isfinite(v) and v >= 0 for v in vals):
+                raise ValueError(f"{name} must be finite and non-negative, got {vals}")
+        if len(self.initial_std) != 3 or len(self.alphas) != 4:
+            raise ValueError("initial_std needs 3 numbers and alphas 4")
+        for name in ("sigma_hit", "max_distance", "update_distance", "update_angle"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"{name} must be finite, got {getattr(self, name)}")
+        if not (math.isfinite(self.z_hit) and math.isfinite(self.z_rand)):
+            raise ValueError(f"z_hit and z_rand must be finite, got {self.z_hit}, {self.z_rand}")
+        if self.max_range is not None and not (
+            math.isfinite(self.max_range) and self.max_range > 0
+        ):
+            raise ValueError(f"max_range must be a finite number > 0 m, got {self.max_range}")
+        if not 0 <= self.free_threshold <= 1:
+            raise ValueError(f"free_threshold must lie in [0, 1], got {self.free_threshold}")
 
 
 @dataclass(frozen=True, eq=False)

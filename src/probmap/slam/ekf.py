@@ -366,6 +366,15 @@ class EKFConfig:
             raise ValueError("need 0 < gate_probability <= new_landmark_probability < 1")
         if self.accept_hits < 1 or self.max_misses < 0 or self.symmetrize_every < 1:
             raise ValueError("accept_hits >= 1, max_misses >= 0, symmetrize_every >= 1 required")
+        if not self.min_range >= 0 or not self.visibility_range > 0 or not self.visibility_fov > 0:
+            raise ValueError(
+                "min_range must be >= 0 and visibility_range, visibility_fov > 0 (not NaN), got "
+                f"{self.min_range}, {self.visibility_range}, {self.visibility_fov}"
+            )
+        if self.outlier_probability is not None and not 0 < self.outlier_probability < 1:
+            raise ValueError(
+                f"outlier_probability must lie in (0, 1), got {self.outlier_probability}"
+            )
 
 
 class EKFSLAM:
@@ -411,6 +420,15 @@ class EKFSLAM:
             raise ValueError("initial_pose must be (3,) and initial_covariance (3, 3)")
         if not (np.all(np.isfinite(mu)) and np.all(np.isfinite(P0))):
             raise ValueError("initial pose and covariance must be finite")
+        if not np.allclose(P0, P0.T):
+            raise ValueError("initial_covariance must be a finite symmetric 3x3 matrix")
+        # positive semi-definite: a zero covariance (a pose known exactly) is allowed, unlike
+        # SEIFSlam, which needs the inverse
+        lowest = float(np.linalg.eigvalsh(0.5 * (P0 + P0.T)).min())
+        if lowest < -1e-12 * max(1.0, float(np.abs(P0).max())):
+            raise ValueError(
+                f"initial_covariance must be positive semi-definite (smallest eigenvalue {lowest:g})"
+            )
         self.motion_model = motion_model
         self.measurement_model = measurement_model
         self.config = config if config is not None else EKFConfig()
@@ -505,6 +523,8 @@ class EKFSLAM:
             raise ValueError(f"z has {z.shape[0]} rows but ids has {ids.shape[0]}")
         if not np.all(np.isfinite(z)):
             raise ValueError("measurements must be finite (NaN or inf found)")
+        if np.any(ids < -1):
+            raise ValueError("landmark ids must be >= 0, or -1 for unknown")
         keep = z[:, 0] > max(self.config.min_range, 1e-9)
         z, ids = z[keep], ids[keep]
         self.last_nis, self.last_nis_dof = np.nan, 0

@@ -290,7 +290,9 @@ def test_skip_bad_lines_counts_and_warns(tmp_path):
         lines.insert(6 + 2 * k, bad)
     path = write(tmp_path / "bad.clf.bz2", lines)
     log = CarmenLog(path, skip_bad_lines=True)
-    with pytest.warns(BadLinesWarning, match=rf"skipped {len(BAD_LINES)} bad \(malformed or implausible\) line"):
+    with pytest.warns(
+        BadLinesWarning, match=rf"skipped {len(BAD_LINES)} bad \(malformed or implausible\) line"
+    ):
         got = list(log)
     assert len(got) == len(scans)
     assert log.skipped_lines == len(BAD_LINES)

@@ -276,13 +276,13 @@ class PoseLimits:
     max_coordinate : float
         Largest ``|x|`` or ``|y|`` in metres (default 100 km).
     max_speed : float
-        m/s allowed between two poses of one stream, on top of ``max_step``.
+        m/s allowed between two poses of one stream, on top of ``max_step`` (default 20).
     max_step : float
-        Metres allowed between two consecutive poses whatever their timestamps.
+        Metres allowed between two consecutive poses whatever their timestamps (default 10).
     max_turn_rate : float
-        rad/s allowed on top of ``max_turn_step``.
+        rad/s allowed on top of ``max_turn_step`` (default 5).
     max_turn_step : float
-        Radians allowed between two consecutive poses whatever their timestamps.
+        Radians allowed between two consecutive poses whatever their timestamps (default 2).
 
     Any limit may be ``math.inf`` (no limit); none may be NaN, zero or negative.
     """
@@ -290,7 +290,7 @@ class PoseLimits:
     max_coordinate: float = 1.0e5
     max_speed: float = 20.0
     max_step: float = 10.0
-    max_turn_rate: float = 20.0
+    max_turn_rate: float = 5.0
     max_turn_step: float = 2.0
 
     def __post_init__(self) -> None:

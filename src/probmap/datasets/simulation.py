@@ -9,13 +9,12 @@ the SLAM pipelines read it like any logged dataset, and keeps the true landmark 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from probmap._typing import FloatArray
 from probmap.datasets.landmarks import LandmarkSequence, LandmarkStep
-from probmap.models.measurement import RangeBearingModel
-from probmap.models.motion import VelocityModel
 from probmap.sim.landmarks import simulate_landmark_world
 
 __all__ = ["LandmarkSimulation", "simulate_landmarks"]
@@ -42,27 +41,22 @@ def simulate_landmarks(
     n_steps: int,
     *,
     seed: int,
-    dt: float = 0.1,
-    speed: float = 1.0,
-    density: float = 0.03,
-    max_range: float = 10.0,
-    fov: float = np.pi,
-    motion_model: VelocityModel | None = None,
-    measurement_model: RangeBearingModel | None = None,
     known_correspondences: bool = True,
-    loop_radius: float | None = None,
+    **world: Any,
 ) -> LandmarkSimulation:
     """A run of :func:`probmap.sim.landmarks.simulate_landmark_world` as a landmark dataset.
 
     Parameters
     ----------
-    n_landmarks, n_steps, seed, dt, speed, density, max_range, fov, loop_radius
-        The world and the run, as :func:`probmap.sim.landmarks.simulate_landmark_world`; equal
-        seeds give equal datasets.
-    motion_model, measurement_model
-        Defaults: ``VelocityModel()`` and ``RangeBearingModel()``.
+    n_landmarks, n_steps, seed
+        The world's size, the run's length and the seed, as
+        :func:`~probmap.sim.landmarks.simulate_landmark_world`; equal seeds give equal datasets.
     known_correspondences : bool
         If False, every observation id is -1 (the data association is left to the estimator).
+    **world
+        The other options of :func:`~probmap.sim.landmarks.simulate_landmark_world` (``dt``,
+        ``speed``, ``density``, ``max_range``, ``fov``, ``motion_model``,
+        ``measurement_model``, ``loop_radius``), passed on unchanged.
 
     Returns
     -------
@@ -70,44 +64,33 @@ def simulate_landmarks(
         One :class:`LandmarkStep` per motion step (its ground-truth pose included); starts at
         the true initial pose with ``initial_covariance`` tiny, as in Table 10.1.
     """
-    world = simulate_landmark_world(
-        n_landmarks,
-        n_steps,
-        seed=seed,
-        dt=dt,
-        speed=speed,
-        density=density,
-        max_range=max_range,
-        fov=fov,
-        motion_model=motion_model,
-        measurement_model=measurement_model,
-        loop_radius=loop_radius,
-    )
+    run = simulate_landmark_world(n_landmarks, n_steps, seed=seed, **world)
+    dt = run.dt
     steps = [
         LandmarkStep(
             time=(t + 1) * dt,
             dt=dt,
-            control=world.controls[t].copy(),
-            z=world.z[t],
-            ids=world.ids[t]
+            control=run.controls[t].copy(),
+            z=run.z[t],
+            ids=run.ids[t]
             if known_correspondences
-            else np.full(world.ids[t].size, -1, dtype=np.int64),
-            gt_pose=world.poses[t + 1],
+            else np.full(run.ids[t].size, -1, dtype=np.int64),
+            gt_pose=run.poses[t + 1],
         )
         for t in range(n_steps)
     ]
-    lm = world.landmarks
-    gt = np.column_stack([np.arange(n_steps + 1) * dt, world.poses])
+    lm = run.landmarks
+    gt = np.column_stack([np.arange(n_steps + 1) * dt, run.poses])
     return LandmarkSimulation(
         name=f"simulation-{n_landmarks}x{n_steps}-seed{seed}",
         steps=steps,
-        motion_model=world.motion_model,
-        measurement_model=world.measurement_model,
-        initial_pose=world.poses[0].copy(),
+        motion_model=run.motion_model,
+        measurement_model=run.measurement_model,
+        initial_pose=run.poses[0].copy(),
         initial_covariance=np.diag([1e-9, 1e-9, 1e-9]),
         landmark_truth={i: lm[i] for i in range(n_landmarks)},
         gt_trajectory=gt,
         gps=None,
         landmarks_xy=lm,
-        true_poses=world.poses,
+        true_poses=run.poses,
     )

@@ -535,3 +535,46 @@ def test_fuzz_map_yaml_reader_raises_only_map_errors(tmp_path, doc, tail):
         read_map_server(path)
     except (DatasetError, ValueError, FileNotFoundError):
         pass
+
+
+# --------------------------------------------------------------------------- landmark datasets
+
+
+def _mrclam(d: Path, measurements: str) -> Path:
+    (d / "Barcodes.dat").write_text("1 5\n6 63\n")
+    (d / "Landmark_Groundtruth.dat").write_text("6 1.0 2.0 0.0 0.0\n")
+    (d / "Robot1_Odometry.dat").write_text("".join(f"{t:.1f} 0.1 0.0\n" for t in range(10)))
+    (d / "Robot1_Groundtruth.dat").write_text(
+        "".join(f"{t:.1f} {0.1 * t:.2f} 0.0 0.0\n" for t in range(10))
+    )
+    (d / "Robot1_Measurement.dat").write_text(measurements)
+    return d
+
+
+def test_mrclam_needs_a_landmark_measurement_and_a_positive_end_time(tmp_path):
+    from probmap.datasets.utias import MRCLAM
+
+    d = _mrclam(tmp_path, "")
+    with pytest.raises(DatasetError, match=r"Robot1_Measurement\.dat: no landmark measurement"):
+        MRCLAM(d, 1)
+    _mrclam(tmp_path, "2.0 63 1.5 0.2\n")
+    assert len(MRCLAM(d, 1)) > 0
+    for bad in (-5.0, 0.0, math.nan):
+        with pytest.raises(ValueError, match="end_time"):
+            MRCLAM(d, 1, end_time=bad)
+
+
+def test_victoria_park_needs_a_detection_and_a_positive_end_time(tmp_path):
+    from probmap.datasets.victoria_park import VictoriaPark
+
+    (tmp_path / "inputs.dat").write_text("".join(f"{t:.1f} 1.0 0.0\n" for t in range(1, 10)))
+    (tmp_path / "gps.dat").write_text("1.0 0.0 0.0\n")
+    (tmp_path / "measurements.dat").write_text("")
+    with pytest.raises(DatasetError, match=r"measurements\.dat: no tree detection"):
+        VictoriaPark(tmp_path, source="dat")
+    (tmp_path / "measurements.dat").write_text("2.0 10.0 1.0 0.3\n")
+    assert len(VictoriaPark(tmp_path, source="dat")) > 0
+    with pytest.raises(ValueError, match="end_time"):
+        VictoriaPark(tmp_path, source="dat", end_time=-5.0)
+    with pytest.raises(DatasetError, match="no tree detection to use before end_time"):
+        VictoriaPark(tmp_path, source="dat", end_time=1.5)

@@ -22,6 +22,7 @@ Modelling choices:
 
 from __future__ import annotations
 
+import math
 import os
 import warnings
 from collections.abc import Iterator
@@ -78,6 +79,8 @@ class MRCLAM:
             raise DatasetError("not a directory", path=d)
         if robot not in ROBOT_SUBJECTS:
             raise ValueError(f"robot must be 1-5, got {robot}")
+        if end_time is not None and not (math.isfinite(end_time) and end_time > 0):
+            raise ValueError(f"end_time must be a positive number of seconds, got {end_time}")
         self.directory = d
         self.robot = robot
         self.name = f"mrclam-{d.name}-robot{robot}"
@@ -128,6 +131,14 @@ class MRCLAM:
         stop = gt[-1, 0] if end_time is None else min(gt[-1, 0], start + end_time)
         odo = odo[odo[:, 0] <= stop]
         is_lm &= meas[:, 0] <= stop
+        if not is_lm.any():
+            raise DatasetError(
+                "no landmark measurement to use (none of a known landmark barcode within the "
+                "ground truth's time span"
+                + (f" and end_time {end_time:g} s" if end_time is not None else "")
+                + ")",
+                path=d / f"Robot{robot}_Measurement.dat",
+            )
         ids = subjects[is_lm].astype(np.int64)
         self._times, self._dts, self._controls, self._obs_start, order = merge_events(
             odo[:, 0], odo[:, 1:3], meas[is_lm, 0], meas[is_lm, 2:4], ids, start=start

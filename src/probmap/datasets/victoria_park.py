@@ -22,6 +22,7 @@ Modelling choices:
 
 from __future__ import annotations
 
+import math
 import os
 import warnings
 from collections.abc import Iterator
@@ -99,6 +100,8 @@ class VictoriaPark:
         d = Path(directory)
         if not d.is_dir():
             raise DatasetError("not a directory", path=d)
+        if end_time is not None and not (math.isfinite(end_time) and end_time > 0):
+            raise ValueError(f"end_time must be a positive number of seconds, got {end_time}")
         self.directory = d
         if source == "dat":
             inputs, bad_in = read_numeric_table(d / "inputs.dat", ("time", "speed", "steering"))
@@ -137,6 +140,15 @@ class VictoriaPark:
             keep &= meas[:, 0] <= end_time
             inputs = inputs[inputs[:, 0] <= end_time]
             gps = gps[gps[:, 0] <= end_time]
+            if inputs.shape[0] == 0:
+                raise DatasetError(f"no control rows before end_time {end_time:g} s", path=d)
+        if not keep.any():
+            raise DatasetError(
+                "no tree detection to use"
+                + (f" before end_time {end_time:g} s" if end_time is not None else "")
+                + f" (of {meas.shape[0]} rows; max_range {max_range:g} m)",
+                path=d / "measurements.dat",
+            )
         self.detections = int(meas.shape[0])
         z = np.column_stack([rng, meas[:, 2] - np.pi / 2])[keep]
         t0 = float(inputs[0, 0])

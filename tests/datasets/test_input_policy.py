@@ -578,3 +578,84 @@ def test_victoria_park_needs_a_detection_and_a_positive_end_time(tmp_path):
         VictoriaPark(tmp_path, source="dat", end_time=-5.0)
     with pytest.raises(DatasetError, match="no tree detection to use before end_time"):
         VictoriaPark(tmp_path, source="dat", end_time=1.5)
+
+
+# --------------------------------------------------------------------------- bags
+
+
+def _glitch_bag(path: Path, glitch: int | None) -> Path:
+    """A ROS 1 bag: 10 scans in frame ``laser`` posed by /odom (``odom -> laser``), one pose
+    at 1e7 m when ``glitch`` is given."""
+    pytest.importorskip("rosbags")
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    t = store.types
+    writer = Writer(path)
+    writer.open()
+    conns: dict[str, object] = {}
+
+    def write(topic: str, msgtype: str, stamp: float, msg: object) -> None:
+        if topic not in conns:
+            conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
+        writer.write(conns[topic], int(round(stamp * 1e9)), store.serialize_ros1(msg, msgtype))
+
+    def header(stamp: float, frame: str) -> object:
+        sec = int(stamp)
+        tm = t["builtin_interfaces/msg/Time"](sec=sec, nanosec=int(round((stamp - sec) * 1e9)))
+        return t["std_msgs/msg/Header"](seq=0, stamp=tm, frame_id=frame)
+
+    v3 = t["geometry_msgs/msg/Vector3"]
+    for k in range(10):
+        stamp = 1000.0 + 0.1 * k
+        x = 1e7 if k == glitch else 0.05 * k
+        pose = t["geometry_msgs/msg/Pose"](
+            position=t["geometry_msgs/msg/Point"](x=x, y=0.0, z=0.0),
+            orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+        )
+        cov = np.zeros(36)
+        odo = t["nav_msgs/msg/Odometry"](
+            header=header(stamp, "odom"),
+            child_frame_id="laser",
+            pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=cov),
+            twist=t["geometry_msgs/msg/TwistWithCovariance"](
+                twist=t["geometry_msgs/msg/Twist"](
+                    linear=v3(x=0.0, y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=0.0)
+                ),
+                covariance=cov,
+            ),
+        )
+        write("/odom", "nav_msgs/msg/Odometry", stamp, odo)
+        scan = t["sensor_msgs/msg/LaserScan"](
+            header=header(stamp, "laser"),
+            angle_min=-1.0,
+            angle_max=1.0,
+            angle_increment=0.5,
+            time_increment=0.0,
+            scan_time=0.0,
+            range_min=0.1,
+            range_max=10.0,
+            ranges=np.array([2.0, 0.0, np.inf, 3.0, np.nan], dtype=np.float32),
+            intensities=np.zeros(0, dtype=np.float32),
+        )
+        write("/scan", "sensor_msgs/msg/LaserScan", stamp, scan)
+    writer.close()
+    return path
+
+
+def test_bag_implausible_pose_names_the_message_or_is_skipped(tmp_path):
+    from probmap.datasets.rosbag import load_bag_scans
+    from probmap.errors import BagError
+
+    good = load_bag_scans(_glitch_bag(tmp_path / "good.bag", None))
+    rep = good.readings
+    assert len(good) == 10 and good.skipped_lines == 0
+    assert (rep.usable, rep.no_return, rep.zero, rep.invalid) == (20, 10, 10, 10)
+    path = _glitch_bag(tmp_path / "glitch.bag", 5)
+    with pytest.raises(BagError, match=rf"^{path}: scan message 6: implausible laser pose x"):
+        load_bag_scans(path)
+    with pytest.warns(BadLinesWarning, match="skipped 1 scan"):
+        batch = load_bag_scans(path, skip_bad_lines=True)
+    assert len(batch) == 9 and batch.skipped_lines == 1 and batch.readings.skipped_lines == 1
+    assert batch.readings.scans == 9

@@ -32,7 +32,7 @@ import struct
 import warnings
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -42,8 +42,8 @@ from numpy.typing import NDArray
 from probmap._atomic import atomic_path
 from probmap._typing import FloatArray
 from probmap.datasets.records import LaserScan, Odometry, ScanBatch
-from probmap.datasets.validate import ReadingReport, validate_ranges
-from probmap.errors import BagError
+from probmap.datasets.validate import PoseLimits, PoseTracker, ReadingReport, validate_ranges
+from probmap.errors import BadLinesWarning, BagError
 
 __all__ = [
     "BagMap",
@@ -1000,8 +1000,21 @@ class RosBag:
             odom_conns = self._pick(reader, self.odom_topic, (ODOM_TYPE,), "odom")
             return self._tf(reader, odom_conns)[0]
 
-    def batch(self, dtype: type[np.floating] = np.float64) -> ScanBatch:
-        """Every scan stacked into a :class:`~probmap.datasets.records.ScanBatch`."""
+    def batch(
+        self,
+        dtype: type[np.floating] = np.float64,
+        *,
+        pose_limits: PoseLimits | None = None,
+        skip_bad_lines: bool = False,
+    ) -> ScanBatch:
+        """Every scan stacked into a :class:`~probmap.datasets.records.ScanBatch`.
+
+        A scan whose laser or robot pose is beyond ``pose_limits`` (default
+        :class:`~probmap.datasets.validate.PoseLimits`: a coordinate beyond 100 km, a jump of
+        more than 10 m + 20 m/s from the previous scan) is a :class:`BagError` naming its
+        message, or, with ``skip_bad_lines``, dropped and counted in ``skipped_lines`` (with a
+        :class:`~probmap.errors.BadLinesWarning`).
+        """
         times: list[FloatArray] = []
         rows: list[FloatArray] = []
         angle_rows: list[FloatArray] = []
@@ -1009,16 +1022,39 @@ class RosBag:
         robot: list[FloatArray] = []
         max_ranges: list[float] = []
         report = ReadingReport()
+        tracker = PoseTracker(pose_limits)
+        skipped = 0
+        first_error = ""
         for scans, lp, rp in self._scan_chunks():
-            for s in scans:
+            keep = np.ones(len(scans), dtype=bool)
+            for k, s in enumerate(scans):
+                bad = _implausible(tracker, s, lp[k], rp[k])
+                if bad is not None:
+                    if not skip_bad_lines:
+                        raise BagError(bad, path=self.path)
+                    keep[k] = False
+                    skipped += 1
+                    first_error = first_error or bad
+                    continue
                 if s.report is not None:
                     report = report + s.report
+            if not keep.all():
+                scans = [s for s, ok in zip(scans, keep, strict=True) if ok]
+                lp, rp = lp[keep], rp[keep]
             times.append(np.array([s.time for s in scans]))
             rows += [s.ranges for s in scans]
             angle_rows += [s.angles for s in scans]
             max_ranges += [s.max_range for s in scans]
             laser.append(lp)
             robot.append(rp)
+        if skipped:
+            warnings.warn(
+                f"{self.path}: skipped {skipped} scan(s) with implausible poses; first: "
+                f"{first_error}",
+                BadLinesWarning,
+                stacklevel=2,
+            )
+        report = replace(report, skipped_lines=skipped)
         if not rows:
             raise BagError("the scan topic holds no messages", path=self.path)
         beams = np.array([r.shape[0] for r in rows], dtype=np.int64)
@@ -1047,8 +1083,25 @@ class RosBag:
             robot_poses=np.concatenate(robot),
             max_range=float(min(max_ranges)),
             beams=beams,
+            skipped_lines=skipped,
             readings=report,
         )
+
+
+def _implausible(
+    tracker: PoseTracker, scan: _RawScan, laser: FloatArray, robot: FloatArray
+) -> str | None:
+    """Why a scan's poses are implausible (None when they pass; the tracker then records them)."""
+    t = scan.time
+    poses = {"laser": tuple(float(v) for v in laser), "robot": tuple(float(v) for v in robot)}
+    for name, (x, y, th) in poses.items():
+        bad = tracker.check(f"{name} pose", t, x, y, th)
+        if bad is not None:
+            field = ("x", "y", "theta")[bad[0]]
+            return f"scan message {scan.index}: implausible {name} pose {field}: {bad[1]}"
+    for name, (x, y, th) in poses.items():
+        tracker.accept(f"{name} pose", t, x, y, th)
+    return None
 
 
 def load_bag_scans(
@@ -1060,6 +1113,8 @@ def load_bag_scans(
     laser_frame: str | None = None,
     echo: int = 0,
     dtype: type[np.floating] = np.float64,
+    pose_limits: PoseLimits | None = None,
+    skip_bad_lines: bool = False,
 ) -> ScanBatch:
     """Read every scan of a bag into stacked arrays, posed through tf (the bag twin of
     :func:`probmap.datasets.carmen.load_scans`).
@@ -1070,6 +1125,9 @@ def load_bag_scans(
         As for :class:`RosBag`.
     dtype : numpy floating type
         dtype of ``ranges``.
+    pose_limits, skip_bad_lines
+        As for :meth:`RosBag.batch`: a scan with an implausible pose is an error, or dropped
+        and counted.
 
     Returns
     -------
@@ -1091,7 +1149,7 @@ def load_bag_scans(
         laser_frame=laser_frame,
         echo=echo,
     )
-    return bag.batch(dtype)
+    return bag.batch(dtype, pose_limits=pose_limits, skip_bad_lines=skip_bad_lines)
 
 
 # ---------------------------------------------------------------------------- writing maps

@@ -125,7 +125,9 @@ def load_laser_log(
     from probmap.datasets.rosbag import is_bag, load_bag_scans
 
     if is_bag(path):
-        batch = load_bag_scans(path, dtype=np.float32, **(bag_options or {}))
+        batch = load_bag_scans(
+            path, dtype=np.float32, skip_bad_lines=skip_bad_lines, **(bag_options or {})
+        )
     elif bag_options and any(v not in (None, 0) for v in bag_options.values()):
         raise ValueError(f"{path}: topic/frame options apply to ROS bags only")
     else:

@@ -48,6 +48,9 @@ def relations_command(
         times, xy = read_trajectory(trajectory, poses=poses)
         rel = read_relations(relations)
         s = relation_errors(times, xy, rel, tolerance=tolerance).summary()
+        if target is not None:  # written before anything is printed: an error is one line
+            with atomic_outputs(), atomic_write(target, "w") as f:
+                json.dump(s, f, indent=2)
         table = Table(title=f"relation error of {trajectory.name} on {relations.name}")
         table.add_column("error")
         table.add_column("absolute: mean ± std", justify="right")
@@ -67,9 +70,6 @@ def relations_command(
         console.print(
             f"{int(s['relations'])} relations evaluated, {int(s['missing'])} without poses"
         )
-        if target is not None:
-            with atomic_outputs(), atomic_write(target, "w") as f:
-                json.dump(s, f, indent=2)
 
 
 def register(app: typer.Typer) -> None:

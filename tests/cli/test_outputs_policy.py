@@ -11,7 +11,8 @@ made here:
 - a writer failing mid-run (disk full), Ctrl-C while writing, or an output path taken by a
   folder leaves no output file, no temporary file and no folder the command created; the exit
   code is 1 and the message is one line naming the path, without a traceback;
-- an output path under a regular file is refused before any work.
+- an output path under a regular file, or in a folder that is not writable, is refused before
+  any work.
 
 ``match`` and ``slam compare`` write no files and are not in the matrix.
 """
@@ -406,3 +407,17 @@ def test_an_output_path_under_a_file_is_refused_before_the_work(cmd, inputs, tmp
     res = run(cmd, inputs, _out_arg(cmd, folder), folder)
     _one_line_error(res, str(afile), "not a folder")
     assert sorted(tmp_path.iterdir()) == [afile]
+
+
+@pytest.mark.parametrize("cmd", COMMANDS, ids=IDS)
+def test_an_unwritable_output_folder_is_refused_before_the_work(cmd, inputs, tmp_path, monkeypatch):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    folder = ro / "sub"
+    real_access = os.access  # root ignores permission bits: the check itself is what is tested
+    monkeypatch.setattr(
+        os, "access", lambda p, mode, **kw: False if Path(p) == ro else real_access(p, mode, **kw)
+    )
+    res = run(cmd, inputs, _out_arg(cmd, folder), folder)
+    _one_line_error(res, str(ro), "not writable")
+    assert list(ro.iterdir()) == []

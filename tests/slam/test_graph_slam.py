@@ -276,3 +276,19 @@ def test_finish_releases_matching_state_and_ends_the_run(world, run):
     # ...and a later scan is refused instead of matching against released submaps
     with pytest.raises(RuntimeError, match="finish"):
         slam.add_scan(1e3, ranges[0], angles, odo[0])
+
+
+def test_consensus_check_skips_an_earlier_blind_scan():
+    """A far closure's consensus check searches earlier nodes; one whose scan has no usable
+    endpoint (every seventh scan here reads no return at all) is skipped, not passed to
+    branch and bound (which refuses an empty scan)."""
+    from probmap.sim.floorplan import simulate_laser_world
+
+    w = simulate_laser_world(seed=1, size=(12.0, 8.0), step=0.2, range_noise=0.01)
+    slam = GraphSlam(max_range=w.max_range)
+    blind = np.full_like(w.ranges[0], w.max_range)  # every beam: no return
+    for i in range(len(w.poses)):
+        r = blind if i % 7 == 3 else w.ranges[i]
+        slam.add_scan(0.2 * i, r, w.angles, w.poses[i])
+    slam.finish()
+    assert slam.closures and any(c.far for c in slam.closures)

@@ -72,6 +72,14 @@ def grid_command(
         "--skip-bad-lines",
         help="Skip and count malformed or physically implausible log lines instead of failing.",
     ),
+    viz: bool = typer.Option(
+        False, "--viz", help="graph: watch the run in the rerun viewer (extra 'viz')."
+    ),
+    viz_save: Path | None = typer.Option(
+        None,
+        "--viz-save",
+        help="graph: record the live view into FILE.rrd (open it later with 'rerun FILE.rrd').",
+    ),
 ) -> None:
     """Grid SLAM from a raw log or ROS bag: writes the map (PREFIX.yaml/.pgm/.npz/.png, as
     'probmap map'), PREFIX.trajectory.csv (robot pose at every scan time) and, for the graph
@@ -99,8 +107,13 @@ def grid_command(
             "degeneracy_guard": guard,
         }
         if method == "graph":
-            _graph(log, prefix, end_time, bag_options, config, skip_bad_lines=skip_bad_lines)
+            _graph(
+                log, prefix, end_time, bag_options, config, skip_bad_lines=skip_bad_lines,
+                viz=viz, viz_save=viz_save,
+            )  # fmt: skip
         else:
+            if viz or viz_save is not None:
+                raise ValueError("--viz and --viz-save watch the graph method (--method graph)")
             if any(v is not None for v in bag_options.values()):
                 raise ValueError("--method rbpf reads CARMEN logs only (no bag options)")
             _rbpf(log, prefix, rbpf_options, end_time, config, skip_bad_lines=skip_bad_lines)
@@ -125,6 +138,8 @@ def _graph(
     config: Path | None,
     *,
     skip_bad_lines: bool = False,
+    viz: bool = False,
+    viz_save: Path | None = None,
 ) -> None:
     import resource
     import warnings
@@ -141,6 +156,18 @@ def _graph(
     prefix = check_output_prefix(output)
     from probmap.errors import BadLinesWarning
 
+    observer = None
+    if viz or viz_save is not None:
+        from probmap.pipelines import check_output_folder
+        from probmap.viz.live import GraphSlamObserver, LiveView
+
+        if viz_save is not None:
+            if viz_save.suffix != ".rrd":
+                raise ValueError(f"--viz-save {viz_save}: a recording is saved as FILE.rrd")
+            check_output_folder(viz_save.parent if str(viz_save.parent) else Path("."))
+        view = LiveView(f"probmap slam grid {log.name}", save=viz_save, spawn=viz)
+        observer = GraphSlamObserver(view)
+
     with Progress(transient=True) as bar, warnings.catch_warnings():
         # the summary reports skipped lines; no Python warning text on the terminal
         warnings.simplefilter("ignore", BadLinesWarning)
@@ -153,7 +180,14 @@ def _graph(
         def tick(done: int, total: int) -> None:
             bar.update(task, completed=done, total=total)
 
-        run = run_graph_slam(batch, cfg, progress=tick)
+        try:
+            run = run_graph_slam(batch, cfg, progress=tick, observer=observer)
+        except BaseException:
+            if observer is not None:
+                observer.view.close(keep=False)
+            raise
+        if observer is not None:
+            observer.view.close()
     with atomic_outputs():  # every file or none
         files = write_graph_slam(prefix, run)
         files.append(write_config(f"{prefix}.config.yaml", cfg))
@@ -181,6 +215,8 @@ def _graph(
         ("peak memory", f"{rss:.0f} MiB"),
     ]
     rows += [("wrote", str(f)) for f in files]
+    if viz_save is not None:
+        rows.append(("recorded", f"{viz_save} (rerun {viz_save})"))
     print_summary("grid SLAM (graph)", rows)
 
 

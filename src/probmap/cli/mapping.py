@@ -138,6 +138,12 @@ def map_command(
                 scheduler=scheduler,
                 chunks=chunks,
                 allow_partial=allow_partial,
+                bag_options={
+                    "scan_topic": scan_topic,
+                    "odom_topic": odom_topic,
+                    "fixed_frame": fixed_frame,
+                    "laser_frame": laser_frame,
+                },
             )
             return
         if method not in ("log-odds", "map"):

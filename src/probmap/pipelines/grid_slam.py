@@ -194,9 +194,15 @@ def run_graph_slam(
     config: Any = None,
     *,
     progress: Callable[[int, int], None] | None = None,
+    observer: Any = None,
 ) -> GraphSlamRun:
     """Run :class:`~probmap.slam.graph_slam.GraphSlam` over a scan batch (see
-    :func:`load_laser_log`) and build the final map."""
+    :func:`load_laser_log`) and build the final map.
+
+    ``observer``, when given, is called after every scan as ``observer(index, slam, ranges,
+    angles)`` (the live view: :class:`probmap.viz.live.GraphSlamObserver`); if it has a
+    ``finish`` method, that is called with the finished run.
+    """
     from probmap._memory import release_freed_memory
     from probmap.geometry.se2 import between, compose, inverse, wrap_angle
     from probmap.slam.graph_slam import GraphSlam, GraphSlamConfig
@@ -218,6 +224,8 @@ def run_graph_slam(
         else:
             a, r = angles[i, : beams[i]], batch.ranges[i, : beams[i]]
         slam.add_scan(times[i], r, a, laser[i])
+        if observer is not None:
+            observer(i, slam, r, a)
         if i % 200 == 199 or i == n - 1:
             peak = max(peak, slam.memory_bytes())
             release_freed_memory()  # finished submaps' grids and evicted max-grids
@@ -230,7 +238,7 @@ def run_graph_slam(
     poses[:, 2] = wrap_angle(poses[:, 2])
     grid = slam.map()
     seconds = time.perf_counter() - t0
-    return GraphSlamRun(
+    run = GraphSlamRun(
         grid=grid,
         times=times,
         poses=poses,
@@ -248,6 +256,9 @@ def run_graph_slam(
         memory_bytes=peak,
         slam=slam,
     )
+    if observer is not None and hasattr(observer, "finish"):
+        observer.finish(run)
+    return run
 
 
 def slam_graph_log(

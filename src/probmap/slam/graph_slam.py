@@ -648,6 +648,8 @@ class GraphSlam:
         from probmap.slam.loop_closure import branch_and_bound_search
 
         cfg = self.config
+        if self._node_points[k].shape[0] < 10:  # a blind scan (a consensus check may pick one)
+            return None
         fld, grids = self._grids(sm)
         self.searched += 1
         guess = between(self.graph.pose(sm.anchor), xk)

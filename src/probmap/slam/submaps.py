@@ -199,6 +199,22 @@ class Submap:
             n += self._field.values.nbytes
         return n
 
+    def occupied_points(self) -> NDArray[np.float64]:
+        """Centres (N, 2) of the occupied cells in the submap frame (metres): of the frozen
+        cells once finished, of the cells with positive log odds while active."""
+        if self.finished:
+            assert self._spec is not None and self._cells is not None
+            spec, cells = self._spec, self._cells
+        else:
+            assert self.grid is not None
+            spec = self.grid.spec
+            cells = np.flatnonzero(self.grid.log_odds > 0)
+        rows, cols = np.divmod(cells, spec.width)
+        r = spec.resolution
+        return np.column_stack(
+            [spec.origin[0] + (cols + 0.5) * r, spec.origin[1] + (rows + 0.5) * r]
+        )
+
     def occupied_cells(self) -> int:
         """Occupied cells of a finished submap (0 before)."""
         return 0 if self._cells is None else int(self._cells.size)

@@ -1,0 +1,293 @@
+"""Live view of a run in the rerun viewer, or a recording of it (``.rrd``) to open later.
+
+Needs the ``viz`` extra (``pip install 'probmap[viz]'``, which installs ``rerun-sdk``). The
+world frame is the map's: x to the right, y up, metres. Entities:
+
+``world/map``
+    An occupancy grid as an image (free white, occupied black, unknown grey), placed in metres
+    by a transform (origin and resolution of its :class:`~probmap.grid.spec.GridSpec`).
+``world/submaps/<i>``
+    Graph SLAM: the occupied cells of each finished submap, in its anchor's frame; the
+    transforms are logged again after every optimization, so the map moves as loops close.
+``world/trajectory``, ``world/scan``, ``world/closures``
+    The estimated path, the newest scan's endpoints, accepted loop closures (node to anchor).
+``world/particles``, ``world/landmarks``
+    Particle filters and landmark SLAM (means and 2-sigma ellipses).
+
+Every logged item carries the timeline ``scan`` (the scan index) so that the viewer can scrub
+through the run. :class:`GraphSlamObserver` is the observer that
+:func:`probmap.pipelines.grid_slam.run_graph_slam` calls after each scan.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["GraphSlamObserver", "LiveView", "read_recording"]
+
+_HINT = "the live view needs rerun: pip install 'probmap[viz]'"
+
+
+def _rerun() -> Any:
+    try:
+        import rerun
+    except ImportError as exc:
+        raise ImportError(_HINT) from exc
+    return rerun
+
+
+def _ellipse(mean: NDArray, cov: NDArray, k: float = 2.0, n: int = 24) -> NDArray[np.float64]:
+    """Closed polygon of the ``k``-sigma ellipse of a 2-D Gaussian, (n + 1, 2)."""
+    lam, vec = np.linalg.eigh(0.5 * (cov + cov.T))
+    lam = np.clip(lam, 0.0, None)
+    t = np.linspace(0.0, 2.0 * math.pi, n + 1)
+    circle = np.stack([np.cos(t), np.sin(t)])
+    return (mean[:, None] + k * (vec * np.sqrt(lam)) @ circle).T
+
+
+class LiveView:
+    """A rerun recording of one run: shown live (``spawn``), saved (``save``), or both.
+
+    Parameters
+    ----------
+    name : str
+        Application name shown by the viewer (``"probmap slam grid"``).
+    save : path-like, optional
+        Record everything into this ``.rrd`` file (open it with ``rerun FILE.rrd``). The
+        recording is written as the run goes into a temporary file beside it, renamed to
+        ``save`` by :meth:`close` (or removed by ``close(keep=False)``: a failed run leaves
+        no file). A missing folder is created.
+    spawn : bool
+        Start a rerun viewer and stream to it.
+
+    Raises
+    ------
+    ImportError
+        rerun is not installed (one line naming the extra).
+    ValueError
+        Neither ``save`` nor ``spawn``, or ``save`` does not end in ``.rrd``.
+    """
+
+    def __init__(
+        self, name: str, *, save: str | os.PathLike[str] | None = None, spawn: bool = False
+    ) -> None:
+        rr = _rerun()
+        if save is None and not spawn:
+            raise ValueError("a live view needs save=FILE.rrd, spawn=True or both")
+        self._rr = rr
+        self.file = None if save is None else Path(save)
+        if self.file is not None and self.file.suffix != ".rrd":
+            raise ValueError(f"{self.file}: a recording is saved as FILE.rrd")
+        self._rec: Any = rr.RecordingStream(name)
+        sinks = []
+        self._part: Path | None = None
+        if self.file is not None:
+            self.file.parent.mkdir(parents=True, exist_ok=True)
+            self._part = self.file.with_name(f".{self.file.name}.{os.getpid()}.part.rrd")
+            sinks.append(rr.FileSink(str(self._part)))
+        if spawn:
+            self._rec.spawn(connect=False)
+            sinks.append(rr.GrpcSink())
+        self._rec.set_sinks(*sinks)
+        self._rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Y_UP, static=True)
+
+    # ----------------------------------------------------------------- primitives
+    def step(self, scan: int) -> None:
+        """Set the ``scan`` timeline for what is logged next."""
+        self._rec.set_time("scan", sequence=int(scan))
+
+    def grid(self, grid: Any, entity: str = "world/map", *, max_pixels: int = 2000) -> None:
+        """An :class:`~probmap.grid.occupancy.OccupancyGrid` as an image placed in metres
+        (every ``step``-th cell so that the longer side has at most ``max_pixels``)."""
+        rr = self._rr
+        h, w = grid.spec.shape
+        step = max(1, -(-max(h, w) // max_pixels))
+        lo = np.asarray(grid.log_odds)[::step, ::step]
+        seen = np.asarray(grid.observed)[::step, ::step]
+        free = 1.0 / (1.0 + np.exp(lo.astype(np.float64)))  # 1 - p: free white
+        img = np.where(seen, free * 255.0, 160.0).astype(np.uint8)[::-1]  # row 0 on top
+        r = grid.spec.resolution * step
+        ox, oy = grid.spec.origin
+        top = oy + img.shape[0] * r
+        self._rec.log(entity, rr.Transform3D(translation=[ox, top, 0.0], scale=[r, -r, 1.0]))
+        self._rec.log(entity, rr.Image(img, color_model="L"))
+
+    def points(
+        self, entity: str, xy: ArrayLike, *, color: tuple[int, int, int] = (220, 40, 40),
+        radius: float = 0.04,
+    ) -> None:  # fmt: skip
+        """Points (N, 2) in metres."""
+        p = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        self._rec.log(entity, self._rr.Points2D(p, colors=color, radii=radius))
+
+    def path(
+        self, entity: str, xy: ArrayLike, *, color: tuple[int, int, int] = (30, 100, 220)
+    ) -> None:
+        """A polyline (N, 2) in metres."""
+        p = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        self._rec.log(entity, self._rr.LineStrips2D([p], colors=color, radii=0.03))
+
+    def segments(
+        self, entity: str, a: ArrayLike, b: ArrayLike, *, color: tuple[int, int, int] = (0, 160, 60)
+    ) -> None:
+        """Segments from ``a`` (N, 2) to ``b`` (N, 2), metres."""
+        pa = np.asarray(a, dtype=np.float64).reshape(-1, 2)
+        pb = np.asarray(b, dtype=np.float64).reshape(-1, 2)
+        strips = np.stack([pa, pb], axis=1)
+        self._rec.log(entity, self._rr.LineStrips2D(list(strips), colors=color, radii=0.02))
+
+    def frame(self, entity: str, pose: ArrayLike) -> None:
+        """Place ``entity`` at ``pose (x, y, theta)``: what is logged under it is in that frame."""
+        x, y, th = (float(v) for v in np.asarray(pose, dtype=np.float64).reshape(3))
+        c, s = math.cos(th), math.sin(th)
+        mat = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+        self._rec.log(entity, self._rr.Transform3D(translation=[x, y, 0.0], mat3x3=mat))
+
+    def ellipses(self, entity: str, means: ArrayLike, covs: ArrayLike) -> None:
+        """2-sigma ellipses of 2-D Gaussians: means (N, 2), covariances (N, 2, 2)."""
+        m = np.asarray(means, dtype=np.float64).reshape(-1, 2)
+        c = np.asarray(covs, dtype=np.float64).reshape(-1, 2, 2)
+        strips = [_ellipse(mi, ci) for mi, ci in zip(m, c, strict=True)]
+        self._rec.log(entity, self._rr.LineStrips2D(strips, colors=(240, 140, 0), radii=0.02))
+
+    def scalar(self, entity: str, value: float) -> None:
+        """A number over the run (a plot in the viewer)."""
+        self._rec.log(entity, self._rr.Scalars(float(value)))
+
+    def close(self, *, keep: bool = True) -> None:
+        """Flush and close the recording: the ``.rrd`` file is complete and in place
+        afterwards (``keep=False``: the recording is deleted). Closing twice does nothing."""
+        if self._rec is None:
+            return
+        self._rec.flush()
+        self._rec.disconnect()
+        self._rec = None
+        if self._part is not None and self.file is not None:
+            if keep:
+                os.replace(self._part, self.file)
+            else:
+                self._part.unlink(missing_ok=True)
+
+    def __enter__(self) -> LiveView:
+        return self
+
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        self.close(keep=exc_type is None)
+
+
+def _scan_points(pose: NDArray, ranges: NDArray, angles: NDArray, max_range: float) -> NDArray:
+    ok = np.isfinite(ranges) & (ranges > 0) & (ranges < max_range)
+    r, a = ranges[ok], angles[ok] + pose[2]
+    return np.column_stack([pose[0] + r * np.cos(a), pose[1] + r * np.sin(a)])
+
+
+class GraphSlamObserver:
+    """Streams a :class:`~probmap.slam.graph_slam.GraphSlam` run to a :class:`LiveView`.
+
+    Called after every scan (``observer(index, slam, ranges, angles)``); it logs the newest
+    node's scan every ``every`` nodes and each finished submap once. What grows with the run
+    (the trajectory, the closures, the transforms of all submaps after an optimization) is
+    logged at most once per ``interval`` seconds of wall time, so that watching costs about the
+    same share of a long run as of a short one; :meth:`finish` logs the final state.
+
+    Parameters
+    ----------
+    view : LiveView
+    every : int
+        Nodes between updates of the scan.
+    interval : float
+        Least wall time (seconds) between updates of the trajectory, closures and submap
+        transforms (0: at every ``every``-th node and every optimization).
+    """
+
+    def __init__(self, view: LiveView, *, every: int = 5, interval: float = 1.0) -> None:
+        if every < 1:
+            raise ValueError(f"every must be >= 1, got {every}")
+        if not interval >= 0:
+            raise ValueError(f"interval must be >= 0 s, got {interval}")
+        self.view = view
+        self.every = int(every)
+        self.interval = float(interval)
+        self._last = -math.inf  # wall time of the last update of the growing items
+        self._nodes = 0
+        self._submaps = 0  # finished submaps logged
+        self._optimizations = -1
+        self._closures = 0
+
+    def __call__(self, index: int, slam: Any, ranges: NDArray, angles: NDArray) -> None:
+        v = self.view
+        n = slam.nodes
+        new_node = n > self._nodes
+        self._nodes = n
+        v.step(index)
+        poses = slam.graph.poses
+        self._new_submaps(slam, poses)
+        if not (new_node and (n - 1) % self.every == 0):
+            return
+        v.points("world/scan", _scan_points(poses[n - 1], ranges, angles, slam.max_range))
+        v.scalar("stats/closures", len(slam.closures))
+        now = time.perf_counter()
+        if now - self._last < self.interval:
+            return
+        self._last = now
+        v.path("world/trajectory", poses[:n, :2])
+        if slam.optimizations != self._optimizations:
+            # every pose moved: the submaps follow their anchors, the closures their ends
+            self._optimizations = slam.optimizations
+            for sm in slam.submaps[: self._submaps]:
+                v.frame(f"world/submaps/{sm.index}", poses[sm.anchor])
+            if len(slam.closures) > self._closures:
+                edges = slam.closure_edges()
+                v.segments("world/closures", poses[edges[:, 0], :2], poses[edges[:, 1], :2])
+                self._closures = len(edges)
+
+    def _new_submaps(self, slam: Any, poses: NDArray) -> None:
+        """Log the submaps finished since the last call (in order), each in its anchor's
+        frame."""
+        v = self.view
+        while self._submaps < len(slam.submaps) and slam.submaps[self._submaps].finished:
+            sm = slam.submaps[self._submaps]
+            v.points(
+                f"world/submaps/{sm.index}", sm.occupied_points(), color=(20, 20, 20), radius=0.03
+            )
+            v.frame(f"world/submaps/{sm.index}", poses[sm.anchor])
+            self._submaps += 1
+
+    def finish(self, run: Any) -> None:
+        """The final map, trajectory, submaps and closures of the run (``GraphSlamRun``)."""
+        v = self.view
+        v.step(len(run.times))
+        self._new_submaps(run.slam, run.slam.graph.poses)
+        for sm in run.slam.submaps[: self._submaps]:
+            v.frame(f"world/submaps/{sm.index}", run.slam.graph.poses[sm.anchor])
+        v.grid(run.grid)
+        v.path("world/trajectory", run.sensor_poses[:, :2])
+        if len(run.closures):
+            p = run.node_poses  # closures are (node, anchor) pairs
+            v.segments("world/closures", p[run.closures[:, 0], :2], p[run.closures[:, 1], :2])
+
+
+def read_recording(path: str | os.PathLike[str]) -> dict[str, int]:
+    """Entities of a ``.rrd`` recording and how many rows each has (for tests and checks).
+
+    Returns
+    -------
+    dict
+        ``{entity path: rows logged}``, for example ``{"/world/trajectory": 12, ...}``.
+    """
+    _rerun()
+    from rerun.chunk import RrdReader
+
+    counts: dict[str, int] = {}
+    for chunk in RrdReader(Path(path)).store().stream():
+        if chunk.is_static:
+            continue
+        counts[chunk.entity_path] = counts.get(chunk.entity_path, 0) + chunk.num_rows
+    return counts

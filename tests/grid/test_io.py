@@ -241,9 +241,9 @@ def test_orientation_of_a_known_cell(tmp_path):
     assert img[12, 22] == 0
     png = pil_grey(tmp_path / "o.png")
     assert png.shape == (60, 80)
-    rows, cols = np.nonzero(png != 205)
+    rows, cols = np.nonzero(png != 128)  # the preview's unknown grey
     assert sorted(set(rows.tolist())) == [24, 25] and sorted(set(cols.tolist())) == [44, 45]
-    assert png[24, 44] == 51  # 255 * (1 - 0.8)
+    assert png[24, 44] == 0  # p = 0.8 >= 0.75: black
     back = read_map_server(tmp_path / "o.yaml")
     cx, cy = back.spec.world_to_cell([1.23, 3.71])
     assert back.classify()[cy, cx] == 1 and (back.classify() == 1).sum() == 1
@@ -409,9 +409,11 @@ def test_png_preview(tmp_path):
     assert img.shape == (3 * h, 3 * w) and img.dtype == np.uint8
     small = img[::3, ::3][::-1]  # back to [iy, ix], row 0 at the smallest y
     seen = grid.observed
-    assert (small[~seen] == 205).all()
-    expect = np.rint(255 * (1 - grid.probability()))
+    assert (small[~seen] == 128).all()  # unknown: mid-grey
+    p = grid.probability()
+    expect = np.rint(255 * np.clip((0.75 - p) / 0.5, 0, 1))  # white p <= 0.25, black >= 0.75
     np.testing.assert_array_equal(small[seen], expect[seen])
+    assert (small[seen & (p <= 0.25)] == 255).all() and (small[seen & (p >= 0.75)] == 0).all()
 
 
 def test_save_map_writes_four_consistent_files(tmp_path):

@@ -61,6 +61,11 @@ MODES = ("trinary", "scale", "raw")
 NPZ_FORMAT = "probmap.OccupancyGrid"
 NPZ_VERSION = 1
 UNKNOWN_GREY = 205  # map_saver's value for unknown cells
+#: The preview PNG's palette: unknown mid-grey; observed cells from white (p <= 0.25, free) to
+#: black (p >= 0.75, occupied), linear between, so that a free cell seen a few times is white
+#: and a wall black (``255 (1 - p)`` made free space light grey 224 next to unknown 205).
+PREVIEW_UNKNOWN = 128
+PREVIEW_FREE_P, PREVIEW_OCCUPIED_P = 0.25, 0.75
 FREE_WHITE = 254
 OCCUPIED_BLACK = 0
 _IMAGE_SUFFIXES = (".pgm", ".png")
@@ -671,7 +676,8 @@ def load_npz(path: str | os.PathLike[str]) -> OccupancyGrid:
 
 
 def preview_image(grid: GridLike, scale: int = 1) -> NDArray[np.uint8]:
-    """Grey preview, row 0 = top: ``255 (1 - p)`` on observed cells, 205 on unknown ones."""
+    """Grey preview, row 0 = top: observed cells white (``p <= 0.25``) to black
+    (``p >= 0.75``), linear between; never-observed cells mid-grey (128)."""
     p = np.asarray(grid.probability(), dtype=np.float64)
     return _preview_pixels(p, np.asarray(grid.observed, dtype=bool), scale)
 
@@ -681,14 +687,15 @@ def _preview_pixels(
 ) -> NDArray[np.uint8]:
     if isinstance(scale, bool) or not isinstance(scale, (int, np.integer)) or scale < 1:
         raise ValueError(f"scale must be a positive integer, got {scale!r}")
-    v = np.where(seen, np.rint(255.0 * (1.0 - p)), UNKNOWN_GREY).astype(np.uint8)[::-1]
+    q = np.clip((PREVIEW_OCCUPIED_P - p) / (PREVIEW_OCCUPIED_P - PREVIEW_FREE_P), 0.0, 1.0)
+    v = np.where(seen, np.rint(255.0 * q), PREVIEW_UNKNOWN).astype(np.uint8)[::-1]
     if scale > 1:
         v = np.repeat(np.repeat(v, scale, axis=0), scale, axis=1)
     return np.ascontiguousarray(v)
 
 
 def save_png(path: str | os.PathLike[str], grid: GridLike, *, scale: int = 1) -> Path:
-    """Write a grey PNG preview (occupied dark, free white, unknown grey 205), atomically.
+    """Write a grey PNG preview (free white, occupied black, unknown mid-grey), atomically.
 
     ``scale`` enlarges every cell to ``scale x scale`` pixels.
     """

@@ -141,6 +141,7 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
 
 # ------------------------------------------------------------------------------ the commands
 MAP = (".yaml", ".pgm", ".npz", ".png")
+MAPPED = (*MAP, ".plot.png")  # what write_map writes: the map files and the picture
 
 
 @dataclass(frozen=True)
@@ -174,15 +175,15 @@ def _to_bag(i: dict[str, Path], out: str, folder: Path) -> list[str]:
 
 COMMANDS = [
     Command(
-        "map", lambda i, o, f: ["map", str(i["log"]), "-o", o, "-r", "0.1"], MAP, default="map"
+        "map", lambda i, o, f: ["map", str(i["log"]), "-o", o, "-r", "0.1"], MAPPED, default="map"
     ),
     Command(
         "map --method map",
         lambda i, o, f: ["map", str(i["log"]), "-o", o, "-r", "0.2", "--method", "map"],
-        MAP,
+        MAPPED,
         default="map",
     ),
-    Command("map --to-bag", _to_bag, MAP, default="map", extra=("grid.bag",)),
+    Command("map --to-bag", _to_bag, MAPPED, default="map", extra=("grid.bag",)),
     Command(
         "slam grid",
         lambda i, o, f: ["slam", "grid", str(i["log"]), "-o", o],
@@ -240,7 +241,9 @@ COMMANDS = [
         ("trajectory.csv", "trajectory.png"),
         prefix=False,
     ),
-    Command("demo", lambda i, o, f: ["demo", "-o", o], tuple(f"map{s}" for s in MAP), prefix=False),
+    Command(
+        "demo", lambda i, o, f: ["demo", "-o", o], tuple(f"map{s}" for s in MAPPED), prefix=False
+    ),
     Command(
         "demo --semantic",
         lambda i, o, f: ["demo", "--semantic", "-o", o],

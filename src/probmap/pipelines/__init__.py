@@ -89,6 +89,10 @@ class MappingResult:
     extra: dict[str, float] = field(default_factory=dict)
     readings: Any = None
     """The :class:`~probmap.datasets.validate.ReadingReport` of the log (None for a simulation)."""
+    trajectory: Any = None
+    """Sensor poses (S, 3) of the scans, drawn on ``PREFIX.plot.png`` (None: no trajectory)."""
+    source: str | None = None
+    """What was mapped (the log's file name), the title of ``PREFIX.plot.png``."""
 
 
 def _check_folder(folder: Path, what: str) -> None:
@@ -215,6 +219,8 @@ def map_log(
         map_seconds=t2 - t1,
         skipped_lines=int(getattr(batch, "skipped_lines", 0)),
         readings=report,
+        trajectory=poses,
+        source=Path(path).name,
     )
 
 
@@ -245,16 +251,24 @@ def _without_padding(stats: ScanStats, batch: Any) -> ScanStats:
 
 
 def write_map(prefix: str | os.PathLike[str], result: MappingResult) -> MappingResult:
-    """Write ``PREFIX.yaml``, ``.pgm``, ``.npz`` and ``.png`` all-or-nothing (creating a missing
-    folder); returns the result with the files and the write time filled in."""
+    """Write ``PREFIX.yaml``, ``.pgm``, ``.npz``, ``.png`` and the picture ``PREFIX.plot.png``
+    (axes in metres, a scale bar, the input's name, the trajectory) all-or-nothing (creating a
+    missing folder); returns the result with the files and the write time filled in."""
     from dataclasses import replace
 
     from probmap._atomic import atomic_outputs
     from probmap.grid.io import save_map
+    from probmap.viz.maps import save_map_figure
 
     t0 = time.perf_counter()
     with atomic_outputs():  # a missing folder is created (and removed again on failure)
-        files = save_map(prefix, result.grid)
+        files = list(save_map(prefix, result.grid))
+        files.append(
+            save_map_figure(
+                f"{prefix}.plot.png", result.grid, trajectory=result.trajectory,
+                title=result.source,
+            )
+        )  # fmt: skip
     return replace(
         result, files=tuple(Path(f) for f in files), write_seconds=time.perf_counter() - t0
     )
@@ -288,7 +302,10 @@ def run_mapping_demo(
     stats = grid.integrate_scans(world.poses, world.ranges, world.angles, max_range=world.max_range)
     t2 = time.perf_counter()
     acc, n = map_accuracy(grid.classify(0.5, 0.5), grid.spec, world.truth, world.spec)
-    result = MappingResult(grid, stats, t1 - t0, t2 - t1)
+    result = MappingResult(
+        grid, stats, t1 - t0, t2 - t1, trajectory=world.poses,
+        source="probmap demo: simulated floor plan",
+    )  # fmt: skip
     if prefix is not None:
         result = write_map(prefix, result)
     return DemoResult(result, acc, n, len(world.poses))
@@ -364,4 +381,6 @@ def map_log_map(
         skipped_lines=int(getattr(batch, "skipped_lines", 0)),
         extra=extra,
         readings=report,
+        trajectory=np.asarray(batch.laser_poses),
+        source=f"{Path(path).name} (MAP mapping)",
     )

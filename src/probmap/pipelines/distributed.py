@@ -285,6 +285,8 @@ class DistributedMappingResult:
             map_seconds=self.seconds,
             skipped_lines=self.skipped_lines,
             extra={"tasks": float(self.tasks), "workers": float(self.workers)},
+            source=", ".join(p.name for p in self.mapped[:3])
+            + (f" and {len(self.mapped) - 3} more" if len(self.mapped) > 3 else ""),
         )
 
 

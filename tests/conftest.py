@@ -35,3 +35,24 @@ def _need(rel: str) -> Path:
 def shared_data():
     """Return a function ``need(relative_path) -> Path`` that skips (or fails under CI)."""
     return _need
+
+
+@pytest.fixture
+def sim_log():
+    """Return a function ``write(path, seed=1) -> path`` that writes the simulated floor-plan
+    tour (12 x 8 m, a scan every 0.2 m, 1 cm range noise) as a CARMEN ``FLASER`` log whose
+    laser poses are the odometry: a small real-looking input for laser commands."""
+
+    def write(path: Path, seed: int = 1) -> Path:
+        from probmap.sim.floorplan import simulate_laser_world
+
+        w = simulate_laser_world(seed=seed, size=(12.0, 8.0), step=0.2, range_noise=0.01)
+        lines = [f"PARAM robot_front_laser_max {w.max_range}"]
+        for i, (p, r) in enumerate(zip(w.poses, w.ranges, strict=True)):
+            rs = " ".join(f"{v:.3f}" for v in r)
+            pose = f"{p[0]:.6f} {p[1]:.6f} {p[2]:.6f}"
+            lines.append(f"FLASER {len(r)} {rs} {pose} {pose} {i * 0.2:.3f} sim {i * 0.2:.3f}")
+        path.write_text("\n".join(lines) + "\n")
+        return path
+
+    return write

@@ -623,6 +623,9 @@ def test_log_without_a_usable_reading_fails_on_the_cluster(client, fleet, tmp_pa
         map_logs_distributed([fleet[0], blind], NO_CLAMP, client=client, progress=False)
     with pytest.raises(DistributedMappingError, match="blind.log"):
         map_logs_distributed([blind], NO_CLAMP, client=client, progress=False)
+    with pytest.raises(DistributedMappingError, match="blind.log.*no usable laser reading"):
+        map_logs_distributed([blind], NO_CLAMP, client=client, progress=False,
+                             options=DistributedOptions(chunks=2))  # fmt: skip
 
 
 def test_bags_on_the_cluster_map_like_map_log(client, tmp_path: Path) -> None:

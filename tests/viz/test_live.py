@@ -13,7 +13,6 @@ pytest.importorskip("rerun")
 
 from probmap.datasets.carmen import load_scans  # noqa: E402
 from probmap.pipelines.grid_slam import load_laser_log, run_graph_slam  # noqa: E402
-from probmap.sim.floorplan import simulate_laser_world  # noqa: E402
 from probmap.viz.live import GraphSlamObserver, LiveView, _ellipse, read_recording  # noqa: E402
 
 
@@ -36,18 +35,6 @@ def last_value(path: Path, entity: str, component: str):
                 best = (t, values[k].as_py())
     assert best is not None, (entity, component)
     return best[1]
-
-
-def write_log(path: Path, seed: int = 1) -> Path:
-    """A simulated tour as a CARMEN FLASER log (laser pose = odometry pose)."""
-    w = simulate_laser_world(seed=seed, size=(12.0, 8.0), step=0.2, range_noise=0.01)
-    lines = [f"PARAM robot_front_laser_max {w.max_range}"]
-    for i, (p, r) in enumerate(zip(w.poses, w.ranges, strict=True)):
-        rs = " ".join(f"{v:.3f}" for v in r)
-        pose = f"{p[0]:.6f} {p[1]:.6f} {p[2]:.6f}"
-        lines.append(f"FLASER {len(r)} {rs} {pose} {pose} {i * 0.2:.3f} sim {i * 0.2:.3f}")
-    path.write_text("\n".join(lines) + "\n")
-    return path
 
 
 def test_recording_round_trip_and_all_or_nothing(tmp_path):
@@ -85,9 +72,9 @@ def test_ellipse_is_the_two_sigma_contour():
     np.testing.assert_allclose(m, 4.0, rtol=1e-9)  # Mahalanobis distance 2 everywhere
 
 
-def test_graph_slam_recording_shows_the_run(tmp_path):
+def test_graph_slam_recording_shows_the_run(tmp_path, sim_log):
     """Every finished submap once, the final trajectory and closures equal to the run's."""
-    log = write_log(tmp_path / "tour.log")
+    log = sim_log(tmp_path / "tour.log")
     batch = load_laser_log(log)
     rrd = tmp_path / "slam.rrd"
     with LiveView("probmap test", save=rrd) as view:
@@ -112,14 +99,14 @@ def test_graph_slam_recording_shows_the_run(tmp_path):
     np.testing.assert_allclose(np.asarray(pts), sm.occupied_points(), atol=1e-5)
 
 
-def test_slam_grid_viz_save_on_the_cli(tmp_path):
+def test_slam_grid_viz_save_on_the_cli(tmp_path, sim_log):
     from typer.testing import CliRunner
 
     from probmap.cli import register
     from probmap.cli.app import app
 
     register(app)
-    log = write_log(tmp_path / "tour.log")
+    log = sim_log(tmp_path / "tour.log")
     rrd = tmp_path / "rec" / "tour.rrd"
     res = CliRunner().invoke(
         app, ["slam", "grid", str(log), "-o", str(tmp_path / "out"), "--viz-save", str(rrd)]

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -80,6 +83,12 @@ def grid_command(
         "--viz-save",
         help="graph: record the live view into FILE.rrd (open it later with 'rerun FILE.rrd').",
     ),
+    save_partial: bool = typer.Option(
+        True,
+        "--save-partial/--no-save-partial",
+        help="graph: on Ctrl-C, finish with the scans so far and write their map and trajectory "
+        "(exit 130); a second Ctrl-C aborts without writing.",
+    ),
 ) -> None:
     """Grid SLAM from a raw log or ROS bag: writes the map (PREFIX.yaml/.pgm/.npz/.png, as
     'probmap map'), PREFIX.trajectory.csv (robot pose at every scan time) and, for the graph
@@ -109,7 +118,7 @@ def grid_command(
         if method == "graph":
             _graph(
                 log, prefix, end_time, bag_options, config, skip_bad_lines=skip_bad_lines,
-                viz=viz, viz_save=viz_save,
+                viz=viz, viz_save=viz_save, save_partial=save_partial,
             )  # fmt: skip
         else:
             if viz or viz_save is not None:
@@ -140,6 +149,7 @@ def _graph(
     skip_bad_lines: bool = False,
     viz: bool = False,
     viz_save: Path | None = None,
+    save_partial: bool = True,
 ) -> None:
     import resource
     import warnings
@@ -181,7 +191,8 @@ def _graph(
             bar.update(task, completed=done, total=total)
 
         try:
-            run = run_graph_slam(batch, cfg, progress=tick, observer=observer)
+            with _stop_on_ctrl_c(save_partial) as stop:
+                run = run_graph_slam(batch, cfg, progress=tick, observer=observer, stop=stop)
         except BaseException:
             if observer is not None:
                 observer.view.close(keep=False)
@@ -217,7 +228,46 @@ def _graph(
     rows += [("wrote", str(f)) for f in files]
     if viz_save is not None:
         rows.append(("recorded", f"{viz_save} (rerun {viz_save})"))
+    if run.interrupted:
+        rows.insert(1, ("interrupted", f"at scan {len(run.times):,} of {run.scans_total:,}"))
     print_summary("grid SLAM (graph)", rows)
+    if run.interrupted:
+        print(
+            f"interrupted: wrote the map and trajectory of the first {len(run.times):,} of "
+            f"{run.scans_total:,} scans",
+            file=sys.stderr,
+        )
+        raise typer.Exit(130)
+
+
+@contextmanager
+def _stop_on_ctrl_c(enabled: bool) -> Iterator[Callable[[], bool] | None]:
+    """While active, the first Ctrl-C (SIGINT) asks the run to stop after the current scan
+    (the yielded callable then returns True) and says so; a second one raises
+    KeyboardInterrupt as usual. Disabled, or off the main thread, it changes nothing."""
+    import signal
+    import threading
+
+    if not enabled or threading.current_thread() is not threading.main_thread():
+        yield None
+        return
+    asked = [False]
+
+    def handler(signum: int, frame: Any) -> None:
+        if asked[0]:
+            raise KeyboardInterrupt
+        asked[0] = True
+        print(
+            "\nCtrl-C: stopping after this scan and writing what was mapped "
+            "(Ctrl-C again to abort)",
+            file=sys.stderr,
+        )
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield lambda: asked[0]
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _rbpf(

@@ -236,6 +236,25 @@ def _share_max_range(batch: ScanBatch | None) -> float | None:
 
 
 @_task
+def _share_readings(batch: ScanBatch | None) -> Any:
+    """A parsed share's reading counts (a few numbers travel, not the scans)."""
+    return None if batch is None else batch.readings
+
+
+@_task
+def _require_usable_task(path: str, *reports: Any) -> bool:
+    """The whole log has at least one usable reading (else a DatasetError naming it)."""
+    from probmap.datasets.validate import ReadingReport, require_usable
+
+    total = ReadingReport()
+    for r in reports:
+        if r is not None:
+            total = total + r
+    require_usable(total, path)
+    return True
+
+
+@_task
 def _max_range_task(path: str, *ranges: float | None) -> float:
     """The whole log's maximum range (the smallest of its scans', as for one batch)."""
     from probmap.errors import DatasetError
@@ -520,7 +539,10 @@ def _run(
         split = client.submit(_split_task, str(f), opts.chunks, retries=retries, pure=False)
         picks = [client.submit(_pick, split, k, retries=retries) for k in range(opts.chunks)]
         parsed = [client.submit(_parse_task, s, cfg, retries=retries) for s in picks]
-        futs = [split, *picks, *parsed]
+        # the log as a whole must have a usable reading (a share alone need not)
+        reports = [client.submit(_share_readings, b, retries=retries) for b in parsed]
+        usable = client.submit(_require_usable_task, str(f), *reports, retries=retries)
+        futs = [split, *picks, *parsed, *reports, usable]
         if cfg.max_range is None:  # the smallest of the scans' maxima, as for the whole log
             each = [client.submit(_share_max_range, b, retries=retries) for b in parsed]
             mr = client.submit(_max_range_task, str(f), *each, retries=retries)

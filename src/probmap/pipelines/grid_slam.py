@@ -68,6 +68,9 @@ class GraphSlamRun:
         Largest memory held by submaps, cached closure grids and stored scans.
     slam : object
         The :class:`~probmap.slam.graph_slam.GraphSlam` (its pose graph is written as g2o).
+    scans_total : int
+        Scans in the input; more than ``len(times)`` when the run was stopped early
+        (``stop``): everything above then describes the scans it got to.
     """
 
     grid: OccupancyGrid
@@ -86,6 +89,12 @@ class GraphSlamRun:
     duration: float
     memory_bytes: int
     slam: Any
+    scans_total: int = -1
+
+    @property
+    def interrupted(self) -> bool:
+        """Whether the run stopped before the last scan (``stop`` said so)."""
+        return 0 <= len(self.times) < self.scans_total
 
     @property
     def nodes(self) -> int:
@@ -195,6 +204,7 @@ def run_graph_slam(
     *,
     progress: Callable[[int, int], None] | None = None,
     observer: Any = None,
+    stop: Callable[[], bool] | None = None,
 ) -> GraphSlamRun:
     """Run :class:`~probmap.slam.graph_slam.GraphSlam` over a scan batch (see
     :func:`load_laser_log`) and build the final map.
@@ -202,6 +212,12 @@ def run_graph_slam(
     ``observer``, when given, is called after every scan as ``observer(index, slam, ranges,
     angles)`` (the live view: :class:`probmap.viz.live.GraphSlamObserver`); if it has a
     ``finish`` method, that is called with the finished run.
+
+    ``stop``, when given, is asked before every scan; once it returns True the run ends there
+    as if the log ended: the graph is optimized and the map built from the scans so far
+    (``GraphSlamRun.interrupted``). The CLI's Ctrl-C handler sets it, so that an interrupted
+    run still writes what it mapped. Stopping between scans keeps the state consistent, which
+    an exception raised inside a scan's update would not.
     """
     from probmap._memory import release_freed_memory
     from probmap.geometry.se2 import between, compose, inverse, wrap_angle
@@ -216,9 +232,12 @@ def run_graph_slam(
     angles = np.asarray(batch.angles, dtype=np.float64)
     beams = np.asarray(batch.beams)
     slam = GraphSlam(cfg, max_range=float(batch.max_range))
-    n = len(times)
+    n_total = n = len(times)
     peak = 0
     for i in range(n):
+        if stop is not None and i > 1 and stop():
+            n = i  # as if the log ended here
+            break
         if angles.ndim == 1:
             a, r = angles, batch.ranges[i]
         else:
@@ -231,6 +250,8 @@ def run_graph_slam(
             release_freed_memory()  # finished submaps' grids and evicted max-grids
             if progress is not None:
                 progress(i + 1, n)
+    if n < n_total:  # stopped early: the scans it got to
+        times, mount = times[:n], mount[:n]
     slam.finish()
     release_freed_memory()  # the matching phase's freed pages, before the map is laid out
     _, sensor = slam.trajectory()
@@ -255,6 +276,7 @@ def run_graph_slam(
         duration=float(times[-1] - times[0]),
         memory_bytes=peak,
         slam=slam,
+        scans_total=n_total,
     )
     if observer is not None and hasattr(observer, "finish"):
         observer.finish(run)

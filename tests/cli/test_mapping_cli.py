@@ -179,3 +179,14 @@ def test_demo_semantic_and_localize_flags(tmp_path):
     assert "IoU" in res.output and (tmp_path / "s" / "semantic.png").exists()
     res = run("demo", "--semantic", "--localize", "-o", str(tmp_path / "x"))
     assert res.exit_code == 1 and "choose one" in res.output
+
+
+def test_to_bag_is_refused_with_a_cluster_before_any_work(tmp_path):
+    """``--to-bag`` writes one bag's map; with --workers (or several logs, or --chunks) it is a
+    one-line error up front, not an option silently ignored."""
+    log = _write_log(tmp_path / "a.log")
+    for extra in (["--workers", "1"], ["--chunks", "2"], [str(log)]):
+        res = run("map", log, *extra, "-o", tmp_path / "out", "--to-bag", tmp_path / "m.bag")
+        assert res.exit_code == 1, res.output
+        assert "--to-bag writes the map of one bag" in res.output and "Traceback" not in res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.log"]

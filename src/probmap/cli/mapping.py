@@ -128,6 +128,11 @@ def map_command(
         if workers is not None or scheduler is not None or len(logs) > 1 or chunks > 1:
             if method != "log-odds":
                 raise ValueError("--method map runs on one log, not on a Dask cluster")
+            if to_bag is not None:
+                raise ValueError(
+                    "--to-bag writes the map of one bag; not with --workers, --scheduler, "
+                    "--chunks or several logs"
+                )
             from probmap.cli.distributed import run_map_distributed
 
             run_map_distributed(

@@ -181,12 +181,13 @@ def test_demo_semantic_and_localize_flags(tmp_path):
     assert res.exit_code == 1 and "choose one" in res.output
 
 
-def test_to_bag_is_refused_with_a_cluster_before_any_work(tmp_path):
+def test_to_bag_is_refused_with_a_cluster_before_any_work(tmp_path, shared_data):
     """``--to-bag`` writes one bag's map; with --workers (or several logs, or --chunks) it is a
     one-line error up front, not an option silently ignored."""
-    log = _write_log(tmp_path / "a.log")
-    for extra in (["--workers", "1"], ["--chunks", "2"], [str(log)]):
-        res = run("map", log, *extra, "-o", tmp_path / "out", "--to-bag", tmp_path / "m.bag")
+    bag = shared_data("intel-research-lab/intel.orig.bag")
+    for extra in (["--workers", "1"], ["--chunks", "2"], [str(bag)]):
+        res = run("map", str(bag), *extra, "-o", str(tmp_path / "out"), "--to-bag",
+                  str(tmp_path / "m.bag"))  # fmt: skip
         assert res.exit_code == 1, res.output
         assert "--to-bag writes the map of one bag" in res.output and "Traceback" not in res.output
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.log"]
+    assert list(tmp_path.iterdir()) == []

@@ -186,7 +186,8 @@ def main() -> None:
     args = ap.parse_args()
 
     from probmap.filters.mcl import MCLConfig, MonteCarloLocalization
-    from probmap.grid.forward import BeamModel, LikelihoodField
+    from probmap.models.beam import BeamModel
+    from probmap.models.likelihood_field import LikelihoodField
     from probmap.models.sampling import OdometryMotionModel
     from probmap.sim.localization import simulate_localization_world
 

@@ -23,7 +23,6 @@ MIN_EXAMPLES = {
     "probmap.datasets.rosbag": 2,
     "probmap.filters.kld": 1,
     "probmap.filters.resampling": 1,
-    "probmap.grid.fit": 1,
     "probmap.grid.logodds": 1,
     "probmap.grid.occupancy": 1,
     "probmap.grid.raycast": 1,
@@ -31,7 +30,7 @@ MIN_EXAMPLES = {
     "probmap.grid.semantic_io": 1,
     "probmap.grid.spec": 1,
     "probmap.mapping.map_mapping": 1,
-    "probmap.models.beam": 1,
+    "probmap.models.beam": 2,
     "probmap.slam.posegraph": 1,
 }
 

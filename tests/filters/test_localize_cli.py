@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 
 from probmap.cli import register
 from probmap.cli.app import app
-from probmap.grid.forward import BeamModel
+from probmap.models.beam import BeamModel
 from probmap.sim.localization import simulate_localization_world
 
 register(app)

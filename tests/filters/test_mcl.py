@@ -17,7 +17,7 @@ from probmap.filters.mcl import (
     RangeBearingLandmarks,
 )
 from probmap.filters.particle import ParticleFilterWarning
-from probmap.grid.forward import LikelihoodField
+from probmap.models.likelihood_field import LikelihoodField
 from probmap.models.sampling import OdometryMotionModel, VelocityMotionModel
 from probmap.sim.localization import simulate_localization_world
 

@@ -23,7 +23,7 @@ from probmap.filters.mcl import (
     mcl_weight,
     sample_pose_gaussian,
 )
-from probmap.grid.forward import LikelihoodField
+from probmap.models.likelihood_field import LikelihoodField
 from probmap.models.sampling import OdometryMotionModel, VelocityMotionModel
 from probmap.sim.floorplan import simulate_laser_world
 

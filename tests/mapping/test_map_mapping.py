@@ -106,7 +106,7 @@ def small_world(seed: int, *, cone: bool = False):
 
 
 def test_log_likelihood_matches_reference_and_forward_model():
-    from probmap.grid import _forward_kernels as fk
+    from probmap.models import _beam_kernels as bk
 
     p = BeamModelParams()
     rng = np.random.default_rng(1)
@@ -116,8 +116,8 @@ def test_log_likelihood_matches_reference_and_forward_model():
         z = min(max(z, 0.0), 10.0)
         ours = float(p.log_likelihood(z, zs, 10.0))
         assert ours == pytest.approx(ref_log_likelihood(z, zs, 10.0, p), rel=1e-12, abs=1e-12)
-        # the particle filter's beam model (Table 6.1) uses the same formula
-        theirs = fk.beam_log_likelihood(z, zs, 10.0, *p.as_array())
+        # the particle filter's beam model (Table 6.1) calls the same scalar kernel
+        theirs = bk.beam_log_likelihood(z, zs, 10.0, *p.as_array())
         assert ours == pytest.approx(theirs, rel=1e-12, abs=1e-12)
 
 

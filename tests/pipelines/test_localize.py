@@ -99,7 +99,7 @@ def test_intel_global_localization_converges(intel, seed):
 
 def test_intel_kidnapped_robot_recovers_with_augmented_mcl(intel):
     from probmap.filters.mcl import FreeSpaceSampler, MCLConfig, MonteCarloLocalization
-    from probmap.grid.forward import LikelihoodField
+    from probmap.models.likelihood_field import LikelihoodField
     from probmap.models.sampling import OdometryMotionModel
 
     grid, raw, ref_t, ref_p, raw_idx, ref_idx = intel

@@ -16,7 +16,15 @@ import pytest
 
 #: old module -> {new module: names that moved there}
 SHIMS = {
-    "probmap.grid.fit": {"probmap.pipelines.fit": ["fit_log"]},
+    "probmap.grid.fit": {
+        "probmap.pipelines.fit": ["fit_log"],
+        "probmap.models.beam": ["FitResult", "component_densities", "fit_beam_model"],
+    },
+    "probmap.grid.forward": {
+        "probmap.models.beam": ["BeamModel"],
+        "probmap.models.likelihood_field": ["LikelihoodField"],
+        "probmap.models.grid_map": ["GridGeometry", "occupied_mask"],
+    },
     "probmap.slam.gridslam": {"probmap.pipelines.grid_slam": ["slam_log", "write_trajectory"]},
     "probmap.slam.pipeline": {
         "probmap.pipelines.landmark_slam": [
@@ -96,6 +104,26 @@ SHIMS = {
             "sweep",
         ],
         "probmap.models._beam_kernels": ["beam_log_likelihood", "beam_log_likelihoods"],
+    },
+    "probmap.grid._forward_kernels": {
+        "probmap.models._beam_kernels": [
+            "beam_log_likelihood",
+            "beam_mixture",
+            "cast_fan",
+            "cast_rays",
+            "exact_ranges",
+            "fill_entry",
+            "heading_bin",
+            "table_beam_model",
+            "table_normalisers",
+            "table_ranges",
+        ],
+        "probmap.models._likelihood_field_kernels": [
+            "endpoints_in_robot_frame",
+            "likelihood_field_per_beam",
+            "likelihood_field_sum",
+        ],
+        "probmap.grid._traverse": ["axis_setup", "cast_exact"],
     },
 }
 

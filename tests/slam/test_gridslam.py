@@ -99,6 +99,27 @@ def test_log_likelihoods_match_reference():
         assert out[k] == pytest.approx(total, rel=1e-12)
 
 
+def ref_segment_cells(gx0, gy0, gx1, gy1):
+    """Cells (ix, iy) the segment from grid point (gx0, gy0) to (gx1, gy1) passes through, in
+    order, without the last one, written out plainly: from the current cell step to the
+    neighbour across the nearer boundary (y first on a tie), only along the other axis once the
+    last cell's column or row is reached."""
+    ix, iy = math.floor(gx0), math.floor(gy0)
+    ex, ey = math.floor(gx1), math.floor(gy1)
+    dx, dy = gx1 - gx0, gy1 - gy0
+    cells = []
+    while (ix, iy) != (ex, ey):
+        cells.append((ix, iy))
+        # segment parameters at which it reaches the next vertical / horizontal boundary
+        tx = ((ix + (dx > 0)) - gx0) / dx if dx != 0 else math.inf
+        ty = ((iy + (dy > 0)) - gy0) / dy if dy != 0 else math.inf
+        if ix != ex and (iy == ey or tx < ty):
+            ix += 1 if dx > 0 else -1
+        else:
+            iy += 1 if dy > 0 else -1
+    return cells
+
+
 def ref_integrate(lo, ox, oy, res, pose, ranges, angles, max_range, clear, lh, lm, lmin, lmax):
     """Plain-Python Table 9.1 update, each cell once per scan, hits first."""
     h, w = lo.shape
@@ -107,25 +128,20 @@ def ref_integrate(lo, ox, oy, res, pose, ranges, angles, max_range, clear, lh, l
     for r, a in zip(ranges, angles, strict=True):
         if r > 0 and r < max_range:
             c = (
-                math.floor(sx + r * math.cos(pose[2] + a) / res),
-                math.floor(sy + r * math.sin(pose[2] + a) / res),
+                math.floor((pose[0] + r * math.cos(pose[2] + a) - ox) / res),
+                math.floor((pose[1] + r * math.sin(pose[2] + a) - oy) / res),
             )
             state.setdefault(c, lh)
     for r, a in zip(ranges, angles, strict=True):
         if not r > 0:
             continue
-        hit = r < max_range
-        if not hit:
+        if not r < max_range:
             r = clear
             if r <= 0:
                 continue
-        ex = sx + r * math.cos(pose[2] + a) / res
-        ey = sy + r * math.sin(pose[2] + a) / res
-        n = math.ceil(max(abs(ex - sx), abs(ey - sy)) * 2)
-        for k in range(n):
-            c = (math.floor(sx + k * (ex - sx) / n), math.floor(sy + k * (ey - sy) / n))
-            if hit and c == (math.floor(ex), math.floor(ey)):
-                break
+        ex = (pose[0] + r * math.cos(pose[2] + a) - ox) / res
+        ey = (pose[1] + r * math.sin(pose[2] + a) - oy) / res
+        for c in ref_segment_cells(sx, sy, ex, ey):
             state.setdefault(c, lm)
     out = lo.copy()
     for (ix, iy), d in state.items():
@@ -155,6 +171,34 @@ def test_integrate_window_matches_reference():
     assert (stamp > 0).sum() == np.count_nonzero(out != lo)
     changed = (out != lo).reshape(6, 10, 7, 10).any(axis=(1, 3))
     np.testing.assert_array_equal(touched.astype(bool), changed)
+
+
+def test_integrate_window_marks_the_cells_of_occupancy_grid():
+    """The RBPF's window update and OccupancyGrid walk the same traversal kernel: for the same
+    scan (no obstacle thickness) they hit and free exactly the same cells."""
+    from probmap.grid.occupancy import InverseSensorModel, OccupancyGrid
+    from probmap.grid.spec import GridSpec
+
+    rng = np.random.default_rng(5)
+    res, ox, oy, shape = 0.05, -3.0, -2.5, (100, 120)
+    angles = np.linspace(-np.pi, np.pi, 361)[:-1]
+    for trial in range(5):
+        pose = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), rng.uniform(-3, 3)])
+        ranges = rng.uniform(0.05, 1.8, angles.size)
+        ranges[rng.integers(0, angles.size, 20)] = 8.0  # max range: cleared to 1 m
+        model = InverseSensorModel(p_hit=0.7, p_miss=0.4, max_clear_range=1.0)
+        grid = OccupancyGrid(res, model=model, spec=GridSpec(res, (ox, oy), shape), fixed=True)
+        grid.integrate_scan(pose, ranges, angles, max_range=8.0)
+        lo = np.zeros(shape, np.float32)
+        stamp = np.zeros(shape, np.uint8)
+        touched = np.zeros((10, 12), np.uint8)
+        K.integrate_window(
+            lo, stamp, ox, oy, res, pose[0], pose[1], pose[2], ranges, angles, 8.0, 1.0,
+            model.l_hit, model.l_miss, -10.0, 10.0, 10, touched,
+        )  # fmt: skip
+        ref = np.asarray(grid.log_odds)  # prior 0.5: log odds 0 where the scan did not reach
+        np.testing.assert_array_equal(stamp == 1, ref > 0, err_msg=f"hits, trial {trial}")
+        np.testing.assert_array_equal(stamp == 2, ref < 0, err_msg=f"misses, trial {trial}")
 
 
 def test_interpolate_trajectory_composes_odometry_increments():

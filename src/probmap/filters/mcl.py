@@ -5,8 +5,8 @@
   particles injected while the short-term average likelihood ``w_fast`` falls below the
   long-term one ``w_slow``) and optional KLD-sampling (Table 8.4).
 - Sensors: anything with ``log_likelihood_sum(poses, *z) -> (N,)``; the grid models of
-  :mod:`probmap.grid.forward` and :class:`RangeBearingLandmarks` (known correspondences,
-  Table 6.4) fit. With a :class:`~probmap.grid.forward.LikelihoodField` and an
+  :mod:`probmap.models` and :class:`RangeBearingLandmarks` (known correspondences,
+  Table 6.4) fit. With a :class:`~probmap.models.likelihood_field.LikelihoodField` and an
   :class:`~probmap.models.sampling.OdometryMotionModel`, :meth:`MonteCarloLocalization.update_scan`
   runs motion sampling and weighting in one compiled pass.
 - Motion: anything with ``sample(poses, *u, rng) -> (N, 3)`` (both models of
@@ -45,7 +45,8 @@ from probmap.filters.particle import (
     weighted_pose_covariance,
     weighted_pose_mean,
 )
-from probmap.grid.forward import GridGeometry, LikelihoodField
+from probmap.models.grid_map import GridGeometry
+from probmap.models.likelihood_field import LikelihoodField
 from probmap.models.sampling import OdometryMotionModel, odometry_deltas, odometry_noise_std
 
 __all__ = [

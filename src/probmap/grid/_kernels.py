@@ -1,12 +1,10 @@
-"""Numba kernels for ray traversal on grids (private).
+"""Numba kernels of the occupancy grid: scan integration and ray casting (private).
 
 The kernels take plain contiguous arrays and scalars and trust their inputs: the public
 functions in :mod:`probmap.grid.occupancy` and :mod:`probmap.grid.raycast` validate once.
 
-Cell traversal is the exact grid walk of Amanatides and Woo (1987): starting in the cell of the
-segment's first point it steps to the neighbouring cell whose boundary the segment crosses first,
-so it visits exactly the cells the segment passes through (4-connected), and it ends in the cell
-of the last point after ``|dix| + |diy|`` steps whatever the rounding.
+Cell traversal is the one walk of :mod:`probmap.grid._traverse` (Amanatides and Woo 1987): the
+segment walk for scan integration, the ray walk for ray casting.
 """
 
 from __future__ import annotations
@@ -16,22 +14,9 @@ import math
 import numpy as np
 from numba import njit
 
+from probmap.grid._traverse import cast_exact, walk_next, walk_start
+
 _INF = np.inf
-
-
-@njit(cache=True, inline="always")
-def axis_setup(g0, d):  # pragma: no cover - compiled
-    """Per-axis set-up of the grid walk for a ray from ``g0`` (cell units) with extent ``d``
-    along the axis: ``(step, t_delta, t_max)``, the step direction, the ray parameter between two
-    boundaries and the parameter of the first boundary crossed."""
-    i = math.floor(g0)
-    if d > 0.0:
-        td = 1.0 / d
-        return 1, td, (i + 1.0 - g0) * td
-    if d < 0.0:
-        td = -1.0 / d
-        return -1, td, (g0 - i) * td
-    return 0, _INF, _INF
 
 
 @njit(cache=True, inline="always")
@@ -326,81 +311,16 @@ def cast_rays(occ, ox, oy, res, poses, angles, max_range, out):  # pragma: no co
     enters the first occupied cell, or ``max_range`` when none is met within ``max_range`` (or the
     beam leaves the grid). A sensor inside an occupied cell reads 0.
     """
-    h, w = occ.shape
     n_poses = poses.shape[0]
     n_beams = angles.shape[0]
+    limit = max_range / res
     for p in range(n_poses):
         px = (poses[p, 0] - ox) / res
         py = (poses[p, 1] - oy) / res
         for b in range(n_beams):
             a = poses[p, 2] + angles[b]
-            dx = math.cos(a)
-            dy = math.sin(a)
-            ix = int(math.floor(px))
-            iy = int(math.floor(py))
-            sx, tdx, tmx = axis_setup(px, dx)
-            sy, tdy, tmy = axis_setup(py, dy)
-            limit = max_range / res
-            t = 0.0
-            hit = max_range
-            while t <= limit:
-                if ix < 0 or ix >= w or iy < 0 or iy >= h:
-                    break
-                if occ[iy, ix]:
-                    hit = t * res
-                    break
-                if tmx < tmy:
-                    t = tmx
-                    ix += sx
-                    tmx += tdx
-                else:
-                    t = tmy
-                    iy += sy
-                    tmy += tdy
-            out[p, b] = min(hit, max_range)
-
-
-@njit(cache=True, inline="always")
-def walk_start(gx0, gy0, gx1, gy1, include_last):  # pragma: no cover - compiled
-    """State of the Amanatides-Woo walk from grid point (gx0, gy0) to (gx1, gy1) (cell units).
-
-    The same traversal as :func:`_walk_update`, split into a start and a step so that other
-    kernels can visit exactly the same cells in the same order. Returns
-    ``(ix, iy, ex, ey, sx, sy, tmx, tmy, tdx, tdy, n)``: the first cell, the last cell, the step
-    directions, the ray parameters of the next x / y boundary and between boundaries, and the
-    number of cells to visit (the last one only if ``include_last``). Visit ``n`` cells, calling
-    :func:`walk_next` after each.
-    """
-    ix = int(math.floor(gx0))
-    iy = int(math.floor(gy0))
-    ex = int(math.floor(gx1))
-    ey = int(math.floor(gy1))
-    sx, tdx, tmx = axis_setup(gx0, gx1 - gx0)
-    sy, tdy, tmy = axis_setup(gy0, gy1 - gy0)
-    n = abs(ex - ix) + abs(ey - iy)
-    if include_last:
-        n += 1
-    return ix, iy, ex, ey, sx, sy, tmx, tmy, tdx, tdy, n
-
-
-@njit(cache=True, inline="always")
-def walk_next(ix, iy, ex, ey, sx, sy, tmx, tmy, tdx, tdy):  # pragma: no cover - compiled
-    """One step of the walk started by :func:`walk_start`: returns ``(ix, iy, tmx, tmy)``.
-
-    Never steps past the last cell on either axis (as :func:`_walk_update`)."""
-    if ix == ex:
-        iy += sy
-        tmy += tdy
-    elif iy == ey:
-        ix += sx
-        tmx += tdx
-    elif tmx < tmy:
-        ix += sx
-        tmx += tdx
-    else:
-        iy += sy
-        tmy += tdy
-    return ix, iy, tmx, tmy
+            t = cast_exact(occ, px, py, math.cos(a), math.sin(a), limit)
+            out[p, b] = min(t * res, max_range) if t < limit else max_range
 
 
 @njit(cache=True)

@@ -2,8 +2,8 @@
 
 The kernels take plain contiguous arrays and scalars and trust their inputs: the public class
 :class:`probmap.grid.semantic.SemanticGrid` validates once. Cells are visited by the same
-Amanatides-Woo walk as the binary grid (:func:`probmap.grid._kernels.walk_start` and
-:func:`~probmap.grid._kernels.walk_next`), so with one class the two grids touch exactly the same
+Amanatides-Woo walk as the binary grid (:func:`probmap.grid._traverse.walk_start` and
+:func:`~probmap.grid._traverse.walk_next`), so with one class the two grids touch exactly the same
 cells in the same order and add exactly the same float64 increments to the same float32 values.
 """
 
@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
-from probmap.grid._kernels import walk_next, walk_start
+from probmap.grid._traverse import walk_next, walk_start
 
 
 @njit(cache=True, inline="always")

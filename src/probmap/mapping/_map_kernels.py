@@ -22,37 +22,8 @@ import math
 import numpy as np
 from numba import njit
 
-from probmap.grid._kernels import axis_setup
+from probmap.grid._traverse import ray_cells
 from probmap.models._beam_kernels import beam_log_likelihood
-
-
-@njit(cache=True)
-def _walk(gx, gy, dx, dy, length, w, h, cells, dists, n):
-    """Append to ``cells``/``dists`` (from slot ``n``) the cells a ray crosses before ``length``.
-
-    Amanatides-Woo traversal in cell units from ``(gx, gy)`` along the unit vector ``(dx, dy)``;
-    ``dists`` receives the range (cell units) at which the ray enters each cell (0 for the
-    start cell). Cells outside the ``h x w`` grid are skipped. Returns the new count.
-    """
-    ix = int(math.floor(gx))
-    iy = int(math.floor(gy))
-    sx, tdx, tmx = axis_setup(gx, dx)
-    sy, tdy, tmy = axis_setup(gy, dy)
-    t = 0.0
-    while t < length:
-        if 0 <= ix < w and 0 <= iy < h:
-            cells[n] = iy * w + ix
-            dists[n] = t
-            n += 1
-        if tmx < tmy:
-            t = tmx
-            tmx += tdx
-            ix += sx
-        else:
-            t = tmy
-            tmy += tdy
-            iy += sy
-    return n
 
 
 @njit(cache=True)
@@ -100,7 +71,7 @@ def build_entries(
         n = 0
         for j in range(k):
             a = theta[b] + offsets[j]
-            n = _walk(gx, gy, math.cos(a), math.sin(a), length[b] * inv, w, h, tmp_c, tmp_d, n)
+            n = ray_cells(gx, gy, math.cos(a), math.sin(a), length[b] * inv, w, h, tmp_c, tmp_d, n)
         # union of the sub-rays' cells, each at its smallest range
         u = 0
         for i in range(n):

@@ -45,7 +45,7 @@ def run_localize_demo(out_dir: str | os.PathLike[str], seed: int = 0) -> dict[st
         -1 if never), ``median_error_m`` and ``p95_error_m`` after convergence.
     """
     from probmap.filters.mcl import FreeSpaceSampler, MCLConfig, MonteCarloLocalization
-    from probmap.grid.forward import LikelihoodField
+    from probmap.models.likelihood_field import LikelihoodField
     from probmap.models.sampling import OdometryMotionModel
     from probmap.sim.localization import simulate_localization_world
 

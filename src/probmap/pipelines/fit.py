@@ -14,8 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from probmap.datasets.carmen import load_scans
-from probmap.grid.fit import FitResult, fit_beam_model
-from probmap.models.beam import BeamModelParams
+from probmap.models.beam import BeamModelParams, FitResult, fit_beam_model
 
 if TYPE_CHECKING:
     from probmap.datasets.validate import ReadingReport

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from probmap.grid.forward import GridGeometry
+from probmap.models.grid_map import GridGeometry
 
 __all__ = [
     "LocalizationRun",
@@ -173,7 +173,7 @@ def localize_scans(
         ``progress(done, total)`` in scans.
     """
     from probmap.filters.mcl import FreeSpaceSampler, MCLConfig, MonteCarloLocalization
-    from probmap.grid.forward import LikelihoodField
+    from probmap.models.likelihood_field import LikelihoodField
     from probmap.models.sampling import OdometryMotionModel
 
     cfg = config or LocalizeConfig()

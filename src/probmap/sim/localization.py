@@ -4,7 +4,7 @@ The world is the building of :func:`probmap.sim.floorplan.floor_plan` with seede
 added so that its rooms are not all alike (global localization needs a world without exact
 symmetries). The robot tours it as in :func:`probmap.sim.floorplan.simulate_laser_world`; scans
 are ray-cast on the cluttered map by the beam model's caster
-(:meth:`probmap.grid.forward.BeamModel.expected_ranges`) with Gaussian range noise, and the
+(:meth:`probmap.models.beam.BeamModel.expected_ranges`) with Gaussian range noise, and the
 odometry drifts (:func:`probmap.sim.laser.drift_odometry`).
 """
 
@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from probmap.grid.forward import BeamModel
 from probmap.grid.spec import GridSpec
+from probmap.models.beam import BeamModel
 from probmap.sim.floorplan import floor_plan, simulate_laser_world
 from probmap.sim.laser import drift_odometry
 

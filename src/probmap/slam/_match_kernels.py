@@ -13,6 +13,8 @@ import math
 import numpy as np
 from numba import njit
 
+from probmap.grid._traverse import walk_next, walk_start
+
 
 @njit(cache=True)
 def bilinear(field, ox, oy, res, px, py):  # pragma: no cover - compiled
@@ -372,18 +374,23 @@ def integrate_window(
     shape, zero on entry) marks the cells updated (1 = hit, 2 = miss); ``touched[iy // tile,
     ix // tile]`` is set to 1 for every updated cell (zero it on entry). Cells outside the
     window are ignored.
+
+    The cells crossed are those of :class:`~probmap.grid.occupancy.OccupancyGrid` for the same
+    beam: the exact segment walk of :mod:`probmap.grid._traverse` from the sensor's cell up to,
+    not including, the endpoint's cell (no obstacle thickness: only the endpoint's cell is hit).
     """
     h, w = lo.shape
-    sx = (x - ox) / res
-    sy = (y - oy) / res
+    inv = 1.0 / res
+    gx0 = (x - ox) * inv
+    gy0 = (y - oy) * inv
     nb = ranges.shape[0]
     for b in range(nb):
         r = ranges[b]
         if not (r > 0.0) or r >= max_range:
             continue
         a = th + angles[b]
-        ix = math.floor(sx + r * math.cos(a) / res)
-        iy = math.floor(sy + r * math.sin(a) / res)
+        ix = math.floor((x + r * math.cos(a) - ox) * inv)
+        iy = math.floor((y + r * math.sin(a) - oy) * inv)
         if 0 <= ix < w and 0 <= iy < h and stamp[iy, ix] == 0:
             stamp[iy, ix] = 1
             touched[iy // tile, ix // tile] = 1
@@ -393,31 +400,21 @@ def integrate_window(
         r = ranges[b]
         if not (r > 0.0) or math.isnan(r):
             continue
-        hit = r < max_range
-        if not hit:
+        if not r < max_range:
             r = clear_range
             if r <= 0.0:
                 continue
         a = th + angles[b]
-        ex = sx + r * math.cos(a) / res
-        ey = sy + r * math.sin(a) / res
-        steps = int(math.ceil(max(abs(ex - sx), abs(ey - sy)) * 2.0))
-        if steps == 0:
-            continue
-        dx = (ex - sx) / steps
-        dy = (ey - sy) / steps
-        eix = math.floor(ex)
-        eiy = math.floor(ey)
-        for k in range(steps):
-            ix = math.floor(sx + k * dx)
-            iy = math.floor(sy + k * dy)
-            if hit and ix == eix and iy == eiy:
-                break
+        gx1 = (x + r * math.cos(a) - ox) * inv
+        gy1 = (y + r * math.sin(a) - oy) * inv
+        ix, iy, ex, ey, sx, sy, tmx, tmy, tdx, tdy, n = walk_start(gx0, gy0, gx1, gy1, False)
+        for _ in range(n):
             if 0 <= ix < w and 0 <= iy < h and stamp[iy, ix] == 0:
                 stamp[iy, ix] = 2
                 touched[iy // tile, ix // tile] = 1
                 v = lo[iy, ix] + l_miss
                 lo[iy, ix] = min(max(v, l_min), l_max)
+            ix, iy, tmx, tmy = walk_next(ix, iy, ex, ey, sx, sy, tmx, tmy, tdx, tdy)
 
 
 @njit(cache=True)

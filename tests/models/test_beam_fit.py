@@ -9,8 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from probmap.grid.fit import _lambda_step, component_densities, fit_beam_model
-from probmap.models.beam import BeamModelParams
+from probmap.models.beam import BeamModelParams, _lambda_step, component_densities, fit_beam_model
 
 
 def sample_beam_model(p: BeamModelParams, zs: np.ndarray, zmax: float, seed: int) -> np.ndarray:

@@ -8,8 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from probmap.grid.forward import BeamModel, LikelihoodField, occupied_mask
 from probmap.grid.spec import GridSpec
+from probmap.models.beam import BeamModel
+from probmap.models.grid_map import occupied_mask
+from probmap.models.likelihood_field import LikelihoodField
 
 
 def _world():

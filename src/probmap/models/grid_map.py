@@ -1,0 +1,134 @@
+"""The map a range-finder model works on: a grid geometry and an occupancy array.
+
+The forward sensor models (:class:`probmap.models.beam.BeamModel`,
+:class:`probmap.models.likelihood_field.LikelihoodField`) take a plain ``(spec, occupancy)``
+pair, where ``spec`` is anything with ``resolution`` (m), ``origin`` (x0, y0 of the lower-left
+corner of cell ``[0, 0]``, m) and ``shape`` (H, W) -- :class:`probmap.grid.spec.GridSpec` fits,
+see :class:`GridGeometry` -- and ``occupancy`` is either a boolean ``(H, W)`` array (True =
+occupied) or an occupancy probability array with NaN for unknown (:func:`occupied_mask`). This
+module holds what they share: the geometry check, the occupied mask, the Euclidean distance
+transform and the checks of poses and scans.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["GridGeometry", "occupied_mask"]
+
+
+class GridGeometry(Protocol):
+    """What the forward models need of a grid spec."""
+
+    @property
+    def resolution(self) -> float: ...
+
+    @property
+    def origin(self) -> Any: ...
+
+    @property
+    def shape(self) -> Any: ...
+
+
+@dataclass(frozen=True)
+class Frame:
+    """A checked grid geometry: resolution (m), lower-left corner (m) and shape (H, W)."""
+
+    resolution: float
+    x0: float
+    y0: float
+    shape: tuple[int, int]
+
+
+def frame_of(spec: GridGeometry) -> Frame:
+    """``spec`` checked and copied into a :class:`Frame` (ValueError naming the spec)."""
+    try:
+        res = float(spec.resolution)
+        x0, y0 = (float(v) for v in spec.origin)
+        h, w = (int(v) for v in spec.shape)
+    except (AttributeError, TypeError, ValueError) as exc:
+        raise ValueError(
+            f"spec must have resolution, origin=(x0, y0) and shape=(H, W); got {spec!r}"
+        ) from exc
+    if not (res > 0 and math.isfinite(res)) or not (math.isfinite(x0) and math.isfinite(y0)):
+        raise ValueError(f"spec resolution must be positive and origin finite, got {spec!r}")
+    if h <= 0 or w <= 0:
+        raise ValueError(f"spec shape must be positive, got {(h, w)}")
+    return Frame(res, x0, y0, (h, w))
+
+
+def occupied_mask(occupancy: ArrayLike, threshold: float = 0.65) -> NDArray[np.bool_]:
+    """Occupied cells of a map.
+
+    Parameters
+    ----------
+    occupancy : (H, W) array_like
+        Boolean (True = occupied) or occupancy probability in [0, 1] with NaN for unknown.
+    threshold : float
+        A probability above this is occupied; unknown (NaN) cells are not.
+
+    Returns
+    -------
+    (H, W) bool ndarray, C-contiguous.
+    """
+    occ = np.asarray(occupancy)
+    if occ.ndim != 2:
+        raise ValueError(f"occupancy must be a 2-D (H, W) array, got shape {occ.shape}")
+    if occ.dtype == np.bool_:
+        return np.ascontiguousarray(occ)
+    p = occ.astype(np.float64)
+    finite = p[np.isfinite(p)]
+    if finite.size and (finite.min() < 0 or finite.max() > 1):
+        raise ValueError("occupancy probabilities must lie in [0, 1] (NaN for unknown)")
+    with np.errstate(invalid="ignore"):
+        return np.ascontiguousarray(np.nan_to_num(p, nan=0.0) > threshold)
+
+
+def distance_field(occupied: NDArray[np.bool_], resolution: float) -> NDArray[np.float32]:
+    """Distance (m) from each cell centre to the nearest occupied cell centre, float32."""
+    from scipy.ndimage import distance_transform_edt
+
+    if not occupied.any():
+        # No obstacle at all: every cell is "infinitely" far; a large finite value keeps
+        # the arithmetic in the kernels finite.
+        return np.full(occupied.shape, np.float32(1e9), dtype=np.float32)
+    d = distance_transform_edt(~occupied) * resolution
+    return np.ascontiguousarray(d, dtype=np.float32)
+
+
+def poses_array(poses: ArrayLike) -> NDArray[np.float64]:
+    """Finite poses as a contiguous float64 ``(N, 3)`` array (one pose ``(3,)`` -> ``(1, 3)``)."""
+    p = np.ascontiguousarray(poses, dtype=np.float64)
+    if p.ndim == 1:
+        p = p.reshape(1, -1)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"poses must have shape (N, 3), got {np.shape(poses)}")
+    if not np.all(np.isfinite(p)):
+        raise ValueError("poses must be finite")
+    return p
+
+
+def scan_arrays(
+    ranges: ArrayLike, angles: ArrayLike, offset: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """A scan checked: ranges and angles ``(B,)`` (ranges >= 0, NaN allowed; angles finite) and
+    the sensor pose in the robot frame ``(3,)``, as contiguous float64 arrays."""
+    r = np.ascontiguousarray(ranges, dtype=np.float64)
+    a = np.ascontiguousarray(angles, dtype=np.float64)
+    o = np.ascontiguousarray(offset, dtype=np.float64)
+    if r.ndim != 1 or a.shape != r.shape:
+        raise ValueError(
+            f"ranges and angles must be 1-D arrays of equal length, got {r.shape} and {a.shape}"
+        )
+    if not np.all(np.isfinite(a)):
+        raise ValueError("beam angles must be finite")
+    if np.any(r < 0):
+        raise ValueError("ranges must be non-negative")
+    if o.shape != (3,) or not np.all(np.isfinite(o)):
+        raise ValueError(f"sensor_offset must be a finite (x, y, theta), got {o!r}")
+    return r, a, o

@@ -1,0 +1,182 @@
+"""The likelihood field model of range finders (Probabilistic Robotics section 6.4, Table 6.3).
+
+The distance from every cell to the nearest occupied cell is computed once per map with
+:func:`scipy.ndimage.distance_transform_edt` and stored as float32; the per-beam log-likelihood
+``log(z_hit * N(d; 0, sigma_hit^2) + z_rand / z_max)`` is tabulated from it, so weighting a
+particle costs one rotation and one table lookup per beam. Max-range readings contribute 0
+(Table 6.3, line 4). The model works on a plain ``(spec, occupancy)`` pair (see
+:mod:`probmap.models.grid_map`) and is vectorised over poses ``(N, 3)`` and beams ``(B,)``.
+
+It is not the scan matcher's field (:class:`probmap.slam.scan_matching.MatchField`), although
+both are a Gaussian of the distance to an obstacle: this one is a normalised density (the
+Gaussian of the distance to the nearest occupied cell centre, float32, mixed with a uniform
+``z_rand / z_max``), looked up in the endpoint's cell and summed as log-likelihoods by Monte
+Carlo localization; the matcher's is an unnormalised score ``exp(-d^2 / 2 sigma^2)`` in [0, 1]
+(float64 distances, or splatted around occupied cells with a cut-off radius in submaps and RBPF
+windows), interpolated bilinearly so that Gauss-Newton has a gradient, and its values feed the
+branch-and-bound max-grids of loop closure. They differ in their values, in how they are
+sampled and in what consumes them, so each keeps its own.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from probmap.models import _likelihood_field_kernels as _k
+from probmap.models.grid_map import (
+    GridGeometry,
+    distance_field,
+    frame_of,
+    occupied_mask,
+    poses_array,
+    scan_arrays,
+)
+
+__all__ = ["LikelihoodField"]
+
+
+class LikelihoodField:
+    """Likelihood field range-finder model, Probabilistic Robotics Table 6.3.
+
+    Parameters
+    ----------
+    spec : GridGeometry
+        Grid geometry (resolution m, origin m, shape (H, W)).
+    occupancy : (H, W) array_like
+        Boolean or probability map (NaN unknown), indexed ``[iy, ix]``.
+    max_range : float
+        Sensor maximum range ``z_max`` (m); readings at or beyond it are skipped.
+    sigma_hit : float
+        Standard deviation (m) of the distance-to-obstacle Gaussian.
+    z_hit, z_rand : float
+        Mixture weights of the hit and random components.
+    max_distance : float
+        Distances are clipped here (m); endpoints outside the map count as this far.
+    occupied_threshold : float
+        Probability above which a cell is an obstacle.
+    """
+
+    def __init__(
+        self,
+        spec: GridGeometry,
+        occupancy: ArrayLike,
+        *,
+        max_range: float,
+        sigma_hit: float = 0.1,
+        z_hit: float = 0.9,
+        z_rand: float = 0.1,
+        max_distance: float = 2.0,
+        occupied_threshold: float = 0.65,
+    ) -> None:
+        frame = frame_of(spec)
+        occupied = occupied_mask(occupancy, occupied_threshold)
+        if occupied.shape != frame.shape:
+            raise ValueError(
+                f"occupancy shape {occupied.shape} does not match spec shape {frame.shape}"
+            )
+        for name, val in (("max_range", max_range), ("sigma_hit", sigma_hit)):
+            if not (val > 0 and math.isfinite(val)):
+                raise ValueError(f"{name} must be positive, got {val}")
+        if z_hit < 0 or z_rand < 0 or z_hit + z_rand <= 0:
+            raise ValueError(f"z_hit, z_rand must be non-negative, not both 0: {z_hit}, {z_rand}")
+        if not max_distance > 0:
+            raise ValueError(f"max_distance must be positive, got {max_distance}")
+        self.spec = spec
+        self.frame = frame
+        self.occupied = occupied
+        self.max_range = float(max_range)
+        self.sigma_hit = float(sigma_hit)
+        self.z_hit = float(z_hit)
+        self.z_rand = float(z_rand)
+        self.max_distance = float(max_distance)
+        self.distance = np.minimum(
+            distance_field(occupied, frame.resolution), np.float32(max_distance)
+        )
+        self.table = np.ascontiguousarray(
+            self.log_likelihood_of_distance(self.distance), dtype=np.float32
+        )
+        self.outside = float(self.log_likelihood_of_distance(np.array(self.max_distance)))
+
+    def log_likelihood_of_distance(self, d: ArrayLike) -> NDArray[np.float64]:
+        """``log(z_hit * prob(d, sigma_hit^2) + z_rand / z_max)`` for distances ``d`` (m)."""
+        dd = np.asarray(d, dtype=np.float64)
+        s = self.sigma_hit
+        hit = np.exp(-0.5 * (dd / s) ** 2) / (math.sqrt(2 * math.pi) * s)
+        return np.asarray(np.log(self.z_hit * hit + self.z_rand / self.max_range))
+
+    def endpoints(
+        self, ranges: ArrayLike, angles: ArrayLike, sensor_offset: ArrayLike = (0.0, 0.0, 0.0)
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+        """Beam endpoints in the robot frame, computed once per scan.
+
+        Returns ``(lx, ly, valid)``, each ``(B,)``; ``valid`` is False for max-range readings.
+        """
+        r, a, o = scan_arrays(ranges, angles, sensor_offset)
+        b = r.shape[0]
+        lx = np.empty(b)
+        ly = np.empty(b)
+        valid = np.empty(b, dtype=np.bool_)
+        _k.endpoints_in_robot_frame(r, a, o, self.max_range, lx, ly, valid)
+        return lx, ly, valid
+
+    def log_likelihood(
+        self,
+        poses: ArrayLike,
+        ranges: ArrayLike,
+        angles: ArrayLike,
+        sensor_offset: ArrayLike = (0.0, 0.0, 0.0),
+    ) -> NDArray[np.float64]:
+        """Per-beam log-likelihoods ``log p(z_b | x_n, m)``.
+
+        Parameters
+        ----------
+        poses : (N, 3) array_like
+            Robot poses (x, y, theta) in the map frame (m, rad).
+        ranges, angles : (B,) array_like
+            Readings (m) and beam angles (rad) in the sensor frame.
+        sensor_offset : (3,) array_like
+            Sensor pose in the robot frame.
+
+        Returns
+        -------
+        (N, B) float64 ndarray
+            0 for max-range readings.
+        """
+        p = poses_array(poses)
+        lx, ly, valid = self.endpoints(ranges, angles, sensor_offset)
+        out = np.empty((p.shape[0], lx.shape[0]))
+        f = self.frame
+        _k.likelihood_field_per_beam(
+            p, lx, ly, valid, self.table, f.x0, f.y0, 1.0 / f.resolution, self.outside, out
+        )
+        return out
+
+    def log_likelihood_sum(
+        self,
+        poses: ArrayLike,
+        ranges: ArrayLike,
+        angles: ArrayLike,
+        sensor_offset: ArrayLike = (0.0, 0.0, 0.0),
+    ) -> NDArray[np.float64]:
+        """Scan log-likelihood ``sum_b log p(z_b | x_n, m)``, shape ``(N,)``."""
+        p = poses_array(poses)
+        lx, ly, valid = self.endpoints(ranges, angles, sensor_offset)
+        return self.log_likelihood_sum_prepared(p, lx, ly, valid)
+
+    def log_likelihood_sum_prepared(
+        self,
+        poses: NDArray[np.float64],
+        lx: NDArray[np.float64],
+        ly: NDArray[np.float64],
+        valid: NDArray[np.bool_],
+    ) -> NDArray[np.float64]:
+        """As :meth:`log_likelihood_sum` with endpoints from :meth:`endpoints` (no checks)."""
+        out = np.empty(poses.shape[0])
+        f = self.frame
+        _k.likelihood_field_sum(
+            poses, lx, ly, valid, self.table, f.x0, f.y0, 1.0 / f.resolution, self.outside, out
+        )
+        return out

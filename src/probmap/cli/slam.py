@@ -135,7 +135,9 @@ def run_and_report(
         if plot:
             from probmap.viz.slam import save_slam_figure
 
-            files.append(save_slam_figure(output / "slam.png", result, dataset, title=title))
+            files.append(
+                save_slam_figure(output / "slam.png", result, dataset, title=title, metrics=metrics)
+            )
     rows = [*metrics_rows(metrics), *(("wrote", str(f)) for f in files)]
     print_summary(f"{title} on {metrics['dataset']}", rows)
     return metrics

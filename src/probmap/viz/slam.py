@@ -10,7 +10,7 @@ import numpy as np
 
 from probmap._atomic import atomic_path
 
-__all__ = ["covariance_ellipse", "plot_slam", "save_slam_figure"]
+__all__ = ["alignment_from_metrics", "covariance_ellipse", "plot_slam", "save_slam_figure"]
 
 
 def covariance_ellipse(
@@ -24,8 +24,32 @@ def covariance_ellipse(
     return mean + n_sigma * (circle * np.sqrt(vals)) @ vecs.T
 
 
-def plot_slam(ax: Any, result: Any, dataset: Any = None, *, title: str | None = None) -> Any:
+def alignment_from_metrics(metrics: dict[str, Any] | None) -> tuple[np.ndarray | None, str]:
+    """The SE(2) alignment ``(tx, ty, theta)`` the metrics used (estimate to reference) and
+    what it aligns to: the ground truth's (``ate_aligned``) before GPS's (``gps``); ``(None,
+    "")`` without either."""
+    for key, name in (("ate_aligned", "ground truth"), ("gps", "GPS")):
+        entry = (metrics or {}).get(key)
+        if isinstance(entry, dict) and entry.get("alignment") is not None:
+            return np.asarray(entry["alignment"], dtype=np.float64).reshape(3), name
+    return None, ""
+
+
+def plot_slam(
+    ax: Any,
+    result: Any,
+    dataset: Any = None,
+    *,
+    title: str | None = None,
+    alignment: Any = None,
+    aligned_to: str = "the reference",
+) -> Any:
     """Draw the estimated trajectory, landmarks with 2-sigma ellipses, and any truth or GPS.
+
+    SLAM estimates in its own frame (the first pose), which is not the reference's; drawn raw,
+    a good run looks wrong. With ``alignment`` (the SE(2) transform the metrics fitted, see
+    :func:`alignment_from_metrics`) the estimate (trajectory, landmarks and their ellipses) is
+    drawn after it, in the reference's frame, and the legend says so.
 
     Parameters
     ----------
@@ -33,25 +57,42 @@ def plot_slam(ax: Any, result: Any, dataset: Any = None, *, title: str | None = 
     result : SlamResult
     dataset : LandmarkDataset, optional
         Supplies ``gt_trajectory``, ``landmark_truth`` and ``gps`` when present.
+    title : str, optional
+    alignment : array_like, shape (3,), optional
+        ``(tx, ty, theta)`` from the estimate's frame to the reference's.
+    aligned_to : str
+        The reference's name, for the legend (``"ground truth"``, ``"GPS"``).
     """
+    from probmap.geometry.se2 import compose
+
+    T = None if alignment is None else np.asarray(alignment, dtype=np.float64).reshape(3)
+    c, s_ = (1.0, 0.0) if T is None else (float(np.cos(T[2])), float(np.sin(T[2])))
+    R = np.array([[c, -s_], [s_, c]])
     if dataset is not None:
         gt = getattr(dataset, "gt_trajectory", None)
         if gt is not None:
             ax.plot(gt[:, 1], gt[:, 2], color="0.6", lw=0.8, label="ground truth")
         gps = getattr(dataset, "gps", None)
         if gps is not None:
-            ax.plot(gps[:, 1], gps[:, 2], ".", color="tab:green", ms=1.5, label="GPS (raw frame)")
+            ax.plot(gps[:, 1], gps[:, 2], ".", color="tab:green", ms=1.5, label="GPS")
         truth = getattr(dataset, "landmark_truth", None)
         if truth:
             xy = np.array(list(truth.values()))
             ax.plot(xy[:, 0], xy[:, 1], "k+", ms=7, label="true landmarks")
-    tr = result.trajectory
-    ax.plot(tr[:, 1], tr[:, 2], color="tab:blue", lw=1.0, label="estimate")
-    for m, c in zip(result.landmark_xy, result.landmark_cov, strict=True):
-        e = covariance_ellipse(m, c)
+    tr = np.asarray(result.trajectory, dtype=np.float64)[:, 1:4]
+    lm = np.asarray(result.landmark_xy, dtype=np.float64).reshape(-1, 2)
+    covs = np.asarray(result.landmark_cov, dtype=np.float64).reshape(-1, 2, 2)
+    if T is not None:
+        tr = compose(T, tr)
+        lm = lm @ R.T + T[:2]
+        covs = R @ covs @ R.T
+    label = "estimate" if T is None else f"estimate (SE(2)-aligned to {aligned_to})"
+    ax.plot(tr[:, 0], tr[:, 1], color="tab:blue", lw=1.0, label=label)
+    for m, cov in zip(lm, covs, strict=True):
+        e = covariance_ellipse(m, cov)
         ax.plot(e[:, 0], e[:, 1], color="tab:red", lw=0.6)
-    if len(result.landmark_xy):
-        ax.plot(*result.landmark_xy.T, "r.", ms=3, label="landmarks (2-sigma)")
+    if len(lm):
+        ax.plot(*lm.T, "r.", ms=3, label="landmarks (2-sigma)")
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
@@ -62,14 +103,22 @@ def plot_slam(ax: Any, result: Any, dataset: Any = None, *, title: str | None = 
 
 
 def save_slam_figure(
-    path: str | os.PathLike[str], result: Any, dataset: Any = None, *, title: str | None = None
+    path: str | os.PathLike[str],
+    result: Any,
+    dataset: Any = None,
+    *,
+    title: str | None = None,
+    metrics: dict[str, Any] | None = None,
 ) -> Path:
-    """Render :func:`plot_slam` to an image file (Agg backend, written atomically)."""
+    """Render :func:`plot_slam` to an image file (Agg backend, written atomically), the
+    estimate aligned as ``metrics`` (from :func:`probmap.pipelines.landmark_slam.evaluate`)
+    aligned it, when they hold an alignment."""
     from matplotlib.figure import Figure
 
     path = Path(path)
     fig = Figure(figsize=(8, 8))
-    plot_slam(fig.add_subplot(), result, dataset, title=title)
+    T, name = alignment_from_metrics(metrics)
+    plot_slam(fig.add_subplot(), result, dataset, title=title, alignment=T, aligned_to=name)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=120, bbox_inches="tight")
     return path

@@ -1,0 +1,392 @@
+"""Numba kernels of landmark GraphSLAM (private): the odometry chain and the step smoother.
+
+:mod:`probmap.slam.graphslam` validates inputs and owns the factor graph; these kernels only
+run the motion model along the steps of a log, which is the one part of GraphSLAM that walks
+every odometry record (60,000 on an MRCLAM robot) at every linearization.
+
+Conventions
+-----------
+kind, params : int, (7,) float64
+    The motion model: ``KIND_VELOCITY`` with ``(a1, a2, a3, a4, sigma_v, sigma_w, ref_dt)``
+    (:class:`probmap.models.motion.VelocityModel`) or ``KIND_ACKERMANN`` with
+    ``(L, H, a, b, sigma_v, sigma_steer, ref_dt)`` (:class:`~probmap.models.motion.AckermannModel`);
+    ``ref_dt < 0`` stands for ``reference_dt=None``. The arithmetic is that of the models'
+    ``predict`` and ``control_covariance`` (checked against them in the tests).
+seg_ptr : (S + 1,) int64
+    Segment ``s`` (from node ``s`` to node ``s + 1``) is made of steps
+    ``seg_ptr[s] .. seg_ptr[s + 1] - 1``; the last of them ends at node ``s + 1``.
+floor : (3,) float64
+    Variance per second added to every step's process noise (keeps it invertible).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+KIND_VELOCITY = 0
+KIND_ACKERMANN = 1
+
+STATUS_OK = 0
+STATUS_SINGULAR_STEERING = 1
+STATUS_SINGULAR_NOISE = 2
+
+_TWO_PI = 2.0 * math.pi
+_SERIES = 1e-4
+
+
+@njit(cache=True)
+def wrap(a):  # pragma: no cover - compiled
+    """Angle wrapped to ``[-pi, pi)``."""
+    return a - _TWO_PI * math.floor((a + math.pi) / _TWO_PI)
+
+
+@njit(cache=True)
+def _arc_terms(d):  # pragma: no cover - compiled
+    if abs(d) < _SERIES:
+        d2 = d * d
+        return 1.0 - d2 / 6.0, d / 2.0 - d * d2 / 24.0, -d / 3.0, 0.5 - d2 / 8.0
+    s = math.sin(d)
+    c = math.cos(d)
+    return s / d, (1.0 - c) / d, (d * c - s) / (d * d), (d * s - (1.0 - c)) / (d * d)
+
+
+@njit(cache=True)
+def model_step(kind, p, x, u0, u1, dt, xn, G, Q):  # pragma: no cover - compiled
+    """One motion step from pose ``x``: ``xn = g(u, x)``, ``G = dg/dx``, ``Q = V M V^T``.
+
+    Returns a status (``STATUS_OK`` or ``STATUS_SINGULAR_STEERING``).
+    """
+    V = np.zeros((3, 2))
+    M0 = 0.0
+    M1 = 0.0
+    th = x[2]
+    c = math.cos(th)
+    s = math.sin(th)
+    for r in range(3):
+        for k in range(3):
+            G[r, k] = 1.0 if r == k else 0.0
+    if kind == KIND_VELOCITY:
+        v = u0
+        w = u1
+        d = w * dt
+        A, B, dA, dB = _arc_terms(d)
+        px = c * A - s * B
+        py = s * A + c * B
+        xn[0] = x[0] + v * dt * px
+        xn[1] = x[1] + v * dt * py
+        xn[2] = wrap(th + d)
+        G[0, 2] = -v * dt * py
+        G[1, 2] = v * dt * px
+        V[0, 0] = dt * px
+        V[1, 0] = dt * py
+        V[0, 1] = v * dt * dt * (c * dA - s * dB)
+        V[1, 1] = v * dt * dt * (s * dA + c * dB)
+        V[2, 1] = dt
+        v2 = v * v
+        w2 = w * w
+        M0 = p[0] * v2 + p[1] * w2 + p[4] * p[4]
+        M1 = p[2] * v2 + p[3] * w2 + p[5] * p[5]
+    else:
+        ve = u0
+        al = u1
+        L = p[0]
+        H = p[1]
+        a = p[2]
+        b = p[3]
+        t = math.tan(al)
+        den = 1.0 - t * H / L
+        if abs(den) < 1e-6:
+            return STATUS_SINGULAR_STEERING
+        vc = ve / den
+        dt_dal = 1.0 + t * t
+        dvc_dve = 1.0 / den
+        dvc_dal = ve * (H / L) * dt_dal / (den * den)
+        k = vc * t / L
+        dk_dve = dvc_dve * t / L
+        dk_dal = (dvc_dal * t + vc * dt_dal) / L
+        ox = a * s + b * c
+        oy = a * c - b * s
+        xn[0] = x[0] + dt * (vc * c - k * ox)
+        xn[1] = x[1] + dt * (vc * s + k * oy)
+        xn[2] = wrap(th + dt * k)
+        G[0, 2] = dt * (-vc * s - k * oy)
+        G[1, 2] = dt * (vc * c - k * ox)
+        V[0, 0] = dt * (dvc_dve * c - dk_dve * ox)
+        V[0, 1] = dt * (dvc_dal * c - dk_dal * ox)
+        V[1, 0] = dt * (dvc_dve * s + dk_dve * oy)
+        V[1, 1] = dt * (dvc_dal * s + dk_dal * oy)
+        V[2, 0] = dt * dk_dve
+        V[2, 1] = dt * dk_dal
+        M0 = p[4] * p[4]
+        M1 = p[5] * p[5]
+    if p[6] > 0.0 and dt > 0.0:
+        M0 *= p[6] / dt
+        M1 *= p[6] / dt
+    for r in range(3):
+        for k in range(3):
+            Q[r, k] = V[r, 0] * M0 * V[k, 0] + V[r, 1] * M1 * V[k, 1]
+    return STATUS_OK
+
+
+@njit(cache=True)
+def chain_steps(
+    kind, p, X, controls, dts, seg_ptr, floor, propagate, xbar, Phi, Sig, Gs
+):  # pragma: no cover - compiled
+    """Run the motion model along every segment from its start node.
+
+    For step ``t`` of segment ``s`` (from node ``X[s]``): ``xbar[t]`` the predicted pose,
+    ``Phi[t] = d xbar[t] / d X[s]``, ``Sig[t]`` the process covariance accumulated since
+    ``X[s]`` (``G Sig G^T + V M V^T + floor dt`` per step) and ``Gs[t]`` the step's ``G``.
+    With ``propagate`` the end of each segment is written to ``X[s + 1]`` first (dead
+    reckoning, Table 11.1). Returns a status.
+    """
+    xn = np.empty(3)
+    G = np.empty((3, 3))
+    Q = np.empty((3, 3))
+    x = np.empty(3)
+    F = np.empty((3, 3))
+    S = np.empty((3, 3))
+    T1 = np.empty((3, 3))
+    for seg in range(seg_ptr.shape[0] - 1):
+        for r in range(3):
+            x[r] = X[seg, r]
+            for k in range(3):
+                F[r, k] = 1.0 if r == k else 0.0
+                S[r, k] = 0.0
+        for t in range(seg_ptr[seg], seg_ptr[seg + 1]):
+            dt = dts[t]
+            if dt > 0.0:
+                st = model_step(kind, p, x, controls[t, 0], controls[t, 1], dt, xn, G, Q)
+                if st != STATUS_OK:
+                    return st
+                # S <- G S G^T + Q + floor dt ; F <- G F
+                for r in range(3):
+                    for k in range(3):
+                        acc = 0.0
+                        for m in range(3):
+                            acc += G[r, m] * S[m, k]
+                        T1[r, k] = acc
+                for r in range(3):
+                    for k in range(3):
+                        acc = Q[r, k]
+                        for m in range(3):
+                            acc += T1[r, m] * G[k, m]
+                        S[r, k] = acc
+                    S[r, r] += floor[r] * dt
+                for r in range(3):
+                    for k in range(3):
+                        acc = 0.0
+                        for m in range(3):
+                            acc += G[r, m] * F[m, k]
+                        T1[r, k] = acc
+                for r in range(3):
+                    x[r] = xn[r]
+                    for k in range(3):
+                        F[r, k] = T1[r, k]
+            else:
+                for r in range(3):
+                    for k in range(3):
+                        G[r, k] = 1.0 if r == k else 0.0
+            for r in range(3):
+                xbar[t, r] = x[r]
+                for k in range(3):
+                    Phi[t, r, k] = F[r, k]
+                    Sig[t, r, k] = S[r, k]
+                    Gs[t, r, k] = G[r, k]
+        if propagate:
+            for r in range(3):
+                X[seg + 1, r] = x[r]
+    return STATUS_OK
+
+
+@njit(cache=True)
+def _inv3(A, out):  # pragma: no cover - compiled
+    """Inverse of a 3x3 matrix into ``out``; returns False when singular."""
+    c00 = A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]
+    c01 = A[1, 2] * A[2, 0] - A[1, 0] * A[2, 2]
+    c02 = A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]
+    det = A[0, 0] * c00 + A[0, 1] * c01 + A[0, 2] * c02
+    scale = 0.0
+    for r in range(3):
+        for k in range(3):
+            scale = max(scale, abs(A[r, k]))
+    if not (abs(det) > 1e-300 and abs(det) > 1e-15 * scale**3):
+        return False
+    out[0, 0] = c00 / det
+    out[1, 0] = c01 / det
+    out[2, 0] = c02 / det
+    out[0, 1] = (A[0, 2] * A[2, 1] - A[0, 1] * A[2, 2]) / det
+    out[1, 1] = (A[0, 0] * A[2, 2] - A[0, 2] * A[2, 0]) / det
+    out[2, 1] = (A[0, 1] * A[2, 0] - A[0, 0] * A[2, 1]) / det
+    out[0, 2] = (A[0, 1] * A[1, 2] - A[0, 2] * A[1, 1]) / det
+    out[1, 2] = (A[0, 2] * A[1, 0] - A[0, 0] * A[1, 2]) / det
+    out[2, 2] = (A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]) / det
+    return True
+
+
+@njit(cache=True)
+def smooth_steps(
+    X, P_node, P_cross, seg_ptr, xbar, Phi, Sig, Gs, out_pose, out_cov
+):  # pragma: no cover - compiled
+    """Poses and marginal covariances of every step between two optimized nodes.
+
+    For step ``t`` of segment ``s`` (nodes ``i = s``, ``j = s + 1``), with the chain run from
+    the optimized ``X[i]``: ``C = Cov(w_t, w_j) = Sig[t] Psi^T`` (``Psi = d xbar_j / d xbar_t``),
+    ``K = C Sig_j^-1``; the pose is the conditional mean ``xbar[t] + K (X[j] - xbar_j)`` and
+    the covariance ``Sig[t] - K C^T + J P J^T`` with ``J = [Phi[t] - K Phi_j, K]`` and ``P`` the
+    joint marginal of ``(X[i], X[j])`` (``P_node[i]``, ``P_cross[s] = Cov(X[i], X[j])``,
+    ``P_node[j]``): the fixed-interval smoother of the linearized chain, exact for a linear
+    model. Returns a status.
+    """
+    Sj_inv = np.empty((3, 3))
+    Psi = np.eye(3)
+    C = np.empty((3, 3))
+    K = np.empty((3, 3))
+    J = np.empty((3, 6))
+    P = np.empty((6, 6))
+    r = np.empty(3)
+    tmp = np.empty((3, 3))
+    JP = np.empty((3, 6))
+    for seg in range(seg_ptr.shape[0] - 1):
+        a = seg_ptr[seg]
+        b = seg_ptr[seg + 1] - 1
+        i = seg
+        j = seg + 1
+        if not _inv3(Sig[b], Sj_inv):
+            return STATUS_SINGULAR_NOISE
+        for q in range(3):
+            r[q] = X[j, q] - xbar[b, q]
+        r[2] = wrap(r[2])
+        for q in range(3):
+            for m in range(3):
+                P[q, m] = P_node[i, q, m]
+                P[q, 3 + m] = P_cross[seg, q, m]
+                P[3 + q, m] = P_cross[seg, m, q]
+                P[3 + q, 3 + m] = P_node[j, q, m]
+        for q in range(3):
+            for m in range(3):
+                Psi[q, m] = 1.0 if q == m else 0.0
+        for t in range(b, a - 1, -1):
+            # C = Sig[t] Psi^T ; K = C Sj_inv
+            for q in range(3):
+                for m in range(3):
+                    acc = 0.0
+                    for n in range(3):
+                        acc += Sig[t, q, n] * Psi[m, n]
+                    C[q, m] = acc
+            for q in range(3):
+                for m in range(3):
+                    acc = 0.0
+                    for n in range(3):
+                        acc += C[q, n] * Sj_inv[n, m]
+                    K[q, m] = acc
+            for q in range(3):
+                acc = xbar[t, q]
+                for n in range(3):
+                    acc += K[q, n] * r[n]
+                out_pose[t, q] = acc
+            out_pose[t, 2] = wrap(out_pose[t, 2])
+            for q in range(3):
+                for m in range(3):
+                    acc = Phi[t, q, m]
+                    for n in range(3):
+                        acc -= K[q, n] * Phi[b, n, m]
+                    J[q, m] = acc
+                    J[q, 3 + m] = K[q, m]
+            for q in range(3):
+                for m in range(6):
+                    acc = 0.0
+                    for n in range(6):
+                        acc += J[q, n] * P[n, m]
+                    JP[q, m] = acc
+            for q in range(3):
+                for m in range(3):
+                    acc = Sig[t, q, m]
+                    for n in range(3):
+                        acc -= K[q, n] * C[m, n]
+                    for n in range(6):
+                        acc += JP[q, n] * J[m, n]
+                    out_cov[t, q, m] = acc
+            for q in range(3):
+                for m in range(3):
+                    out_cov[t, q, m] = 0.5 * (out_cov[t, q, m] + out_cov[t, m, q])
+                    out_cov[t, m, q] = out_cov[t, q, m]
+            # Psi <- Psi G[t]
+            for q in range(3):
+                for m in range(3):
+                    acc = 0.0
+                    for n in range(3):
+                        acc += Psi[q, n] * Gs[t, n, m]
+                    tmp[q, m] = acc
+            for q in range(3):
+                for m in range(3):
+                    Psi[q, m] = tmp[q, m]
+    return STATUS_OK
+
+
+@njit(cache=True)
+def block_tridiagonal_inverse(D, U, P_node, P_cross):  # pragma: no cover - compiled
+    """Diagonal and first off-diagonal 3x3 blocks of ``A^-1`` for a symmetric positive definite
+    block-tridiagonal ``A`` (diagonal blocks ``D (K, 3, 3)``, upper blocks ``U (K-1, 3, 3)``,
+    ``U[k] = A[k, k+1]``): the information-form Rauch-Tung-Striebel recursion.
+
+    Forward: ``E_0 = D_0``, ``E_k = D_k - U_{k-1}^T E_{k-1}^-1 U_{k-1}``; backward:
+    ``P_K-1 = E_K-1^-1``, ``P_{k,k+1} = -E_k^-1 U_k P_{k+1}``,
+    ``P_k = E_k^-1 - P_{k,k+1} (E_k^-1 U_k)^T``. Returns False when a pivot block is singular.
+    """
+    n = D.shape[0]
+    Einv = np.empty((n, 3, 3))
+    E = np.empty((3, 3))
+    W = np.empty((3, 3))
+    for k in range(n):
+        for q in range(3):
+            for m in range(3):
+                E[q, m] = D[k, q, m]
+        if k > 0:
+            # W = E_{k-1}^-1 U_{k-1}; E -= U_{k-1}^T W
+            for q in range(3):
+                for m in range(3):
+                    acc = 0.0
+                    for t in range(3):
+                        acc += Einv[k - 1, q, t] * U[k - 1, t, m]
+                    W[q, m] = acc
+            for q in range(3):
+                for m in range(3):
+                    acc = 0.0
+                    for t in range(3):
+                        acc += U[k - 1, t, q] * W[t, m]
+                    E[q, m] -= acc
+        if not _inv3(E, Einv[k]):
+            return False
+    for q in range(3):
+        for m in range(3):
+            P_node[n - 1, q, m] = Einv[n - 1, q, m]
+    for k in range(n - 2, -1, -1):
+        # W = E_k^-1 U_k ; P_cross[k] = -W P_{k+1}
+        for q in range(3):
+            for m in range(3):
+                acc = 0.0
+                for t in range(3):
+                    acc += Einv[k, q, t] * U[k, t, m]
+                W[q, m] = acc
+        for q in range(3):
+            for m in range(3):
+                acc = 0.0
+                for t in range(3):
+                    acc += W[q, t] * P_node[k + 1, t, m]
+                P_cross[k, q, m] = -acc
+        for q in range(3):
+            for m in range(3):
+                acc = Einv[k, q, m]
+                for t in range(3):
+                    acc -= P_cross[k, q, t] * W[m, t]
+                P_node[k, q, m] = acc
+        for q in range(3):
+            for m in range(q + 1, 3):
+                v = 0.5 * (P_node[k, q, m] + P_node[k, m, q])
+                P_node[k, q, m] = v
+                P_node[k, m, q] = v
+    return True

@@ -1,0 +1,1151 @@
+"""GraphSLAM for point landmarks (Probabilistic Robotics, chapter 11), known correspondences.
+
+The full-SLAM posterior over the whole path and the map is the minimum of
+
+.. math:: J = (x_0 - \\mu_0)^T \\Omega_0 (x_0 - \\mu_0)
+          + \\sum_t (x_t - g(u_t, x_{t-1}))^T R_t^{-1} (x_t - g(u_t, x_{t-1}))
+          + \\sum_{t,i} \\rho\\big((z_t^i - h(x_t, m_{c_t^i}))^T Q^{-1} (z_t^i - h(\\cdot))\\big)
+
+(eq. 11.4-11.5 with the anchoring prior of Table 11.2 line 2 and an optional robust ``rho``).
+The motion model ``g`` and its noise are those of the EKF (``predict`` and
+``control_covariance`` of :mod:`probmap.models.motion`: ``R_t = V M V^T``), and the measurement
+model ``h`` with ``Q`` is :class:`~probmap.models.measurement.RangeBearingModel`.
+
+How the book's tables map onto this module:
+
+* Table 11.1 (initialize): :func:`graphslam_initialize` dead-reckons the poses and places each
+  landmark at its first sighting (the inverse measurement model).
+* Table 11.2 (linearize): :func:`graphslam_linearize` builds the information matrix ``Omega``
+  (here ``H``) and vector of the linearized system as a ``scipy.sparse`` matrix. It is written
+  for the increment ``delta`` (``H delta = b``, ``b = -J^T W e``): the book's ``xi`` is
+  ``H mu + b`` and its solution ``mu = Omega^-1 xi`` is our ``mu + delta``.
+* Tables 11.3-11.4 (reduce, solve): :func:`graphslam_reduce` marginalizes every landmark into
+  the pose block (``Omega~ = Omega_xx - Omega_xm Omega_mm^-1 Omega_mx``, with ``Omega_mm`` block
+  diagonal because no factor joins two landmarks), :func:`graphslam_solve_reduced` solves for
+  the poses and recovers each landmark from its own block (Table 11.4 line 6). This is an exact
+  reformulation of the full sparse solve (``GraphSLAMConfig(solver="reduced")``; a test checks
+  both agree); the default ``solver="sparse"`` factors the whole system with a fill-reducing
+  sparse LU (SuperLU in symmetric mode) instead, which never forms the reduced pose matrix (it
+  fills in wherever poses share a landmark).
+* Table 11.5 (the known-correspondence loop): :func:`optimize_graphslam`, Gauss-Newton with
+  Levenberg-Marquardt damping, repeated linearization until the cost stops falling.
+
+Odometry arrives much faster than observations (60,000 records against 1,700 observation times
+on an MRCLAM robot), so by default only the steps with observations (and the last step) carry a
+pose variable; the motion between two of them is one factor whose prediction, Jacobian and
+noise are the model chained over the steps in between (``G`` products and ``G R G^T + V M V^T``
+sums), which is the linearized marginal of the intermediate poses. ``keyframes="all"`` gives
+every step its own pose, as printed in the book. The intermediate poses are recovered after
+the solve by the fixed-interval smoother of each segment, with their marginal covariances. The
+velocity model's ``V M V^T`` has rank 2 (no final rotation), so a small variance per second,
+``motion_noise_floor``, is added to every step's noise to keep ``R_t`` invertible.
+
+Covariances (for ANEES): the marginals of the final poses and landmarks are blocks of the
+inverse of the information matrix at the solution: the pose block is block tridiagonal (a
+chain), whose inverse blocks come from an information-form Rauch-Tung-Striebel recursion, and
+the landmarks enter through their dense Schur complement.
+
+Two tiers, as the other estimators: array functions (above) and the thin :class:`GraphSLAM`,
+which records the steps of a log like an online estimator (``predict``, ``update``) and solves
+the whole log in :meth:`GraphSLAM.smooth`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import ArrayLike
+from scipy.sparse.linalg import splu
+
+from probmap._typing import FloatArray, IntArray
+from probmap.geometry.se2 import wrap_angle
+from probmap.models.measurement import RangeBearingModel
+from probmap.models.motion import AckermannModel, VelocityModel
+from probmap.slam import _graphslam_kernels as _k
+from probmap.slam.association import chi2_gate
+
+__all__ = [
+    "GraphSLAM",
+    "GraphSLAMConfig",
+    "GraphSLAMProblem",
+    "GraphSLAMResult",
+    "LinearizedSystem",
+    "build_graphslam",
+    "graphslam_initialize",
+    "graphslam_linearize",
+    "graphslam_reduce",
+    "graphslam_solve_reduced",
+    "marginal_covariances",
+    "optimize_graphslam",
+    "segment_log",
+]
+
+GraphSLAMRobust = Literal["none", "huber", "cauchy"]
+# Huber and Cauchy at 95 % asymptotic efficiency (Mahalanobis-distance units), as the pose graph
+_DEFAULT_SCALE = {"none": 1.0, "huber": 1.345, "cauchy": 2.3849}
+
+
+def _finite_number(v: object) -> bool:
+    try:
+        return not isinstance(v, bool) and math.isfinite(float(v))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return False
+
+
+@dataclass(frozen=True)
+class GraphSLAMConfig:
+    """Settings of :func:`optimize_graphslam` and :class:`GraphSLAM`.
+
+    Parameters
+    ----------
+    max_iterations : int
+        Most linearizations (Table 11.5's repeat loop).
+    relative_tolerance : float
+        Converged when an accepted step lowers the cost by less than this fraction of it.
+    initial_lambda : float
+        Levenberg-Marquardt damping of the first step, relative to the largest diagonal entry
+        of the information matrix (0 would be plain Gauss-Newton).
+    robust : {"none", "huber", "cauchy"}
+        Robust kernel on the measurement factors (IRLS weights at every linearization);
+        odometry stays quadratic.
+    robust_scale : float or None
+        Kernel scale in Mahalanobis-distance units; None picks Huber 1.345, Cauchy 2.3849.
+    outlier_probability : float or None
+        After convergence, measurements whose ``e^T Q^-1 e`` exceeds this chi-square quantile
+        (2 dof) are dropped and the problem is solved again (at most ``outlier_rounds``
+        times); None keeps everything.
+    outlier_rounds : int
+        See ``outlier_probability``.
+    motion_noise_floor : (float, float, float)
+        Variance per second ``(m^2/s, m^2/s, rad^2/s)`` added to every step's process noise.
+    keyframes : {"observations", "all"}
+        Which steps carry a pose variable: those with observations (and the last), or all.
+    solver : {"sparse", "reduced"}
+        The linear solve of each iteration: sparse LU of the whole system, or the book's
+        reduction (Tables 11.3-11.4).
+    min_range : float
+        Observations closer than this (m) are ignored, as in the EKF.
+    covariances : bool
+        Compute the marginal covariances of the result (poses of every step, landmarks).
+    """
+
+    max_iterations: int = 50
+    relative_tolerance: float = 1e-10
+    initial_lambda: float = 1e-9
+    robust: GraphSLAMRobust = "none"
+    robust_scale: float | None = None
+    outlier_probability: float | None = None
+    outlier_rounds: int = 3
+    motion_noise_floor: tuple[float, float, float] = (1e-6, 1e-6, 1e-8)
+    keyframes: Literal["observations", "all"] = "observations"
+    solver: Literal["sparse", "reduced"] = "sparse"
+    min_range: float = 0.0
+    covariances: bool = True
+
+    def __post_init__(self) -> None:
+        mi = self.max_iterations
+        if isinstance(mi, bool) or not isinstance(mi, (int, np.integer)) or mi < 0:
+            raise ValueError(f"max_iterations must be an integer >= 0, got {mi!r}")
+        if not (_finite_number(self.relative_tolerance) and self.relative_tolerance >= 0):
+            raise ValueError(
+                f"relative_tolerance must be a finite number >= 0, got {self.relative_tolerance}"
+            )
+        if not (_finite_number(self.initial_lambda) and self.initial_lambda >= 0):
+            raise ValueError(
+                f"initial_lambda must be a finite number >= 0, got {self.initial_lambda}"
+            )
+        if self.robust not in _DEFAULT_SCALE:
+            raise ValueError(f"robust must be one of {sorted(_DEFAULT_SCALE)}, got {self.robust!r}")
+        if self.robust_scale is None:
+            object.__setattr__(self, "robust_scale", _DEFAULT_SCALE[self.robust])
+        elif not (_finite_number(self.robust_scale) and self.robust_scale > 0):
+            raise ValueError(f"robust_scale must be a positive number, got {self.robust_scale}")
+        if self.outlier_probability is not None and not (
+            _finite_number(self.outlier_probability) and 0 < self.outlier_probability < 1
+        ):
+            raise ValueError(
+                f"outlier_probability must lie in (0, 1), got {self.outlier_probability}"
+            )
+        if isinstance(self.outlier_rounds, bool) or not isinstance(
+            self.outlier_rounds, (int, np.integer)
+        ):
+            raise ValueError(f"outlier_rounds must be an integer, got {self.outlier_rounds!r}")
+        if self.outlier_rounds < 0:
+            raise ValueError(f"outlier_rounds must be >= 0, got {self.outlier_rounds}")
+        floor = tuple(self.motion_noise_floor)
+        if len(floor) != 3 or not all(_finite_number(v) and v >= 0 for v in floor):
+            raise ValueError(
+                f"motion_noise_floor must be 3 finite numbers >= 0, got {self.motion_noise_floor}"
+            )
+        object.__setattr__(self, "motion_noise_floor", tuple(float(v) for v in floor))
+        if self.keyframes not in ("observations", "all"):
+            raise ValueError(f"keyframes must be 'observations' or 'all', got {self.keyframes!r}")
+        if self.solver not in ("sparse", "reduced"):
+            raise ValueError(f"solver must be 'sparse' or 'reduced', got {self.solver!r}")
+        if not (_finite_number(self.min_range) and self.min_range >= 0):
+            raise ValueError(f"min_range must be a finite number >= 0, got {self.min_range}")
+
+    @property
+    def scale(self) -> float:
+        """The resolved robust scale."""
+        assert self.robust_scale is not None  # resolved in __post_init__
+        return float(self.robust_scale)
+
+
+# --------------------------------------------------------------------------------- the problem
+@dataclass(frozen=True, eq=False)
+class GraphSLAMProblem:
+    """A recorded log as GraphSLAM sees it (arrays; build one with :func:`segment_log`).
+
+    Attributes
+    ----------
+    motion_model, measurement_model
+        As for :class:`~probmap.slam.ekf.EKFSLAM`.
+    prior_mean : ndarray, shape (3,)
+        ``mu_0`` of the anchoring prior on the first pose.
+    prior_information : ndarray, shape (3, 3)
+        ``Omega_0`` (inverse of the initial covariance).
+    controls : ndarray, shape (T, 2)
+    dts : ndarray, shape (T,)
+        Control and length (s) of every step.
+    seg_ptr : ndarray of int64, shape (K,)
+        Segment ``s`` (node ``s`` to node ``s + 1``) holds steps ``seg_ptr[s] ..
+        seg_ptr[s + 1] - 1``; ``K`` pose nodes, node 0 the initial pose.
+    step_node : ndarray of int64, shape (T,)
+        The node whose pose a step's observations were taken from.
+    obs_node, obs_landmark : ndarray of int64, shape (k,)
+        Node and landmark slot of every observation.
+    z : ndarray, shape (k, 2)
+        Observations ``(range, bearing)``.
+    landmark_ids : ndarray of int64, shape (L,)
+        Landmark id of every slot.
+    """
+
+    motion_model: Any
+    measurement_model: Any
+    prior_mean: FloatArray
+    prior_information: FloatArray
+    controls: FloatArray
+    dts: FloatArray
+    seg_ptr: IntArray
+    step_node: IntArray
+    obs_node: IntArray
+    obs_landmark: IntArray
+    z: FloatArray
+    landmark_ids: IntArray
+
+    @property
+    def n_nodes(self) -> int:
+        """Pose variables ``K``."""
+        return int(self.seg_ptr.size)
+
+    @property
+    def n_landmarks(self) -> int:
+        """Landmark variables ``L``."""
+        return int(self.landmark_ids.size)
+
+
+def segment_log(
+    dts: ArrayLike, n_obs: ArrayLike, keyframes: str = "observations"
+) -> tuple[IntArray, IntArray]:
+    """Which steps carry a pose variable, and which node each step's observations belong to.
+
+    A step ends a node when time has passed since the last node and it has observations (or it
+    is the last step, or ``keyframes == "all"``). Observations at a step with no motion since
+    the last node belong to that node.
+
+    Parameters
+    ----------
+    dts : array_like, shape (T,)
+        Step lengths (s), >= 0.
+    n_obs : array_like of int, shape (T,)
+        Observations per step.
+    keyframes : {"observations", "all"}
+
+    Returns
+    -------
+    seg_ptr : ndarray of int64, shape (K,)
+        ``seg_ptr[0] = 0`` and ``seg_ptr[s + 1]`` one past the step that ends node ``s + 1``.
+    step_node : ndarray of int64, shape (T,)
+    """
+    d = np.asarray(dts, dtype=np.float64)
+    nz = np.asarray(n_obs, dtype=np.int64)
+    T = d.size
+    every = keyframes == "all"
+    ptr = [0]
+    step_node = np.empty(T, dtype=np.int64)
+    cur = 0
+    elapsed = 0.0
+    for t in range(T):
+        elapsed += d[t]
+        if elapsed > 0.0 and (every or nz[t] > 0 or t == T - 1):
+            cur += 1
+            ptr.append(t + 1)
+            elapsed = 0.0
+        step_node[t] = cur
+    return np.asarray(ptr, dtype=np.int64), step_node
+
+
+# ------------------------------------------------------------------------------ motion chain
+def _model_params(model: Any) -> tuple[int, FloatArray] | None:
+    """Kernel id and parameters of the package's motion models; None for any other model."""
+    if type(model) is VelocityModel:
+        ref = -1.0 if model.reference_dt is None else float(model.reference_dt)
+        return _k.KIND_VELOCITY, np.array([*model.alphas, model.sigma_v, model.sigma_w, ref])
+    if type(model) is AckermannModel:
+        ref = -1.0 if model.reference_dt is None else float(model.reference_dt)
+        a, b = model.reference_point
+        p = [model.wheelbase, model.encoder_offset, a, b, model.sigma_v, model.sigma_steer, ref]
+        return _k.KIND_ACKERMANN, np.array(p, dtype=np.float64)
+    return None
+
+
+@dataclass(frozen=True, eq=False)
+class _Chain:
+    xbar: FloatArray  # (n, 3) predicted pose after each step, from its segment's start node
+    Phi: FloatArray  # (n, 3, 3) d xbar / d start node
+    Sig: FloatArray  # (n, 3, 3) accumulated process covariance
+    G: FloatArray  # (n, 3, 3) the step's Jacobian
+
+
+def motion_chain(
+    problem: GraphSLAMProblem,
+    X: FloatArray,
+    floor: tuple[float, float, float],
+    *,
+    propagate: bool = False,
+) -> _Chain:
+    """The motion model chained over every segment from its start node (Table 11.2 lines 4-8,
+    steps between two nodes composed): per step the prediction, ``d / d x_start``, and the
+    process covariance accumulated since the start node. With ``propagate`` each segment's
+    end is written into ``X`` first (dead reckoning). Compiled for the package's velocity and
+    Ackermann models; any other model with ``predict`` and ``control_covariance`` runs in
+    Python.
+    """
+    n = int(problem.seg_ptr[-1])
+    xbar = np.empty((n, 3))
+    Phi = np.empty((n, 3, 3))
+    Sig = np.empty((n, 3, 3))
+    Gs = np.empty((n, 3, 3))
+    fl = np.asarray(floor, dtype=np.float64)
+    kp = _model_params(problem.motion_model)
+    if kp is not None:
+        status = _k.chain_steps(
+            kp[0], kp[1], X, problem.controls, problem.dts, problem.seg_ptr, fl, propagate,
+            xbar, Phi, Sig, Gs,
+        )  # fmt: skip
+        if status != _k.STATUS_OK:
+            raise ValueError("a steering angle makes the encoder speed conversion singular")
+        return _Chain(xbar, Phi, Sig, Gs)
+    model = problem.motion_model
+    ptr = problem.seg_ptr
+    eye = np.eye(3)
+    for s in range(ptr.size - 1):
+        x = X[s].copy()
+        F = eye.copy()
+        S = np.zeros((3, 3))
+        for t in range(int(ptr[s]), int(ptr[s + 1])):
+            dt = float(problem.dts[t])
+            G = eye
+            if dt > 0:
+                u = problem.controls[t]
+                x, G, V = model.predict(x, u, dt)
+                M = model.control_covariance(u, dt)
+                S = G @ S @ G.T + V @ M @ V.T + np.diag(fl * dt)
+                F = G @ F
+            xbar[t], Phi[t], Sig[t], Gs[t] = x, F, S, G
+        if propagate:
+            X[s + 1] = x
+    return _Chain(xbar, Phi, Sig, Gs)
+
+
+def _measurements(
+    model: Any, X: FloatArray, Lm: FloatArray, node: IntArray, lm: IntArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``z_hat (k, 2)``, ``H_x (k, 2, 3)``, ``H_m (k, 2, 2)`` of every observation."""
+    k = node.size
+    if type(model) is RangeBearingModel:
+        return _range_bearing(model, X[node], Lm[lm])
+    zh = np.empty((k, 2))
+    Hx = np.empty((k, 2, 3))
+    Hm = np.empty((k, 2, 2))
+    if k == 0:
+        return zh, Hx, Hm
+    cut = np.flatnonzero(np.diff(node)) + 1
+    for a, b in zip(np.r_[0, cut], np.r_[cut, k], strict=True):
+        zh[a:b], Hx[a:b], Hm[a:b] = model.predict_many(X[node[a]], Lm[lm[a:b]])
+    return zh, Hx, Hm
+
+
+def _range_bearing(
+    model: RangeBearingModel, poses: FloatArray, m: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """:meth:`RangeBearingModel.predict_many` for one pose per landmark (the same equations,
+    batched over observations; checked against the model in the tests)."""
+    dx, dy, dth = model.sensor_offset
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    sx = poses[:, 0] + c * dx - s * dy
+    sy = poses[:, 1] + s * dx + c * dy
+    dsx = -s * dx - c * dy
+    dsy = c * dx - s * dy
+    d0 = m[:, 0] - sx
+    d1 = m[:, 1] - sy
+    q = d0 * d0 + d1 * d1
+    if np.any(q <= 1e-18):
+        raise ValueError("a landmark coincides with the sensor position (zero range)")
+    r = np.sqrt(q)
+    k = poses.shape[0]
+    z = np.empty((k, 2))
+    z[:, 0] = r
+    z[:, 1] = wrap_angle(np.arctan2(d1, d0) - poses[:, 2] - dth)
+    Hm = np.empty((k, 2, 2))
+    Hm[:, 0, 0] = d0 / r
+    Hm[:, 0, 1] = d1 / r
+    Hm[:, 1, 0] = -d1 / q
+    Hm[:, 1, 1] = d0 / q
+    Hx = np.empty((k, 2, 3))
+    Hx[:, :, 0] = -Hm[:, :, 0]
+    Hx[:, :, 1] = -Hm[:, :, 1]
+    Hx[:, :, 2] = -(Hm[:, :, 0] * dsx[:, None] + Hm[:, :, 1] * dsy[:, None])
+    Hx[:, 1, 2] -= 1.0
+    return z, Hx, Hm
+
+
+# -------------------------------------------------------------------------- Table 11.1
+def graphslam_initialize(
+    problem: GraphSLAMProblem, floor: tuple[float, float, float] = (1e-6, 1e-6, 1e-8)
+) -> tuple[FloatArray, FloatArray]:
+    """Initial guess (Table 11.1): dead-reckoned poses from ``mu_0``, and every landmark at
+    its first sighting through the inverse measurement model (as Table 11.2 does for a
+    landmark not seen before).
+
+    Returns
+    -------
+    X : ndarray, shape (K, 3)
+        Node poses.
+    Lm : ndarray, shape (L, 2)
+        Landmark positions.
+    """
+    X = np.zeros((problem.n_nodes, 3))
+    X[0] = problem.prior_mean
+    motion_chain(problem, X, floor, propagate=True)
+    Lm = np.zeros((problem.n_landmarks, 2))
+    seen = np.zeros(problem.n_landmarks, dtype=bool)
+    inv = problem.measurement_model.inverse
+    for k in range(problem.obs_landmark.size):
+        j = int(problem.obs_landmark[k])
+        if not seen[j]:
+            Lm[j] = inv(X[problem.obs_node[k]], problem.z[k])[0]
+            seen[j] = True
+    return X, Lm
+
+
+# -------------------------------------------------------------------------- Table 11.2
+class _Pattern:
+    """The fixed sparsity pattern of ``H``: factor blocks scattered into CSC data by index."""
+
+    def __init__(self, rows: IntArray, cols: IntArray, n: int) -> None:
+        key = rows * n + cols
+        uniq, pos = np.unique(key, return_inverse=True)
+        self.pos = pos.astype(np.int64)
+        self.nnz = int(uniq.size)
+        r = uniq // n
+        c = uniq % n
+        # CSC with columns sorted, rows sorted inside: order of uniq by (c, r)
+        order = np.lexsort((r, c))
+        rank = np.empty_like(order)
+        rank[order] = np.arange(order.size)
+        self.pos = rank[self.pos]
+        self.indices = r[order].astype(np.int32)
+        self.indptr = np.searchsorted(c[order], np.arange(n + 1)).astype(np.int32)
+        self.n = n
+        self.diag = np.empty(n, dtype=np.int64)
+        for j in range(n):  # position of (j, j) in the data
+            a, b = self.indptr[j], self.indptr[j + 1]
+            self.diag[j] = a + int(np.searchsorted(self.indices[a:b], j))
+
+    def matrix(self, values: FloatArray) -> sp.csc_matrix:
+        data = np.bincount(self.pos, weights=values, minlength=self.nnz)
+        return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
+
+
+def _block_index(first: IntArray, width: int) -> IntArray:
+    return first[:, None] + np.arange(width)
+
+
+@dataclass(frozen=True, eq=False)
+class LinearizedSystem:
+    """The linearized GraphSLAM system of Table 11.2, for the increment: ``H delta = b``.
+
+    Attributes
+    ----------
+    H : scipy.sparse.csc_matrix, shape (3K + 2L, 3K + 2L)
+        Information matrix ``Omega`` (poses first, node ``n`` at ``3n``, then landmark ``j`` at
+        ``3K + 2j``).
+    b : ndarray, shape (3K + 2L,)
+        ``-J^T W e``; the book's ``xi`` is ``H mu + b``.
+    cost : float
+        ``J`` at the linearization point (robust terms as ``rho``).
+    chi2 : ndarray, shape (k,)
+        ``e^T Q^-1 e`` of every measurement.
+    weights : ndarray, shape (k,)
+        IRLS weights of the measurements (0 for dropped ones).
+    n_pose_vars : int
+        ``3K``.
+    """
+
+    H: sp.csc_matrix
+    b: FloatArray
+    cost: float
+    chi2: FloatArray
+    weights: FloatArray
+    n_pose_vars: int
+
+
+class _Linearizer:
+    """Builds :class:`LinearizedSystem` for one problem (its pattern is computed once)."""
+
+    def __init__(self, problem: GraphSLAMProblem, config: GraphSLAMConfig) -> None:
+        self.p = problem
+        self.cfg = config
+        K, L = problem.n_nodes, problem.n_landmarks
+        self.n = 3 * K + 2 * L
+        R = np.asarray(problem.measurement_model.R, dtype=np.float64)
+        self.R_inv = np.linalg.inv(R)
+        seg = np.arange(K - 1, dtype=np.int64)
+        self.idx_motion = np.hstack([_block_index(3 * seg, 3), _block_index(3 * seg + 3, 3)])
+        self.idx_meas = np.hstack(
+            [
+                _block_index(3 * problem.obs_node, 3),
+                _block_index(3 * K + 2 * problem.obs_landmark, 2),
+            ]
+        )
+        self.idx_prior = np.arange(3, dtype=np.int64)[None, :]
+        rows, cols = [], []
+        for idx in (self.idx_prior, self.idx_motion, self.idx_meas):
+            d = idx.shape[1]
+            rows.append(np.repeat(idx, d, axis=1).ravel())
+            cols.append(np.tile(idx, (1, d)).ravel())
+        self.pattern = _Pattern(np.concatenate(rows), np.concatenate(cols), self.n)
+        self.active = np.ones(problem.z.shape[0], dtype=bool)
+        # the package's motion models move in the robot frame (g(x, u) = x (+) g(0, u)), so the
+        # odometry residual is taken in the start node's frame, where its noise is constant
+        self.invariant = _model_params(problem.motion_model) is not None
+
+    def residuals(
+        self, X: FloatArray, Lm: FloatArray, jacobians: bool
+    ) -> tuple[float, dict[str, Any]]:
+        p = self.p
+        floor = self.cfg.motion_noise_floor
+        out: dict[str, Any] = {}
+        # prior
+        e0 = X[0] - p.prior_mean
+        e0[2] = wrap_angle(e0[2])
+        cost = float(e0 @ p.prior_information @ e0)
+        out["prior"] = e0
+        # motion factors between consecutive nodes
+        if p.n_nodes > 1:
+            ch = motion_chain(p, X, floor)
+            end = p.seg_ptr[1:] - 1
+            pred, F, S = ch.xbar[end], ch.Phi[end], ch.Sig[end]
+            ew = X[1:] - pred
+            ew[:, 2] = wrap_angle(ew[:, 2])
+            # in the frame of the start node: e_b = Rt(theta_i) e_w, Rt = blockdiag(R^T, 1);
+            # for the package's (rotation-invariant) models the noise Rt S Rt^T is then
+            # constant, so the cost is exact and so are its Jacobians
+            c, s = np.cos(X[:-1, 2]), np.sin(X[:-1, 2])
+            if not self.invariant:  # any other model: the book's world-frame residual
+                c, s = np.ones_like(c), np.zeros_like(s)
+            Rt = np.zeros((c.size, 3, 3))
+            Rt[:, 0, 0], Rt[:, 0, 1], Rt[:, 1, 0], Rt[:, 1, 1] = c, s, -s, c
+            Rt[:, 2, 2] = 1.0
+            em = np.einsum("sij,sj->si", Rt, ew)
+            Sb = np.einsum("sij,sjk,slk->sil", Rt, S, Rt)
+            try:
+                Om = np.linalg.inv(Sb)
+            except np.linalg.LinAlgError as exc:
+                raise ValueError(
+                    "singular odometry noise between two poses: raise motion_noise_floor"
+                ) from exc
+            cost += float(np.einsum("si,sij,sj->", em, Om, em))
+            if jacobians:
+                Ji = -np.einsum("sij,sjk->sik", Rt, F)
+                if self.invariant:
+                    Ji[:, 0, 2] += -s * ew[:, 0] + c * ew[:, 1]
+                    Ji[:, 1, 2] += -c * ew[:, 0] - s * ew[:, 1]
+                out["motion"] = (em, np.concatenate([Ji, Rt], axis=2), Om)
+        # measurements
+        if p.z.shape[0]:
+            zh, Hx, Hm = _measurements(p.measurement_model, X, Lm, p.obs_node, p.obs_landmark)
+            ez = zh - p.z
+            ez[:, 1] = wrap_angle(ez[:, 1])
+            chi2 = np.einsum("ki,ij,kj->k", ez, self.R_inv, ez)
+            rho, w = _robust(chi2, self.cfg.robust, self.cfg.scale)
+            rho = np.where(self.active, rho, 0.0)
+            w = np.where(self.active, w, 0.0)
+            cost += float(rho.sum())
+            out["meas"] = (ez, Hx, Hm, chi2, w)
+        return 0.5 * cost, out
+
+    def linearize(self, X: FloatArray, Lm: FloatArray) -> LinearizedSystem:
+        cost, r = self.residuals(X, Lm, True)
+        p = self.p
+        b = np.zeros(self.n)
+        vals = [p.prior_information.ravel()]
+        b[:3] -= p.prior_information @ r["prior"]
+        if "motion" in r:
+            em, J, Om = r["motion"]  # J (S, 3, 6): d e / d (x_i, x_j)
+            JtO = np.einsum("sji,sjk->sik", J, Om)  # (S, 6, 3)
+            vals.append(np.einsum("sik,skl->sil", JtO, J).ravel())
+            np.add.at(b, self.idx_motion, -np.einsum("sik,sk->si", JtO, em))
+        chi2 = np.zeros(0)
+        w = np.zeros(0)
+        if "meas" in r:
+            ez, Hx, Hm, chi2, w = r["meas"]
+            J = np.concatenate([Hx, Hm], axis=2)  # (k, 2, 5)
+            JtO = np.einsum("kji,jl->kil", J, self.R_inv) * w[:, None, None]
+            vals.append(np.einsum("kil,klm->kim", JtO, J).ravel())
+            np.add.at(b, self.idx_meas, -np.einsum("kil,kl->ki", JtO, ez))
+        H = self.pattern.matrix(np.concatenate(vals))
+        return LinearizedSystem(H, b, cost, chi2, w, 3 * p.n_nodes)
+
+
+def _robust(chi2: FloatArray, kernel: str, scale: float) -> tuple[FloatArray, FloatArray]:
+    """``rho(s)`` and the IRLS weight ``d rho / d s`` of squared Mahalanobis distances."""
+    if kernel == "huber":
+        d = np.sqrt(chi2)
+        big = d > scale
+        rho = np.where(big, 2.0 * scale * d - scale * scale, chi2)
+        return rho, np.where(big, scale / np.maximum(d, 1e-300), 1.0)
+    if kernel == "cauchy":
+        k2 = scale * scale
+        return k2 * np.log1p(chi2 / k2), 1.0 / (1.0 + chi2 / k2)
+    return chi2.copy(), np.ones_like(chi2)
+
+
+def graphslam_linearize(
+    problem: GraphSLAMProblem,
+    X: FloatArray,
+    Lm: FloatArray,
+    config: GraphSLAMConfig | None = None,
+) -> LinearizedSystem:
+    """Linearize every factor at ``(X, Lm)`` (Table 11.2) into the sparse information form.
+
+    Prior: ``Omega_0`` on node 0. Motion factor between nodes ``i`` and ``j``: residual
+    ``x_j - g(x_i)`` (the model chained over the steps between them), Jacobians ``-G`` (the
+    product of the steps' ``G``) and ``I``, information ``R^-1`` with ``R`` the accumulated
+    ``G R G^T + V M V^T`` (plus the noise floor). Measurement ``i`` of node ``t``: residual
+    ``h(x_t, m_j) - z`` (bearing wrapped), Jacobians ``H_x``, ``H_m`` of the sensor model,
+    information ``w Q^-1`` with ``w`` the robust weight (Table 11.2 lines 11-21 with
+    ``Q^-1``).
+    """
+    cfg = config if config is not None else GraphSLAMConfig()
+    return _Linearizer(problem, cfg).linearize(X, Lm)
+
+
+# ---------------------------------------------------------------------- Tables 11.3-11.4
+def _landmark_blocks_inverse(C: sp.spmatrix, L: int) -> sp.csr_matrix:
+    """Inverse of the block-diagonal landmark information ``Omega_mm`` (2x2 blocks)."""
+    Cd = C.tocsr()
+    i = np.arange(L) * 2
+    a = np.asarray(Cd[i, i]).ravel()
+    bq = np.asarray(Cd[i, i + 1]).ravel()
+    d = np.asarray(Cd[i + 1, i + 1]).ravel()
+    det = a * d - bq * bq
+    if np.any(~(det > 0)):
+        raise ValueError("a landmark's information block is singular (seen from one place only?)")
+    blocks = np.stack([np.stack([d, -bq], -1), np.stack([-bq, a], -1)], 1) / det[:, None, None]
+    return sp.block_diag(list(blocks), format="csr") if L else sp.csr_matrix((0, 0))
+
+
+def graphslam_reduce(
+    H: sp.spmatrix, b: FloatArray, n_pose_vars: int
+) -> tuple[sp.csc_matrix, FloatArray]:
+    """Marginalize the landmarks out of the information form (Table 11.3).
+
+    For every landmark ``j`` with the poses ``tau(j)`` that observed it, Table 11.3 subtracts
+    ``Omega_{tau(j),j} Omega_{j,j}^-1 Omega_{j,tau(j)}`` from the pose block and
+    ``Omega_{tau(j),j} Omega_{j,j}^-1 xi_j`` from the pose vector. No factor joins two
+    landmarks, so ``Omega_mm`` is block diagonal and the loop over ``j`` is one sparse product:
+    ``H~ = H_xx - H_xm H_mm^-1 H_mx``, ``b~ = b_x - H_xm H_mm^-1 b_m``.
+
+    Returns
+    -------
+    H_reduced : scipy.sparse.csc_matrix, shape (3K, 3K)
+    b_reduced : ndarray, shape (3K,)
+    """
+    Hc = sp.csc_matrix(H)
+    n = Hc.shape[0]
+    L = (n - n_pose_vars) // 2
+    A = Hc[:n_pose_vars, :n_pose_vars]
+    B = Hc[:n_pose_vars, n_pose_vars:]
+    Cinv = _landmark_blocks_inverse(Hc[n_pose_vars:, n_pose_vars:], L)
+    BC = B @ Cinv
+    Hr = sp.csc_matrix(A - BC @ B.T)
+    br = b[:n_pose_vars] - BC @ b[n_pose_vars:]
+    return Hr, np.asarray(br, dtype=np.float64)
+
+
+def graphslam_solve_reduced(H: sp.spmatrix, b: FloatArray, n_pose_vars: int) -> FloatArray:
+    """Solve ``H delta = b`` through the reduced system (Tables 11.3-11.4).
+
+    Poses: ``delta_x = H~^-1 b~`` (Table 11.4 lines 2-3). Each landmark from its own block
+    given the poses: ``delta_j = Omega_jj^-1 (b_j - Omega_{j,tau(j)} delta_tau(j))`` (line 6).
+    """
+    Hc = sp.csc_matrix(H)
+    n = Hc.shape[0]
+    L = (n - n_pose_vars) // 2
+    Hr, br = graphslam_reduce(Hc, b, n_pose_vars)
+    dx = _sparse_solve(Hr, br)
+    if L == 0:
+        return dx
+    Cinv = _landmark_blocks_inverse(Hc[n_pose_vars:, n_pose_vars:], L)
+    Bt = Hc[n_pose_vars:, :n_pose_vars]
+    dm = Cinv @ (b[n_pose_vars:] - Bt @ dx)
+    return np.concatenate([dx, dm])
+
+
+def _sparse_solve(H: sp.spmatrix, b: FloatArray) -> FloatArray:
+    """``H^-1 b`` for a symmetric positive definite sparse ``H`` (SuperLU, symmetric mode,
+    minimum-degree ordering on ``H``)."""
+    if H.shape[0] == 0:
+        return np.zeros(0)
+    try:
+        lu = splu(
+            sp.csc_matrix(H),
+            permc_spec="MMD_AT_PLUS_A",
+            diag_pivot_thresh=0.0,
+            options={"SymmetricMode": True},
+        )
+    except RuntimeError as exc:  # "Factor is exactly singular"
+        raise ValueError(f"the information matrix is singular ({exc})") from exc
+    x = np.asarray(lu.solve(b), dtype=np.float64)
+    if not np.all(np.isfinite(x)):
+        raise ValueError("the information matrix is singular (non-finite solution)")
+    return x
+
+
+# -------------------------------------------------------------------------- covariances
+def marginal_covariances(
+    H: sp.spmatrix, n_nodes: int, n_landmarks: int
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Marginal covariances from the information matrix at the solution.
+
+    ``H = [[A, B], [B^T, C]]`` with ``A`` the block-tridiagonal pose block (a chain of motion
+    factors). With ``W = A^-1 B`` and the landmark Schur complement ``S = C - B^T W``:
+    ``Cov(m) = S^-1`` and the pose blocks ``Cov(x)_{ik} = (A^-1)_{ik} + W_i S^-1 W_k^T``, whose
+    ``A^-1`` blocks on and next to the diagonal come from an information-form
+    Rauch-Tung-Striebel recursion.
+
+    Returns
+    -------
+    pose_cov : ndarray, shape (K, 3, 3)
+    cross_cov : ndarray, shape (K - 1, 3, 3)
+        ``Cov(x_s, x_{s+1})``.
+    landmark_cov : ndarray, shape (L, 2, 2)
+    """
+    Hc = sp.csr_matrix(H)
+    K, L = n_nodes, n_landmarks
+    npv = 3 * K
+    A = Hc[:npv, :npv]
+    i = np.arange(K)
+    r3 = np.arange(3)
+    rows = np.broadcast_to((3 * i)[:, None, None] + r3[:, None], (K, 3, 3))
+    cols = np.broadcast_to((3 * i)[:, None, None] + r3[None, :], (K, 3, 3))
+    D = np.asarray(A[rows.ravel(), cols.ravel()]).reshape(K, 3, 3)
+    if K > 1:
+        U = np.asarray(A[rows[:-1].ravel(), (cols[:-1] + 3).ravel()]).reshape(K - 1, 3, 3)
+        off = A.copy()
+        off.data[:] = 1.0
+        band = sp.diags([1.0] * 11, list(range(-5, 6)), shape=(npv, npv), format="csr")
+        if (off - off.multiply(band)).count_nonzero():
+            raise ValueError("the pose block is not a chain; marginal covariances need one")
+    else:
+        U = np.zeros((0, 3, 3))
+    Pn = np.empty((K, 3, 3))
+    Pc = np.empty((max(K - 1, 0), 3, 3))
+    if not _k.block_tridiagonal_inverse(np.ascontiguousarray(D), np.ascontiguousarray(U), Pn, Pc):
+        raise ValueError("the pose information matrix is singular")
+    Lc = np.zeros((L, 2, 2))
+    if L:
+        B = Hc[:npv, npv:].toarray()
+        C = Hc[npv:, npv:].toarray()
+        lu = splu(
+            sp.csc_matrix(A),
+            permc_spec="MMD_AT_PLUS_A",
+            diag_pivot_thresh=0.0,
+            options={"SymmetricMode": True},
+        )
+        W = lu.solve(B)
+        S = C - B.T @ W
+        Sm = np.linalg.inv(0.5 * (S + S.T))
+        j = np.arange(L)
+        Lc = Sm.reshape(L, 2, L, 2)[j, :, j, :]
+        Wr = W.reshape(K, 3, 2 * L)
+        WS = Wr @ Sm
+        Pn += np.einsum("kaj,kbj->kab", WS, Wr)
+        if K > 1:
+            Pc += np.einsum("kaj,kbj->kab", WS[:-1], Wr[1:])
+    return Pn, Pc, Lc
+
+
+# -------------------------------------------------------------------------- Table 11.5
+@dataclass(frozen=True, eq=False)
+class GraphSLAMResult:
+    """What :func:`optimize_graphslam` returns.
+
+    Attributes
+    ----------
+    nodes : ndarray, shape (K, 3)
+        Optimized poses of the pose variables.
+    landmarks : ndarray, shape (L, 2)
+        Optimized landmark positions (slot order of ``problem.landmark_ids``).
+    step_poses : ndarray, shape (T, 3)
+        The pose after every step (nodes, and the smoothed poses between them).
+    step_covariances : ndarray, shape (T, 3, 3) or None
+    node_covariances : ndarray, shape (K, 3, 3) or None
+    landmark_covariances : ndarray, shape (L, 2, 2) or None
+        Marginal covariances (None with ``covariances=False``).
+    initial_cost, final_cost : float
+        ``J`` (half the weighted squared error) at the start and the end.
+    iterations : int
+        Linearizations.
+    converged : bool
+    measurement_chi2 : ndarray, shape (k,)
+        ``e^T Q^-1 e`` of every measurement at the solution.
+    measurement_weights : ndarray, shape (k,)
+        Final IRLS weight of every measurement; 0 for one dropped as an outlier.
+    seconds : float
+    """
+
+    nodes: FloatArray
+    landmarks: FloatArray
+    step_poses: FloatArray
+    step_covariances: FloatArray | None
+    node_covariances: FloatArray | None
+    landmark_covariances: FloatArray | None
+    initial_cost: float
+    final_cost: float
+    iterations: int
+    converged: bool
+    measurement_chi2: FloatArray
+    measurement_weights: FloatArray
+    seconds: float
+
+
+def _apply(X: FloatArray, Lm: FloatArray, delta: FloatArray) -> tuple[FloatArray, FloatArray]:
+    K = X.shape[0]
+    Xn = X + delta[: 3 * K].reshape(K, 3)
+    Xn[:, 2] = wrap_angle(Xn[:, 2])
+    return Xn, Lm + delta[3 * K :].reshape(-1, 2)
+
+
+def _gauss_newton(
+    lin: _Linearizer, X: FloatArray, Lm: FloatArray, cfg: GraphSLAMConfig
+) -> tuple[FloatArray, FloatArray, int, bool, LinearizedSystem]:
+    """Repeated linearize-and-solve (Table 11.5) with Levenberg-Marquardt damping."""
+    sysm = lin.linearize(X, Lm)
+    lam = cfg.initial_lambda * float(sysm.H.diagonal().max(initial=1.0))
+    its = 0
+    converged = False
+    n = sysm.H.shape[0]
+    while its < cfg.max_iterations:
+        its += 1
+        accepted = False
+        while True:
+            Hd = sysm.H if lam == 0 else sysm.H + sp.diags(np.full(n, lam), format="csc")
+            if cfg.solver == "reduced":
+                delta = graphslam_solve_reduced(Hd, sysm.b, sysm.n_pose_vars)
+            else:
+                delta = _sparse_solve(Hd, sysm.b)
+            Xn, Ln = _apply(X, Lm, delta)
+            new_cost, _ = lin.residuals(Xn, Ln, False)
+            if new_cost <= sysm.cost:
+                accepted = True
+                break
+            lam = max(lam * 10.0, 1e-12)
+            if lam > 1e12 * float(sysm.H.diagonal().max(initial=1.0)):
+                break
+        if not accepted:
+            converged = True  # no step lowers the cost: a minimum to working precision
+            break
+        drop = sysm.cost - new_cost
+        X, Lm = Xn, Ln
+        lam = lam / 10.0
+        sysm = lin.linearize(X, Lm)
+        if (
+            drop <= cfg.relative_tolerance * max(sysm.cost, 1e-300)
+            or float(np.abs(delta).max(initial=0.0)) < 1e-12
+        ):
+            converged = True
+            break
+    return X, Lm, its, converged, sysm
+
+
+def optimize_graphslam(
+    problem: GraphSLAMProblem,
+    config: GraphSLAMConfig | None = None,
+    *,
+    initial: tuple[FloatArray, FloatArray] | None = None,
+) -> GraphSLAMResult:
+    """GraphSLAM with known correspondences (Table 11.5): initialize (Table 11.1), then
+    linearize (11.2) and solve (11.3-11.4, or the equivalent sparse solve) until the cost stops
+    falling; then drop outliers if asked and solve again, and compute the marginals.
+
+    Parameters
+    ----------
+    problem : GraphSLAMProblem
+    config : GraphSLAMConfig, optional
+    initial : (X (K, 3), Lm (L, 2)), optional
+        Starting point instead of Table 11.1's.
+
+    Returns
+    -------
+    GraphSLAMResult
+    """
+    cfg = config if config is not None else GraphSLAMConfig()
+    t0 = time.perf_counter()
+    if initial is None:
+        X, Lm = graphslam_initialize(problem, cfg.motion_noise_floor)
+    else:
+        X = np.array(initial[0], dtype=np.float64).reshape(problem.n_nodes, 3)
+        Lm = np.array(initial[1], dtype=np.float64).reshape(problem.n_landmarks, 2)
+    lin = _Linearizer(problem, cfg)
+    initial_cost, _ = lin.residuals(X, Lm, False)
+    X, Lm, its, converged, sysm = _gauss_newton(lin, X, Lm, cfg)
+    if cfg.outlier_probability is not None and problem.z.shape[0]:
+        gate = chi2_gate(cfg.outlier_probability)
+        for _ in range(cfg.outlier_rounds):
+            bad = lin.active & (sysm.chi2 > gate)
+            if not bad.any():
+                break
+            lin.active &= ~bad
+            X, Lm, more, converged, sysm = _gauss_newton(lin, X, Lm, cfg)
+            its += more
+    step_poses, step_cov, node_cov, lm_cov = _recover_steps(problem, cfg, X, Lm, sysm)
+    return GraphSLAMResult(
+        nodes=X,
+        landmarks=Lm,
+        step_poses=step_poses,
+        step_covariances=step_cov,
+        node_covariances=node_cov,
+        landmark_covariances=lm_cov,
+        initial_cost=float(initial_cost),
+        final_cost=float(sysm.cost),
+        iterations=its,
+        converged=converged,
+        measurement_chi2=sysm.chi2,
+        measurement_weights=sysm.weights,
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def _recover_steps(
+    problem: GraphSLAMProblem,
+    cfg: GraphSLAMConfig,
+    X: FloatArray,
+    Lm: FloatArray,
+    sysm: LinearizedSystem,
+) -> tuple[FloatArray, FloatArray | None, FloatArray | None, FloatArray | None]:
+    """Poses (and covariances) of every step from the optimized nodes."""
+    K = problem.n_nodes
+    T = problem.step_node.size
+    if cfg.covariances:
+        Pn, Pc, Lc = marginal_covariances(sysm.H, K, problem.n_landmarks)
+    else:
+        Pn = np.zeros((K, 3, 3))
+        Pc = np.zeros((max(K - 1, 0), 3, 3))
+        Lc = None
+    poses = np.empty((T, 3))
+    covs = np.empty((T, 3, 3))
+    n = int(problem.seg_ptr[-1])
+    if K > 1:
+        ch = motion_chain(problem, X, cfg.motion_noise_floor)
+        status = _k.smooth_steps(
+            X, Pn, Pc, problem.seg_ptr, ch.xbar, ch.Phi, ch.Sig, ch.G, poses[:n], covs[:n]
+        )
+        if status != _k.STATUS_OK:
+            raise ValueError("singular odometry noise between two poses: raise motion_noise_floor")
+    poses[n:] = X[-1]
+    covs[n:] = Pn[-1]
+    if not cfg.covariances:
+        return poses, None, None, None
+    return poses, covs, Pn, Lc
+
+
+# ------------------------------------------------------------------------------ the class
+@dataclass
+class _Log:
+    controls: list[FloatArray] = field(default_factory=list)
+    dts: list[float] = field(default_factory=list)
+    z: list[FloatArray] = field(default_factory=list)
+    ids: list[IntArray] = field(default_factory=list)
+
+
+class GraphSLAM:
+    """GraphSLAM over a whole log (Probabilistic Robotics, chapter 11), known correspondences.
+
+    It takes the steps of a log like an online estimator (:meth:`predict` then :meth:`update`
+    per record), and solves the full-SLAM problem over all of them in :meth:`smooth` (called
+    by :func:`probmap.pipelines.landmark_slam.run_landmark_slam` after the last step). Until
+    then :attr:`pose` is the last smoothed pose (the initial pose before the first solve).
+
+    Parameters
+    ----------
+    motion_model, measurement_model, initial_pose, initial_covariance
+        As for :class:`~probmap.slam.ekf.EKFSLAM` (the same noise parameters).
+        ``initial_covariance`` must be positive definite: its inverse anchors the first pose.
+    config : GraphSLAMConfig, optional
+    """
+
+    def __init__(
+        self,
+        motion_model: Any,
+        measurement_model: Any,
+        initial_pose: ArrayLike,
+        initial_covariance: ArrayLike,
+        config: GraphSLAMConfig | None = None,
+    ) -> None:
+        mu = np.asarray(initial_pose, dtype=np.float64)
+        P0 = np.asarray(initial_covariance, dtype=np.float64)
+        if mu.shape != (3,) or P0.shape != (3, 3):
+            raise ValueError("initial_pose must be (3,) and initial_covariance (3, 3)")
+        if not (np.all(np.isfinite(mu)) and np.all(np.isfinite(P0))):
+            raise ValueError("initial pose and covariance must be finite")
+        if not np.allclose(P0, P0.T) or np.linalg.eigvalsh(0.5 * (P0 + P0.T)).min() <= 0:
+            raise ValueError("initial_covariance must be symmetric positive definite")
+        self.motion_model = motion_model
+        self.measurement_model = measurement_model
+        self.config = config if config is not None else GraphSLAMConfig()
+        self._mu0 = mu.copy()
+        self._P0 = 0.5 * (P0 + P0.T)
+        self._log = _Log()
+        self._result: GraphSLAMResult | None = None
+        self._problem: GraphSLAMProblem | None = None
+        self.last_nis: float = np.nan
+        self.last_nis_dof: int = 0
+
+    # ------------------------------------------------------------------ recording
+    def predict(self, u: ArrayLike, dt: float) -> None:
+        """Record a step: control ``u`` (2,) held for ``dt`` s (>= 0)."""
+        u = np.asarray(u, dtype=np.float64)
+        if u.shape != (2,) or not np.all(np.isfinite(u)):
+            raise ValueError(f"control must be 2 finite numbers, got {u!r}")
+        if not (_finite_number(dt) and float(dt) >= 0):
+            raise ValueError(f"dt must be a finite number >= 0, got {dt}")
+        self._log.controls.append(u.copy())
+        self._log.dts.append(float(dt))
+        self._log.z.append(np.zeros((0, 2)))
+        self._log.ids.append(np.zeros(0, dtype=np.int64))
+
+    def update(self, z: ArrayLike, ids: ArrayLike) -> None:
+        """Record the observations ``z`` (k, 2) with landmark ``ids`` (k,) of the last step."""
+        z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        if ids.shape[0] != z.shape[0]:
+            raise ValueError(f"z has {z.shape[0]} rows but ids has {ids.shape[0]}")
+        if z.shape[0] == 0:
+            return
+        if not self._log.dts:
+            raise ValueError("update before the first predict: record a step first")
+        if not np.all(np.isfinite(z)):
+            raise ValueError("measurements must be finite (NaN or inf found)")
+        if np.any(ids < 0):
+            raise ValueError(
+                "GraphSLAM needs known correspondences (landmark ids >= 0); unknown ids (-1) "
+                "are not supported yet"
+            )
+        keep = z[:, 0] > max(self.config.min_range, 1e-9)
+        self._log.z[-1] = np.concatenate([self._log.z[-1], z[keep]])
+        self._log.ids[-1] = np.concatenate([self._log.ids[-1], ids[keep]])
+        self._result = None
+
+    # ------------------------------------------------------------------ solving
+    def problem(self) -> GraphSLAMProblem:
+        """The recorded log as a :class:`GraphSLAMProblem`."""
+        log = self._log
+        T = len(log.dts)
+        controls = np.array(log.controls, dtype=np.float64).reshape(T, 2)
+        dts = np.array(log.dts, dtype=np.float64)
+        n_obs = np.array([z.shape[0] for z in log.z], dtype=np.int64)
+        seg_ptr, step_node = segment_log(dts, n_obs, self.config.keyframes)
+        z = np.concatenate(log.z) if T else np.zeros((0, 2))
+        ids = np.concatenate(log.ids) if T else np.zeros(0, dtype=np.int64)
+        obs_node = np.repeat(step_node, n_obs)
+        landmark_ids, slot = np.unique(ids, return_inverse=True)
+        return GraphSLAMProblem(
+            motion_model=self.motion_model,
+            measurement_model=self.measurement_model,
+            prior_mean=self._mu0.copy(),
+            prior_information=np.linalg.inv(self._P0),
+            controls=controls,
+            dts=dts,
+            seg_ptr=seg_ptr,
+            step_node=step_node,
+            obs_node=obs_node.astype(np.int64),
+            obs_landmark=slot.astype(np.int64).reshape(-1),
+            z=z.reshape(-1, 2),
+            landmark_ids=landmark_ids.astype(np.int64),
+        )
+
+    def optimize(self) -> GraphSLAMResult:
+        """Solve the whole recorded log (:func:`optimize_graphslam`)."""
+        if self._result is None:
+            self._problem = self.problem()
+            self._result = optimize_graphslam(self._problem, self.config)
+        return self._result
+
+    def smooth(self) -> tuple[FloatArray, FloatArray]:
+        """Solve, and return the pose (T, 3) and its marginal covariance (T, 3, 3) after every
+        recorded step (zeros if ``config.covariances`` is off)."""
+        r = self.optimize()
+        covs = r.step_covariances
+        if covs is None:
+            covs = np.zeros((r.step_poses.shape[0], 3, 3))
+        return r.step_poses.copy(), covs.copy()
+
+    # ------------------------------------------------------------------ state access
+    @property
+    def result(self) -> GraphSLAMResult | None:
+        """The last solution (None before :meth:`optimize`)."""
+        return self._result
+
+    @property
+    def pose(self) -> FloatArray:
+        """Last smoothed pose (3,); the initial pose before the first solve."""
+        if self._result is None or self._result.step_poses.shape[0] == 0:
+            return self._mu0.copy()
+        return self._result.step_poses[-1].copy()
+
+    @property
+    def pose_covariance(self) -> FloatArray:
+        """Marginal covariance (3, 3) of :attr:`pose`."""
+        r = self._result
+        if r is None or r.step_covariances is None or r.step_covariances.shape[0] == 0:
+            return self._P0.copy()
+        return r.step_covariances[-1].copy()
+
+    def landmarks(self) -> tuple[IntArray, FloatArray, FloatArray]:
+        """Mapped landmarks after solving: ``ids (n,)``, ``xy (n, 2)``, ``cov (n, 2, 2)``."""
+        r = self.optimize()
+        assert self._problem is not None
+        cov = r.landmark_covariances
+        if cov is None:
+            cov = np.zeros((r.landmarks.shape[0], 2, 2))
+        return self._problem.landmark_ids.copy(), r.landmarks.copy(), cov.copy()
+
+
+def build_graphslam(dataset: Any, config: GraphSLAMConfig | None = None) -> GraphSLAM:
+    """A :class:`GraphSLAM` for a landmark dataset (its models and initial pose)."""
+    return GraphSLAM(
+        dataset.motion_model,
+        dataset.measurement_model,
+        dataset.initial_pose,
+        dataset.initial_covariance,
+        config,
+    )

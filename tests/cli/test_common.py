@@ -37,3 +37,29 @@ def test_cli_errors_one_line_and_exit_code(capsys):
             raise CliError("no scans")
     assert info.value.exit_code == 1
     assert capsys.readouterr().err.strip() == "error: no scans"
+
+
+def test_first_compile_notice_only_while_the_cache_is_empty(tmp_path, monkeypatch, capsys):
+    """The notice appears when a module's kernels have no numba index file beside it (or in
+    NUMBA_CACHE_DIR), and not once they do."""
+    from probmap.cli.common import kernels_cached, note_first_compile
+
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    (tmp_path / "fake_kernels_mod.py").write_text("X = 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert not kernels_cached("fake_kernels_mod")
+    note_first_compile("fake_kernels_mod")
+    assert "compiling numba kernels" in capsys.readouterr().err
+    cache = tmp_path / "__pycache__"
+    cache.mkdir()
+    (cache / "fake_kernels_mod.kernel-12.py311.nbi").write_bytes(b"")
+    assert kernels_cached("fake_kernels_mod")
+    note_first_compile("fake_kernels_mod")
+    assert capsys.readouterr().err == ""
+    assert not kernels_cached("fake_kernels_mod", "no_such_module_here")
+    elsewhere = tmp_path / "numba-cache"
+    (elsewhere / "sub").mkdir(parents=True)
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(elsewhere))
+    assert not kernels_cached("fake_kernels_mod")
+    (elsewhere / "sub" / "fake_kernels_mod.kernel-12.py311.nbi").write_bytes(b"")
+    assert kernels_cached("fake_kernels_mod")

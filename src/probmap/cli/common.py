@@ -30,6 +30,45 @@ def cli_errors() -> Iterator[None]:
         raise typer.Exit(1) from None
 
 
+def kernels_cached(*modules: str) -> bool:
+    """Whether numba's on-disk cache holds compiled kernels of every one of ``modules``
+    (dotted names of modules whose kernels use ``cache=True``): an index file
+    ``<module>.<function>-<line>.py<ver>.nbi`` beside the module (or in ``NUMBA_CACHE_DIR``).
+    Reads the file system only; imports neither numba nor the modules."""
+    import importlib.util
+    import os
+    from pathlib import Path
+
+    cache_dir = os.environ.get("NUMBA_CACHE_DIR")
+    for name in modules:
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.origin is None:
+            return False
+        src = Path(spec.origin)
+        folder = Path(cache_dir) if cache_dir else src.parent / "__pycache__"
+        try:
+            if not any(folder.glob(f"{src.stem}.*.nbi")) and not any(
+                folder.rglob(f"{src.stem}.*.nbi")
+            ):
+                return False
+        except OSError:
+            return False
+    return True
+
+
+def note_first_compile(*modules: str) -> None:
+    """Say on stderr that numba is compiling, when the kernels of ``modules`` are not cached
+    yet (the first run after an install pays the compile time once; later runs load it)."""
+    if kernels_cached(*modules):
+        return
+    from rich.console import Console
+
+    Console(stderr=True).print(
+        "[dim]compiling numba kernels: the first run after an install takes a few seconds "
+        "more; later runs load them from the cache[/dim]"
+    )
+
+
 def print_summary(
     title: str | None,
     rows: Iterable[tuple[str, str]],

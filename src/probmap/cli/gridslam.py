@@ -164,8 +164,14 @@ def _graph(
 
     cfg = _resolve(GraphSlamConfig, config)
     prefix = check_output_prefix(output)
+    from probmap.cli.common import note_first_compile
     from probmap.errors import BadLinesWarning
 
+    note_first_compile(
+        "probmap.slam._match_kernels",
+        "probmap.slam._bnb_kernels",
+        "probmap.slam._posegraph_kernels",
+    )
     observer = None
     if viz or viz_save is not None:
         from probmap.pipelines import check_output_folder

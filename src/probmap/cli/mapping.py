@@ -222,9 +222,11 @@ def demo_command(
             summary = run_localize_demo(output)
             print_summary("probmap demo --localize", [(k, _fmt(v)) for k, v in summary.items()])
             return
+        from probmap.cli.common import note_first_compile
         from probmap.pipelines import check_output_prefix, run_mapping_demo
 
         prefix = check_output_prefix(output / "map")
+        note_first_compile("probmap.grid._kernels")
         demo = run_mapping_demo(prefix, seed=seed)
         rows = mapping_rows(demo.mapping)
         rows.insert(

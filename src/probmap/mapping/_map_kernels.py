@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 
 from probmap.grid._traverse import ray_cells
-from probmap.models._beam_kernels import beam_log_likelihood
+from probmap.models._beam_kernels import beam_log_likelihood_of
 
 
 @njit(cache=True)
@@ -40,14 +40,6 @@ def build_entries(
     """
     nb = sx.shape[0]
     k = offsets.shape[0]
-    z_hit, z_short, z_max, z_rand, sigma, lam = (
-        params[0],
-        params[1],
-        params[2],
-        params[3],
-        params[4],
-        params[5],
-    )
     f_ptr = np.zeros(nb + 1, dtype=np.int64)
     f_cell = np.empty(capacity, dtype=np.int32)
     f_dist = np.empty(capacity, dtype=np.float64)
@@ -92,9 +84,7 @@ def build_entries(
             f_cell[out] = uc[o]
             zs = ud[o] * res
             f_dist[out] = zs
-            f_ll[out] = beam_log_likelihood(
-                z[b], zs, max_range, z_hit, z_short, z_max, z_rand, sigma, lam
-            )
+            f_ll[out] = beam_log_likelihood_of(z[b], zs, max_range, params)
             out += 1
         f_ptr[b + 1] = out
     return f_ptr, f_cell[:out].copy(), f_dist[:out].copy(), f_ll[:out].copy()

@@ -7,7 +7,7 @@ flat arrays (:func:`beam_log_likelihoods`, for
 ranges (:func:`beam_mixture`) and with expected ranges from a lookup table
 (:func:`table_beam_model`, whose ``z*``-only factors :func:`table_normalisers` computes with the
 same arithmetic). The MAP mapper's kernels (:mod:`probmap.mapping._map_kernels`) call
-:func:`beam_log_likelihood` for every cell of every beam's window.
+:func:`beam_log_likelihood_of` for every cell of every beam's window.
 
 Expected ranges ``z*`` come from one of three casters: sphere tracing on a distance transform
 (:func:`cast_rays`), exact grid traversal (:func:`exact_ranges`, with
@@ -65,29 +65,27 @@ def beam_log_likelihood(z, zs, max_range, z_hit, z_short, z_max, z_rand, sigma, 
     return math.log(p)
 
 
+@njit(cache=True, inline="always")
+def beam_log_likelihood_of(z, zs, max_range, params):
+    """:func:`beam_log_likelihood` with the intrinsic parameters in one array ``params``,
+    ``[z_hit, z_short, z_max, z_rand, sigma_hit, lambda_short]``
+    (:meth:`probmap.models.beam.BeamModelParams.as_array`)."""
+    return beam_log_likelihood(
+        z, zs, max_range, params[0], params[1], params[2], params[3], params[4], params[5]
+    )
+
+
 @njit(cache=True)
 def beam_log_likelihoods(z, zs, max_range, params, out):
-    """:func:`beam_log_likelihood` over flat arrays ``z``, ``zs`` into ``out``; ``params`` is
-    ``[z_hit, z_short, z_max, z_rand, sigma_hit, lambda_short]``."""
+    """:func:`beam_log_likelihood_of` over flat arrays ``z``, ``zs`` into ``out``."""
     for i in range(z.shape[0]):
-        out[i] = beam_log_likelihood(
-            z[i], zs[i], max_range, params[0], params[1], params[2], params[3], params[4],
-            params[5],
-        )  # fmt: skip
+        out[i] = beam_log_likelihood_of(z[i], zs[i], max_range, params)
 
 
 @njit(cache=True)
 def beam_mixture(zs, ranges, max_range, params, out):
     """Per-beam log-likelihoods ``out[n, b]`` of readings ``ranges[b]`` given expected ranges
     ``zs[n, b]`` (Table 6.1; readings clipped to ``max_range``; non-finite readings: 0)."""
-    z_hit, z_short, z_max, z_rand, sigma, lam = (
-        params[0],
-        params[1],
-        params[2],
-        params[3],
-        params[4],
-        params[5],
-    )
     nb = ranges.shape[0]
     for n in range(zs.shape[0]):
         for b in range(nb):
@@ -95,9 +93,7 @@ def beam_mixture(zs, ranges, max_range, params, out):
             if not math.isfinite(r):
                 out[n, b] = 0.0
                 continue
-            out[n, b] = beam_log_likelihood(
-                min(r, max_range), zs[n, b], max_range, z_hit, z_short, z_max, z_rand, sigma, lam
-            )
+            out[n, b] = beam_log_likelihood_of(min(r, max_range), zs[n, b], max_range, params)
 
 
 @njit(cache=True, fastmath=True)

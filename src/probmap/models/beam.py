@@ -43,9 +43,8 @@ from numpy.typing import ArrayLike, NDArray
 from probmap.models import _beam_kernels as _k
 from probmap.models.grid_map import (
     GridGeometry,
+    checked_map,
     distance_field,
-    frame_of,
-    occupied_mask,
     poses_array,
     scan_arrays,
 )
@@ -180,12 +179,7 @@ class BeamModel:
         ray_casting: str = "sphere",
         heading_bins: int = 360,
     ) -> None:
-        frame = frame_of(spec)
-        occupied = occupied_mask(occupancy, occupied_threshold)
-        if occupied.shape != frame.shape:
-            raise ValueError(
-                f"occupancy shape {occupied.shape} does not match spec shape {frame.shape}"
-            )
+        frame, occupied = checked_map(spec, occupancy, occupied_threshold)
         if ray_casting not in _RAY_CASTING:
             raise ValueError(f"ray_casting must be one of {_RAY_CASTING}, got {ray_casting!r}")
         if not (isinstance(heading_bins, int) and 4 <= heading_bins <= 65536):

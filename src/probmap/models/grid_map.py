@@ -89,6 +89,20 @@ def occupied_mask(occupancy: ArrayLike, threshold: float = 0.65) -> NDArray[np.b
         return np.ascontiguousarray(np.nan_to_num(p, nan=0.0) > threshold)
 
 
+def checked_map(
+    spec: GridGeometry, occupancy: ArrayLike, threshold: float
+) -> tuple[Frame, NDArray[np.bool_]]:
+    """The checked geometry of ``spec`` and the occupied mask of ``occupancy`` (see
+    :func:`occupied_mask`), which must have the spec's shape."""
+    frame = frame_of(spec)
+    occupied = occupied_mask(occupancy, threshold)
+    if occupied.shape != frame.shape:
+        raise ValueError(
+            f"occupancy shape {occupied.shape} does not match spec shape {frame.shape}"
+        )
+    return frame, occupied
+
+
 def distance_field(occupied: NDArray[np.bool_], resolution: float) -> NDArray[np.float32]:
     """Distance (m) from each cell centre to the nearest occupied cell centre, float32."""
     from scipy.ndimage import distance_transform_edt

@@ -28,9 +28,8 @@ from numpy.typing import ArrayLike, NDArray
 from probmap.models import _likelihood_field_kernels as _k
 from probmap.models.grid_map import (
     GridGeometry,
+    checked_map,
     distance_field,
-    frame_of,
-    occupied_mask,
     poses_array,
     scan_arrays,
 )
@@ -71,12 +70,7 @@ class LikelihoodField:
         max_distance: float = 2.0,
         occupied_threshold: float = 0.65,
     ) -> None:
-        frame = frame_of(spec)
-        occupied = occupied_mask(occupancy, occupied_threshold)
-        if occupied.shape != frame.shape:
-            raise ValueError(
-                f"occupancy shape {occupied.shape} does not match spec shape {frame.shape}"
-            )
+        frame, occupied = checked_map(spec, occupancy, occupied_threshold)
         for name, val in (("max_range", max_range), ("sigma_hit", sigma_hit)):
             if not (val > 0 and math.isfinite(val)):
                 raise ValueError(f"{name} must be positive, got {val}")

@@ -71,6 +71,13 @@ class MatcherConfig:
 class MatchField:
     """A match field ``M`` on a grid: ``values[iy, ix]`` in [0, 1] at the cell centres.
 
+    An unnormalised score ``exp(-d^2 / 2 sigma^2)`` of the distance ``d`` to the nearest
+    obstacle, sampled bilinearly (Gauss-Newton needs its gradient) or at the nearest cell (the
+    correlative and branch-and-bound searches). It is not the likelihood field model of
+    :class:`probmap.models.likelihood_field.LikelihoodField`, a normalised density mixed with
+    a uniform term and looked up per cell as a log-likelihood for Monte Carlo localization:
+    the two differ in their values and in what consumes them, so each keeps its own home.
+
     Attributes
     ----------
     values : ndarray, shape (H, W), float64, C-contiguous

@@ -40,3 +40,6 @@ def register(app: typer.Typer) -> None:
     from probmap.cli import optimize
 
     optimize.register(app)
+    from probmap.cli import datasets
+
+    datasets.register(app)

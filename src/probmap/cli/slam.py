@@ -1,4 +1,4 @@
-"""``probmap slam ...`` (landmark SLAM) and ``probmap datasets list``.
+"""``probmap slam ...`` (landmark SLAM).
 
 The SEIF commands are added to :data:`slam_app` by :mod:`probmap.cli.seif`; the helpers
 :func:`open_landmark_dataset`, :func:`limit_threads` and :func:`run_and_report` are shared with it.
@@ -16,7 +16,6 @@ import typer
 from probmap.cli.common import CliError, cli_errors, print_summary
 
 slam_app = typer.Typer(help="Landmark SLAM on feature datasets (EKF; SEIF).", no_args_is_help=True)
-datasets_app = typer.Typer(help="Known datasets.", no_args_is_help=True)
 
 DATASET_HELP = (
     "A registered name (see 'probmap datasets list'), or a path whose format is guessed: an "
@@ -182,36 +181,6 @@ def ekf_command(
         run_and_report(ekf, ds, output, "EKF SLAM", plot)
 
 
-@datasets_app.command("list")
-def list_command(
-    data_dir: Path | None = typer.Option(
-        None, "--data-dir", help="Data directory (default $PROBMAP_DATA)."
-    ),
-) -> None:
-    """List the registered datasets and whether they are present in the data directory."""
-    with cli_errors():
-        from rich.console import Console
-        from rich.table import Table
-
-        from probmap.datasets.registry import DATASETS
-        from probmap.datasets.registry import data_dir as find_root
-
-        root = find_root(data_dir)
-        table = Table(title=f"datasets (data directory: {root or 'not set'})")
-        for col in ("name", "kind", "format", "present", "description"):
-            table.add_column(col)
-        for info in DATASETS.values():
-            if info.relpath is None:
-                present = "generated"
-            elif root is None:
-                present = "?"
-            else:
-                present = "yes" if (root / info.relpath).exists() else "no"
-            table.add_row(info.name, info.kind, info.format, present, info.description)
-        Console().print(table)
-
-
 def register(app: typer.Typer) -> None:
-    """Mount ``probmap slam`` and ``probmap datasets``."""
+    """Mount ``probmap slam`` (``probmap datasets`` is in :mod:`probmap.cli.datasets`)."""
     app.add_typer(slam_app, name="slam")
-    app.add_typer(datasets_app, name="datasets")

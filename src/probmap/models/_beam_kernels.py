@@ -171,16 +171,25 @@ def cast_rays(poses, angles, offset, dist, x0, y0, res, max_range, out):
         cast_fan(dist, x0, y0, res, sx, sy, dirx, diry, max_range, t, live, out[n])
 
 
+@njit(cache=True, inline="always")
+def sensor_in_grid(poses, n, offset, x0, y0, inv):
+    """Position of the sensor of pose ``poses[n]`` (robot frame offset ``offset``) in grid
+    units: cells from the lower-left corner ``(x0, y0)``, ``inv`` cells per metre."""
+    c = math.cos(poses[n, 2])
+    s = math.sin(poses[n, 2])
+    return (
+        (poses[n, 0] + c * offset[0] - s * offset[1] - x0) * inv,
+        (poses[n, 1] + s * offset[0] + c * offset[1] - y0) * inv,
+    )
+
+
 @njit(cache=True)
 def exact_ranges(poses, angles, offset, occ, x0, y0, res, max_range, out):
     """Expected ranges ``out[n, b]`` (m) by exact traversal from the sensor position."""
     inv = 1.0 / res
     limit = max_range * inv
     for n in range(poses.shape[0]):
-        c = math.cos(poses[n, 2])
-        s = math.sin(poses[n, 2])
-        gx = (poses[n, 0] + c * offset[0] - s * offset[1] - x0) * inv
-        gy = (poses[n, 1] + s * offset[0] + c * offset[1] - y0) * inv
+        gx, gy = sensor_in_grid(poses, n, offset, x0, y0, inv)
         for b in range(angles.shape[0]):
             a = poses[n, 2] + offset[2] + angles[b]
             t = cast_exact(occ, gx, gy, math.cos(a), math.sin(a), limit)
@@ -223,10 +232,7 @@ def table_ranges(poses, angles, offset, occ, table, x0, y0, res, max_range, quan
     inv = 1.0 / res
     nb = angles.shape[0]
     for n in range(poses.shape[0]):
-        c = math.cos(poses[n, 2])
-        s = math.sin(poses[n, 2])
-        fx = (poses[n, 0] + c * offset[0] - s * offset[1] - x0) * inv
-        fy = (poses[n, 1] + s * offset[0] + c * offset[1] - y0) * inv
+        fx, fy = sensor_in_grid(poses, n, offset, x0, y0, inv)
         if not (fx >= 0.0 and fy >= 0.0 and fx < w and fy < h):
             for b in range(nb):
                 out[n, b] = max_range
@@ -304,10 +310,7 @@ def table_beam_model(
     outside = int(max_range / quantum + 0.5) + 1
     inv_width = nk / (2.0 * math.pi)
     for n in range(poses.shape[0]):
-        c = math.cos(poses[n, 2])
-        s = math.sin(poses[n, 2])
-        fx = (poses[n, 0] + c * offset[0] - s * offset[1] - x0) * inv
-        fy = (poses[n, 1] + s * offset[0] + c * offset[1] - y0) * inv
+        fx, fy = sensor_in_grid(poses, n, offset, x0, y0, inv)
         inside = fx >= 0.0 and fy >= 0.0 and fx < w and fy < h
         heading = poses[n, 2] + offset[2]
         ix = int(fx) if inside else 0

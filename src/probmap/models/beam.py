@@ -160,6 +160,13 @@ class BeamModel:
     heading_bins : int
         Heading bins ``K`` of the lookup table (``"table"`` only); the bin width is
         ``2 pi / K``.
+
+    Attributes
+    ----------
+    model : BeamModelParams
+        The intrinsic parameters.
+    params : (6,) float64 ndarray
+        The same as the kernels take them (:meth:`BeamModelParams.as_array`).
     """
 
     def __init__(

@@ -60,7 +60,7 @@ def list_command(
 def fetch_command(
     names: list[str] = typer.Argument(
         ...,
-        metavar="NAME...",
+        metavar="NAME",
         help="Dataset names (see 'probmap datasets list'; 'all' for every file) or files of "
         "the registry (e.g. pose-graphs/M3500.g2o).",
     ),

@@ -292,3 +292,34 @@ def test_consensus_check_skips_an_earlier_blind_scan():
         slam.add_scan(0.2 * i, r, w.angles, w.poses[i])
     slam.finish()
     assert slam.closures and any(c.far for c in slam.closures)
+
+
+def test_session_resumed_equals_one_run_and_bad_files_are_named(world, tmp_path):
+    """Half a log, saved and loaded, then the other half: exactly the whole-log run."""
+    _, _, truth, odo, ranges, angles, max_range, _ = world
+    n = len(truth)
+    whole, _ = _run(world)
+    first = GraphSlam(max_range=max_range)
+    for i in range(n // 2):
+        first.add_scan(0.1 * i, ranges[i], angles, odo[i])
+    path = first.save_session(tmp_path / "half.session")
+    second = GraphSlam.load_session(path)
+    for i in range(n // 2, n):
+        second.add_scan(0.1 * i, ranges[i], angles, odo[i])
+    second.finish()
+    np.testing.assert_array_equal(second.trajectory()[1], whole.trajectory()[1])
+    assert len(second.closures) == len(whole.closures) and second.nodes == whole.nodes
+    with pytest.raises(RuntimeError, match="save the session before finishing"):
+        whole.save_session(tmp_path / "done.session")
+    (tmp_path / "junk.session").write_bytes(b"not a pickle")
+    with pytest.raises(ValueError, match="junk.session: not a probmap graph-SLAM session"):
+        GraphSlam.load_session(tmp_path / "junk.session")
+    import pickle
+
+    (tmp_path / "v9.session").write_bytes(
+        pickle.dumps({"format": "probmap.GraphSlam session", "version": 9, "state": None})
+    )
+    with pytest.raises(ValueError, match="v9.session: session format version 9"):
+        GraphSlam.load_session(tmp_path / "v9.session")
+    with pytest.raises(FileNotFoundError, match="missing.session"):
+        GraphSlam.load_session(tmp_path / "missing.session")

@@ -57,7 +57,11 @@ from probmap.slam.scan_matching import (
 )
 from probmap.slam.submaps import Submap
 
-__all__ = ["GraphSlam", "GraphSlamConfig", "LoopClosure"]
+__all__ = ["SESSION_FORMAT", "SESSION_VERSION", "GraphSlam", "GraphSlamConfig", "LoopClosure"]
+
+#: Header of a saved session (:meth:`GraphSlam.save_session`).
+SESSION_FORMAT = "probmap.GraphSlam session"
+SESSION_VERSION = 1
 
 
 def _local_matcher() -> MatcherConfig:
@@ -784,6 +788,79 @@ class GraphSlam:
 
         g = self.graph
         return write_pose_graph_g2o(path, g.poses, g.edges, g.measurements, g.information)
+
+    # ------------------------------------------------------------------ sessions
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_cache"] = OrderedDict()  # match fields and max-grids: rebuilt on demand
+        return state
+
+    def save_session(self, path: str | os.PathLike[str]) -> Path:
+        """Write the whole state (pose graph, submaps, stored scans, settings) to ``path``, so
+        that :meth:`load_session` continues the run where it stopped: feeding the rest of a
+        log to the loaded object gives exactly what one run over the whole log gives (a tested
+        property). Save before :meth:`finish` (which ends the run).
+
+        The file is a Python pickle with a header (format, version, probmap version), written
+        atomically. Like any pickle it can run code when loaded: load only sessions you wrote.
+        The cached match fields and max-grids are not saved (they are rebuilt on demand).
+
+        Raises
+        ------
+        RuntimeError
+            After :meth:`finish`.
+        """
+        import pickle
+
+        from probmap import __version__
+        from probmap._atomic import atomic_write
+
+        if self._done:
+            raise RuntimeError("finish() was called: save the session before finishing the run")
+        payload = {
+            "format": SESSION_FORMAT,
+            "version": SESSION_VERSION,
+            "probmap": __version__,
+            "state": self,
+        }
+        p = Path(path)
+        with atomic_write(p, "wb") as f:
+            pickle.dump(payload, f, protocol=pickle.HIGHEST_PROTOCOL)
+        return p
+
+    @classmethod
+    def load_session(cls, path: str | os.PathLike[str]) -> GraphSlam:
+        """A run saved by :meth:`save_session`, ready for more scans (same settings).
+
+        Raises
+        ------
+        ValueError
+            When the file is not a probmap graph-SLAM session, or one of another format
+            version; the message names the file.
+        FileNotFoundError
+            When it does not exist.
+        """
+        import pickle
+
+        p = Path(path)
+        if not p.is_file():
+            raise FileNotFoundError(f"{p}: no such session file")
+        try:
+            with open(p, "rb") as f:
+                payload = pickle.load(f)
+        except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, IndexError) as exc:
+            raise ValueError(f"{p}: not a probmap graph-SLAM session ({exc})") from None
+        if not isinstance(payload, dict) or payload.get("format") != SESSION_FORMAT:
+            raise ValueError(f"{p}: not a probmap graph-SLAM session")
+        if payload.get("version") != SESSION_VERSION:
+            raise ValueError(
+                f"{p}: session format version {payload.get('version')}, this probmap reads "
+                f"version {SESSION_VERSION} (written by probmap {payload.get('probmap')})"
+            )
+        state = payload.get("state")
+        if not isinstance(state, cls):
+            raise ValueError(f"{p}: the session holds no GraphSlam")
+        return state
 
     def finish(self) -> None:
         """Final optimization (up to ``final_iterations``), then release what only matching

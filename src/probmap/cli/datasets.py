@@ -81,7 +81,13 @@ def fetch_command(
     a file already present with the right hash is not downloaded again."""
     with cli_errors():
         from rich.console import Console
-        from rich.progress import DownloadColumn, Progress, TextColumn, TransferSpeedColumn
+        from rich.progress import (
+            DownloadColumn,
+            Progress,
+            TaskID,
+            TextColumn,
+            TransferSpeedColumn,
+        )
 
         from probmap.datasets import fetch
 
@@ -91,7 +97,7 @@ def fetch_command(
         fetched: list[fetch.FetchedFile] = []
         columns = (TextColumn("{task.description}"), DownloadColumn(), TransferSpeedColumn())
         with Progress(*columns, console=Console(stderr=True), transient=True) as bar:
-            tasks: dict[str, int] = {}
+            tasks: dict[str, TaskID] = {}
 
             def progress(place: str, done: int, total: int) -> None:
                 if place not in tasks:

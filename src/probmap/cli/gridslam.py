@@ -83,6 +83,11 @@ def grid_command(
         "--viz-save",
         help="graph: record the live view into FILE.rrd (open it later with 'rerun FILE.rrd').",
     ),
+    tum: bool = typer.Option(
+        False,
+        "--tum",
+        help="Also write PREFIX.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
+    ),
     save_partial: bool = typer.Option(
         True,
         "--save-partial/--no-save-partial",
@@ -93,7 +98,8 @@ def grid_command(
     """Grid SLAM from a raw log or ROS bag: writes the map (PREFIX.yaml/.pgm/.npz/.png, as
     'probmap map'), PREFIX.trajectory.csv (robot pose at every scan time) and, for the graph
     method, the pose graph PREFIX.g2o and PREFIX.slam.png (map, trajectory, loop closures), and
-    PREFIX.config.yaml (the configuration used, with the probmap version)."""
+    PREFIX.config.yaml (the configuration used, with the probmap version); with --tum also
+    PREFIX.tum, the trajectory in the TUM format that evo reads."""
     with cli_errors():
         if method not in ("graph", "rbpf"):
             raise ValueError(f"--method must be 'graph' or 'rbpf', got {method!r}")
@@ -118,14 +124,17 @@ def grid_command(
         if method == "graph":
             _graph(
                 log, prefix, end_time, bag_options, config, skip_bad_lines=skip_bad_lines,
-                viz=viz, viz_save=viz_save, save_partial=save_partial,
+                viz=viz, viz_save=viz_save, save_partial=save_partial, tum=tum,
             )  # fmt: skip
         else:
             if viz or viz_save is not None:
                 raise ValueError("--viz and --viz-save watch the graph method (--method graph)")
             if any(v is not None for v in bag_options.values()):
                 raise ValueError("--method rbpf reads CARMEN logs only (no bag options)")
-            _rbpf(log, prefix, rbpf_options, end_time, config, skip_bad_lines=skip_bad_lines)
+            _rbpf(
+                log, prefix, rbpf_options, end_time, config, skip_bad_lines=skip_bad_lines,
+                tum=tum,
+            )  # fmt: skip
 
 
 def _resolve(cls: type, path: Path | None, overrides: dict | None = None) -> Any:
@@ -150,6 +159,7 @@ def _graph(
     viz: bool = False,
     viz_save: Path | None = None,
     save_partial: bool = True,
+    tum: bool = False,
 ) -> None:
     import resource
     import warnings
@@ -208,6 +218,10 @@ def _graph(
     with atomic_outputs():  # every file or none
         files = write_graph_slam(prefix, run)
         files.append(write_config(f"{prefix}.config.yaml", cfg))
+        if tum:
+            from probmap.datasets.tum import write_tum
+
+            files.append(write_tum(f"{prefix}.tum", run.times, run.poses))
     spec = run.grid.spec
     weights = run.closure_weights
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
@@ -284,6 +298,7 @@ def _rbpf(
     config: Path | None,
     *,
     skip_bad_lines: bool = False,
+    tum: bool = False,
 ) -> None:
     import warnings
 
@@ -323,6 +338,11 @@ def _rbpf(
         files = save_map(prefix, result.grid)
         traj = write_trajectory(f"{prefix}.trajectory.csv", result.times, result.poses)
         written = write_config(f"{prefix}.config.yaml", cfg)
+        extra: list[Path] = []
+        if tum:
+            from probmap.datasets.tum import write_tum
+
+            extra.append(write_tum(f"{prefix}.tum", result.times, result.poses))
     duration = float(result.times[-1] - result.times[0])
     spec = result.grid.spec
     rows = [
@@ -334,7 +354,7 @@ def _rbpf(
         ("map tiles", f"{result.map_bytes / 2**20:.1f} MiB (peak)"),
         ("time", f"{result.seconds:.1f} s ({duration / max(result.seconds, 1e-9):.1f}x real time)"),
     ]
-    rows += [("wrote", str(f)) for f in [*files, traj, written]]
+    rows += [("wrote", str(f)) for f in [*files, traj, written, *extra]]
     print_summary("grid SLAM (rbpf)", rows)
 
 

@@ -71,6 +71,11 @@ def localize_command(
         "--reference-offset",
         help="Seconds added to the reference times (Intel corrected log: 976052857.337284).",
     ),
+    tum: bool = typer.Option(
+        False,
+        "--tum",
+        help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
+    ),
     seed: int = typer.Option(0, "--seed", help="Random seed."),
     start: int = typer.Option(0, "--start", help="First scan to use."),
     stop: int | None = typer.Option(None, "--stop", help="Scan to stop before."),
@@ -80,7 +85,8 @@ def localize_command(
         help="Skip and count malformed or physically implausible log lines instead of failing.",
     ),
 ) -> None:
-    """Track (or globally localize) the robot of a laser log on a map with MCL."""
+    """Track (or globally localize) the robot of a laser log on a map with MCL: writes
+    trajectory.csv and trajectory.png (and trajectory.tum with --tum) into OUTPUT."""
     with cli_errors():
         import numpy as np
         from rich.console import Console
@@ -166,7 +172,8 @@ def localize_command(
 
         fig = Figure(figsize=(8, 8))
         _plot(fig.add_subplot(), m.spec, m.probability, run.poses, ref_p)
-        with atomic_outputs():  # both files or neither; a missing folder is created
+        extra: list[Path] = []
+        with atomic_outputs():  # every file or none; a missing folder is created
             with atomic_path(traj) as tmp:
                 np.savetxt(
                     tmp, rows, delimiter=",", fmt="%.6f", header="time,x,y,theta,spread",
@@ -174,13 +181,17 @@ def localize_command(
                 )  # fmt: skip
             with atomic_path(plot) as tmp:
                 fig.savefig(tmp, dpi=120, format="png")
+            if tum:
+                from probmap.datasets.tum import write_tum
+
+                extra.append(write_tum(output / "trajectory.tum", run.times, run.poses))
 
         console = Console()
         summary_rows = [
             *input_rows(batch.readings, batch.skipped_lines),
             ("updates", f"{run.times.size:,}"),
             ("final spread", f"{run.spread[-1]:.3f} m" if run.spread.size else "-"),
-            ("wrote", f"{traj}, {plot}"),
+            ("wrote", ", ".join(str(f) for f in (traj, plot, *extra))),
         ]
         print_summary(f"probmap localize {log.name}", summary_rows, console=console)
         if errors is not None:

@@ -53,9 +53,15 @@ def seif_command(
     ),
     threads: int = typer.Option(1, "--threads", help="BLAS threads."),
     plot: bool = typer.Option(True, "--plot/--no-plot", help="Write slam.png."),
+    tum: bool = typer.Option(
+        False,
+        "--tum",
+        help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
+    ),
 ) -> None:
     """SEIF SLAM (Probabilistic Robotics Tables 12.1-12.5): writes trajectory.csv,
-    landmarks.csv, metrics.json and slam.png into OUTPUT, like 'probmap slam ekf'."""
+    landmarks.csv, metrics.json and slam.png (and trajectory.tum with --tum) into OUTPUT, like
+    'probmap slam ekf'."""
     limit_threads(threads)
     with cli_errors():
         from probmap.cli.slam import run_and_report
@@ -64,7 +70,7 @@ def seif_command(
         check_output_folder(output)
         ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
         title = f"SEIF SLAM ({_label(max_active, context_hops)})"
-        run_and_report(_seif(ds, max_active, context_hops), ds, output, title, plot)
+        run_and_report(_seif(ds, max_active, context_hops), ds, output, title, plot, tum=tum)
 
 
 def _state_bytes(estimator: Any) -> int:

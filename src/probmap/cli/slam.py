@@ -100,10 +100,10 @@ def metrics_rows(m: dict[str, Any]) -> list[tuple[str, str]]:
 
 
 def run_and_report(
-    estimator: Any, dataset: Any, output: Path, title: str, plot: bool
+    estimator: Any, dataset: Any, output: Path, title: str, plot: bool, *, tum: bool = False
 ) -> dict[str, Any]:
-    """Run with a progress bar, evaluate, write outputs and a plot (all or none), print the
-    metrics table."""
+    """Run with a progress bar, evaluate, write outputs and a plot (all or none; with ``tum``
+    also ``trajectory.tum``), print the metrics table."""
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -131,6 +131,11 @@ def run_and_report(
     metrics["estimator"] = title
     with atomic_outputs():  # a missing folder is created; a failed picture leaves no CSV
         files = write_slam_outputs(result, metrics, output)
+        if tum:
+            from probmap.datasets.tum import write_tum
+
+            trajectory = result.trajectory
+            files.append(write_tum(output / "trajectory.tum", trajectory[:, 0], trajectory[:, 1:4]))
         if plot:
             from probmap.viz.slam import save_slam_figure
 
@@ -160,9 +165,14 @@ def ekf_command(
     ),
     threads: int = typer.Option(1, "--threads", help="BLAS threads."),
     plot: bool = typer.Option(True, "--plot/--no-plot", help="Write slam.png."),
+    tum: bool = typer.Option(
+        False,
+        "--tum",
+        help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
+    ),
 ) -> None:
     """EKF SLAM (Probabilistic Robotics Table 10.1/10.2): writes trajectory.csv, landmarks.csv,
-    metrics.json and slam.png into OUTPUT."""
+    metrics.json and slam.png (and trajectory.tum with --tum) into OUTPUT."""
     limit_threads(threads)
     with cli_errors():
         from probmap.pipelines import check_output_folder
@@ -178,7 +188,7 @@ def ekf_command(
             ds.initial_covariance,
             default_ekf_config(ds),
         )
-        run_and_report(ekf, ds, output, "EKF SLAM", plot)
+        run_and_report(ekf, ds, output, "EKF SLAM", plot, tum=tum)
 
 
 def register(app: typer.Typer) -> None:

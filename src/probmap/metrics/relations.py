@@ -126,10 +126,12 @@ def read_relations(path: str | os.PathLike[str]) -> Relations:
 def read_trajectory(
     path: str | os.PathLike[str], *, poses: str = "robot"
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Timestamps (T,) and poses (T, 3) from a trajectory CSV or a CARMEN log.
+    """Timestamps (T,) and poses (T, 3) from a trajectory CSV, a TUM file or a CARMEN log.
 
     A CSV needs a header with ``time``/``timestamp``, ``x``, ``y`` and ``theta``/``yaw`` columns
-    (as probmap writes ``trajectory.csv``). A CARMEN log gives its scans' ipc timestamps with the
+    (as probmap writes ``trajectory.csv``). A ``.tum`` file is read by
+    :func:`probmap.datasets.tum.read_tum` (as ``--tum`` writes it; the yaw of its quaternions is
+    the heading). A CARMEN log gives its scans' ipc timestamps with the
     robot poses (``poses="robot"``: the ``odom_*`` fields of FLASER) or laser poses
     (``poses="laser"``).
     """
@@ -140,6 +142,10 @@ def read_trajectory(
         raise ValueError(f"poses must be 'robot' or 'laser', got {poses!r}")
     if p.suffix.lower() == ".csv":
         return _read_trajectory_csv(p)
+    if p.suffix.lower() == ".tum":
+        from probmap.datasets.tum import read_tum
+
+        return read_tum(p)
     from probmap.datasets.carmen import load_scans
 
     batch = load_scans(p, poses="corrected")

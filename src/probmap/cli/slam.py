@@ -15,7 +15,9 @@ import typer
 
 from probmap.cli.common import CliError, cli_errors, print_summary
 
-slam_app = typer.Typer(help="Landmark SLAM on feature datasets (EKF; SEIF).", no_args_is_help=True)
+slam_app = typer.Typer(
+    help="Landmark SLAM on feature datasets (EKF; SEIF; GraphSLAM).", no_args_is_help=True
+)
 
 DATASET_HELP = (
     "A registered name (see 'probmap datasets list'), or a path whose format is guessed: an "
@@ -189,6 +191,47 @@ def ekf_command(
             default_ekf_config(ds),
         )
         run_and_report(ekf, ds, output, "EKF SLAM", plot, tum=tum)
+
+
+@slam_app.command("graphslam")
+def graphslam_command(
+    dataset: str = typer.Argument(..., help=DATASET_HELP),
+    output: Path = typer.Option(
+        ..., "-o", "--output", help="Output folder (created when missing)."
+    ),
+    data_dir: Path | None = typer.Option(
+        None, "--data-dir", help="Data directory for registered names (default $PROBMAP_DATA)."
+    ),
+    robot: int = typer.Option(1, "--robot", help="MRCLAM robot number (1-5)."),
+    robust: str = typer.Option(
+        "none", "--robust", help="Robust kernel on the measurements: none, huber or cauchy."
+    ),
+    end_time: float | None = typer.Option(
+        None, "--end-time", help="Stop after this many seconds of data."
+    ),
+    threads: int = typer.Option(1, "--threads", help="BLAS threads."),
+    plot: bool = typer.Option(True, "--plot/--no-plot", help="Write slam.png."),
+    tum: bool = typer.Option(
+        False,
+        "--tum",
+        help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
+    ),
+) -> None:
+    """GraphSLAM over the whole log (Probabilistic Robotics Tables 11.1-11.5, known landmark
+    ids): writes trajectory.csv (smoothed), landmarks.csv, metrics.json and slam.png (and
+    trajectory.tum with --tum) into OUTPUT, like 'probmap slam ekf'."""
+    limit_threads(threads)
+    with cli_errors():
+        from dataclasses import replace
+
+        from probmap.pipelines import check_output_folder
+        from probmap.pipelines.landmark_slam import default_graphslam_config
+        from probmap.slam.graphslam import build_graphslam
+
+        check_output_folder(output)
+        ds = open_landmark_dataset(dataset, data_dir, robot, False, end_time)
+        config = replace(default_graphslam_config(ds), robust=robust, robust_scale=None)
+        run_and_report(build_graphslam(ds, config), ds, output, "GraphSLAM", plot, tum=tum)
 
 
 def register(app: typer.Typer) -> None:

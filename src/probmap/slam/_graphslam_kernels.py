@@ -59,7 +59,7 @@ def model_step(kind, p, x, u0, u1, dt, xn, G, Q):  # pragma: no cover - compiled
 
     Returns a status (``STATUS_OK`` or ``STATUS_SINGULAR_STEERING``).
     """
-    V = np.zeros((3, 2))
+    V00 = V01 = V10 = V11 = V20 = V21 = 0.0
     M0 = 0.0
     M1 = 0.0
     th = x[2]
@@ -80,11 +80,11 @@ def model_step(kind, p, x, u0, u1, dt, xn, G, Q):  # pragma: no cover - compiled
         xn[2] = wrap(th + d)
         G[0, 2] = -v * dt * py
         G[1, 2] = v * dt * px
-        V[0, 0] = dt * px
-        V[1, 0] = dt * py
-        V[0, 1] = v * dt * dt * (c * dA - s * dB)
-        V[1, 1] = v * dt * dt * (s * dA + c * dB)
-        V[2, 1] = dt
+        V00 = dt * px
+        V10 = dt * py
+        V01 = v * dt * dt * (c * dA - s * dB)
+        V11 = v * dt * dt * (s * dA + c * dB)
+        V21 = dt
         v2 = v * v
         w2 = w * w
         M0 = p[0] * v2 + p[1] * w2 + p[4] * p[4]
@@ -114,20 +114,26 @@ def model_step(kind, p, x, u0, u1, dt, xn, G, Q):  # pragma: no cover - compiled
         xn[2] = wrap(th + dt * k)
         G[0, 2] = dt * (-vc * s - k * oy)
         G[1, 2] = dt * (vc * c - k * ox)
-        V[0, 0] = dt * (dvc_dve * c - dk_dve * ox)
-        V[0, 1] = dt * (dvc_dal * c - dk_dal * ox)
-        V[1, 0] = dt * (dvc_dve * s + dk_dve * oy)
-        V[1, 1] = dt * (dvc_dal * s + dk_dal * oy)
-        V[2, 0] = dt * dk_dve
-        V[2, 1] = dt * dk_dal
+        V00 = dt * (dvc_dve * c - dk_dve * ox)
+        V01 = dt * (dvc_dal * c - dk_dal * ox)
+        V10 = dt * (dvc_dve * s + dk_dve * oy)
+        V11 = dt * (dvc_dal * s + dk_dal * oy)
+        V20 = dt * dk_dve
+        V21 = dt * dk_dal
         M0 = p[4] * p[4]
         M1 = p[5] * p[5]
     if p[6] > 0.0 and dt > 0.0:
         M0 *= p[6] / dt
         M1 *= p[6] / dt
-    for r in range(3):
-        for k in range(3):
-            Q[r, k] = V[r, 0] * M0 * V[k, 0] + V[r, 1] * M1 * V[k, 1]
+    Q[0, 0] = V00 * M0 * V00 + V01 * M1 * V01
+    Q[0, 1] = V00 * M0 * V10 + V01 * M1 * V11
+    Q[0, 2] = V00 * M0 * V20 + V01 * M1 * V21
+    Q[1, 1] = V10 * M0 * V10 + V11 * M1 * V11
+    Q[1, 2] = V10 * M0 * V20 + V11 * M1 * V21
+    Q[2, 2] = V20 * M0 * V20 + V21 * M1 * V21
+    Q[1, 0] = Q[0, 1]
+    Q[2, 0] = Q[0, 2]
+    Q[2, 1] = Q[1, 2]
     return STATUS_OK
 
 
@@ -204,16 +210,14 @@ def chain_steps(
 
 @njit(cache=True)
 def _inv3(A, out):  # pragma: no cover - compiled
-    """Inverse of a 3x3 matrix into ``out``; returns False when singular."""
+    """Inverse of a symmetric positive definite 3x3 matrix into ``out``; returns False unless
+    its leading minors are positive (Sylvester's criterion)."""
     c00 = A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]
     c01 = A[1, 2] * A[2, 0] - A[1, 0] * A[2, 2]
     c02 = A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]
     det = A[0, 0] * c00 + A[0, 1] * c01 + A[0, 2] * c02
-    scale = 0.0
-    for r in range(3):
-        for k in range(3):
-            scale = max(scale, abs(A[r, k]))
-    if not (abs(det) > 1e-300 and abs(det) > 1e-15 * scale**3):
+    minor2 = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+    if not (A[0, 0] > 0.0 and minor2 > 0.0 and det > 0.0 and math.isfinite(det)):
         return False
     out[0, 0] = c00 / det
     out[1, 0] = c01 / det

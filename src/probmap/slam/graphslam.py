@@ -62,12 +62,11 @@ import scipy.sparse as sp
 from numpy.typing import ArrayLike
 from scipy.sparse.linalg import splu
 
-from probmap._typing import FloatArray, IntArray
+from probmap._typing import BoolArray, FloatArray, IntArray
 from probmap.geometry.se2 import wrap_angle
 from probmap.models.measurement import RangeBearingModel
 from probmap.models.motion import AckermannModel, VelocityModel
 from probmap.slam import _graphslam_kernels as _k
-from probmap.slam.association import chi2_gate
 
 __all__ = [
     "GraphSLAM",
@@ -80,6 +79,7 @@ __all__ = [
     "graphslam_linearize",
     "graphslam_reduce",
     "graphslam_solve_reduced",
+    "graphslam_solve_schur",
     "marginal_covariances",
     "optimize_graphslam",
     "segment_log",
@@ -125,9 +125,15 @@ class GraphSLAMConfig:
         Variance per second ``(m^2/s, m^2/s, rad^2/s)`` added to every step's process noise.
     keyframes : {"observations", "all"}
         Which steps carry a pose variable: those with observations (and the last), or all.
-    solver : {"sparse", "reduced"}
-        The linear solve of each iteration: sparse LU of the whole system, or the book's
-        reduction (Tables 11.3-11.4).
+    solver : {"schur", "sparse", "reduced"}
+        The linear solve of each iteration: ``"schur"`` (default) eliminates the poses, a
+        banded chain, by banded Cholesky and solves the landmarks' dense Schur complement;
+        ``"sparse"`` factors the whole system with SuperLU; ``"reduced"`` is the book's
+        reduction onto the poses (Tables 11.3-11.4). All three give the same step.
+    initialization : {"incremental", "dead_reckoning"}
+        Start from Table 11.1's dead reckoning, or (default) from growing prefixes of the log
+        solved one after the other, each extended by dead reckoning (see
+        :func:`optimize_graphslam`).
     min_range : float
         Observations closer than this (m) are ignored, as in the EKF.
     covariances : bool
@@ -143,7 +149,8 @@ class GraphSLAMConfig:
     outlier_rounds: int = 3
     motion_noise_floor: tuple[float, float, float] = (1e-6, 1e-6, 1e-8)
     keyframes: Literal["observations", "all"] = "observations"
-    solver: Literal["sparse", "reduced"] = "sparse"
+    solver: Literal["schur", "sparse", "reduced"] = "schur"
+    initialization: Literal["incremental", "dead_reckoning"] = "incremental"
     min_range: float = 0.0
     covariances: bool = True
 
@@ -185,8 +192,13 @@ class GraphSLAMConfig:
         object.__setattr__(self, "motion_noise_floor", tuple(float(v) for v in floor))
         if self.keyframes not in ("observations", "all"):
             raise ValueError(f"keyframes must be 'observations' or 'all', got {self.keyframes!r}")
-        if self.solver not in ("sparse", "reduced"):
-            raise ValueError(f"solver must be 'sparse' or 'reduced', got {self.solver!r}")
+        if self.solver not in ("schur", "sparse", "reduced"):
+            raise ValueError(f"solver must be 'schur', 'sparse' or 'reduced', got {self.solver!r}")
+        if self.initialization not in ("incremental", "dead_reckoning"):
+            raise ValueError(
+                "initialization must be 'incremental' or 'dead_reckoning', got "
+                f"{self.initialization!r}"
+            )
         if not (_finite_number(self.min_range) and self.min_range >= 0):
             raise ValueError(f"min_range must be a finite number >= 0, got {self.min_range}")
 
@@ -536,6 +548,11 @@ class _Linearizer:
         # the package's motion models move in the robot frame (g(x, u) = x (+) g(0, u)), so the
         # odometry residual is taken in the start node's frame, where its noise is constant
         self.invariant = _model_params(problem.motion_model) is not None
+        if self.invariant and K > 1:
+            ch = motion_chain(problem, np.zeros((K, 3)), config.motion_noise_floor)
+            end = problem.seg_ptr[1:] - 1
+            self.body_delta = ch.xbar[end]
+            self.body_information = _information(ch.Sig[end])
 
     def residuals(
         self, X: FloatArray, Lm: FloatArray, jacobians: bool
@@ -550,9 +567,26 @@ class _Linearizer:
         out["prior"] = e0
         # motion factors between consecutive nodes
         if p.n_nodes > 1:
-            ch = motion_chain(p, X, floor)
-            end = p.seg_ptr[1:] - 1
-            pred, F, S = ch.xbar[end], ch.Phi[end], ch.Sig[end]
+            if self.invariant:
+                # g(x, u) = x (+) g(0, u): each segment's increment and noise in its start
+                # node's frame were chained once (from the origin); compose them here
+                d, S = self.body_delta, None
+                ci, si = np.cos(X[:-1, 2]), np.sin(X[:-1, 2])
+                pred = np.column_stack(
+                    [
+                        X[:-1, 0] + ci * d[:, 0] - si * d[:, 1],
+                        X[:-1, 1] + si * d[:, 0] + ci * d[:, 1],
+                        wrap_angle(X[:-1, 2] + d[:, 2]),
+                    ]
+                )
+                F = np.zeros((ci.size, 3, 3))
+                F[:, 0, 0] = F[:, 1, 1] = F[:, 2, 2] = 1.0
+                F[:, 0, 2] = -si * d[:, 0] - ci * d[:, 1]
+                F[:, 1, 2] = ci * d[:, 0] - si * d[:, 1]
+            else:
+                ch = motion_chain(p, X, floor)
+                end = p.seg_ptr[1:] - 1
+                pred, F, S = ch.xbar[end], ch.Phi[end], ch.Sig[end]
             ew = X[1:] - pred
             ew[:, 2] = wrap_angle(ew[:, 2])
             # in the frame of the start node: e_b = Rt(theta_i) e_w, Rt = blockdiag(R^T, 1);
@@ -565,13 +599,10 @@ class _Linearizer:
             Rt[:, 0, 0], Rt[:, 0, 1], Rt[:, 1, 0], Rt[:, 1, 1] = c, s, -s, c
             Rt[:, 2, 2] = 1.0
             em = np.einsum("sij,sj->si", Rt, ew)
-            Sb = np.einsum("sij,sjk,slk->sil", Rt, S, Rt)
-            try:
-                Om = np.linalg.inv(Sb)
-            except np.linalg.LinAlgError as exc:
-                raise ValueError(
-                    "singular odometry noise between two poses: raise motion_noise_floor"
-                ) from exc
+            if S is None:
+                Om = self.body_information
+            else:
+                Om = _information(np.einsum("sij,sjk,slk->sil", Rt, S, Rt))
             cost += float(np.einsum("si,sij,sj->", em, Om, em))
             if jacobians:
                 Ji = -np.einsum("sij,sjk->sik", Rt, F)
@@ -613,6 +644,20 @@ class _Linearizer:
             np.add.at(b, self.idx_meas, -np.einsum("kil,kl->ki", JtO, ez))
         H = self.pattern.matrix(np.concatenate(vals))
         return LinearizedSystem(H, b, cost, chi2, w, 3 * p.n_nodes)
+
+
+def _chi2_gate_2dof(probability: float) -> float:
+    """Chi-square quantile with 2 degrees of freedom, ``-2 log(1 - p)`` (closed form)."""
+    return float(-2.0 * np.log1p(-probability))
+
+
+def _information(S: FloatArray) -> FloatArray:
+    try:
+        return np.asarray(np.linalg.inv(S), dtype=np.float64)
+    except np.linalg.LinAlgError as exc:
+        raise ValueError(
+            "singular odometry noise between two poses: raise motion_noise_floor"
+        ) from exc
 
 
 def _robust(chi2: FloatArray, kernel: str, scale: float) -> tuple[FloatArray, FloatArray]:
@@ -730,6 +775,58 @@ def _sparse_solve(H: sp.spmatrix, b: FloatArray) -> FloatArray:
     return x
 
 
+def _pose_band(A: sp.spmatrix) -> FloatArray:
+    """Upper band storage (``scipy.linalg.cholesky_banded``, 5 superdiagonals) of the pose
+    block, which is block tridiagonal with 3x3 blocks (a chain of motion factors)."""
+    Ac = sp.csr_matrix(A)
+    n = Ac.shape[0]
+    coo = Ac.tocoo()
+    if coo.nnz and int(np.abs(coo.row - coo.col).max()) > 5:
+        raise ValueError("the pose block is not a chain of 3x3 blocks")
+    ab = np.zeros((6, n))
+    for k in range(6):
+        ab[5 - k, k:] = Ac.diagonal(k)
+    return ab
+
+
+def _banded_cholesky(A: sp.spmatrix) -> FloatArray:
+    from scipy.linalg import cholesky_banded
+
+    try:
+        return np.asarray(cholesky_banded(_pose_band(A)), dtype=np.float64)
+    except np.linalg.LinAlgError as exc:
+        raise ValueError("the pose information matrix is not positive definite") from exc
+
+
+def graphslam_solve_schur(H: sp.spmatrix, b: FloatArray, n_pose_vars: int) -> FloatArray:
+    """Solve ``H delta = b`` by eliminating the poses instead of the landmarks.
+
+    The pose block ``A`` is a chain (block tridiagonal, bandwidth 5), so ``W = A^-1 [B, b_x]``
+    costs O(K L) with a banded Cholesky factor; the landmarks then solve their dense Schur
+    complement ``S = C - B^T A^-1 B`` (2L x 2L) and the poses follow by back-substitution.
+    The same answer as :func:`graphslam_solve_reduced` (the book's order) and the sparse LU,
+    at a cost linear in the length of the log for a fixed map.
+    """
+    from scipy.linalg import cho_solve_banded
+
+    Hc = sp.csr_matrix(H)
+    npv = n_pose_vars
+    cb = _banded_cholesky(Hc[:npv, :npv])
+    if Hc.shape[0] == npv:
+        return np.asarray(cho_solve_banded((cb, False), b), dtype=np.float64)
+    B = Hc[:npv, npv:].toarray()
+    C = Hc[npv:, npv:].toarray()
+    W = cho_solve_banded((cb, False), np.column_stack([B, b[:npv]]))
+    S = C - B.T @ W[:, :-1]
+    rhs = b[npv:] - B.T @ W[:, -1]
+    try:
+        dm = np.linalg.solve(0.5 * (S + S.T), rhs)
+    except np.linalg.LinAlgError as exc:
+        raise ValueError("the landmark information (Schur complement) is singular") from exc
+    dx = W[:, -1] - W[:, :-1] @ dm
+    return np.concatenate([dx, dm])
+
+
 # -------------------------------------------------------------------------- covariances
 def marginal_covariances(
     H: sp.spmatrix, n_nodes: int, n_landmarks: int
@@ -760,11 +857,6 @@ def marginal_covariances(
     D = np.asarray(A[rows.ravel(), cols.ravel()]).reshape(K, 3, 3)
     if K > 1:
         U = np.asarray(A[rows[:-1].ravel(), (cols[:-1] + 3).ravel()]).reshape(K - 1, 3, 3)
-        off = A.copy()
-        off.data[:] = 1.0
-        band = sp.diags([1.0] * 11, list(range(-5, 6)), shape=(npv, npv), format="csr")
-        if (off - off.multiply(band)).count_nonzero():
-            raise ValueError("the pose block is not a chain; marginal covariances need one")
     else:
         U = np.zeros((0, 3, 3))
     Pn = np.empty((K, 3, 3))
@@ -775,13 +867,9 @@ def marginal_covariances(
     if L:
         B = Hc[:npv, npv:].toarray()
         C = Hc[npv:, npv:].toarray()
-        lu = splu(
-            sp.csc_matrix(A),
-            permc_spec="MMD_AT_PLUS_A",
-            diag_pivot_thresh=0.0,
-            options={"SymmetricMode": True},
-        )
-        W = lu.solve(B)
+        from scipy.linalg import cho_solve_banded
+
+        W = cho_solve_banded((_banded_cholesky(A), False), B)
         S = C - B.T @ W
         Sm = np.linalg.inv(0.5 * (S + S.T))
         j = np.arange(L)
@@ -850,26 +938,33 @@ def _gauss_newton(
 ) -> tuple[FloatArray, FloatArray, int, bool, LinearizedSystem]:
     """Repeated linearize-and-solve (Table 11.5) with Levenberg-Marquardt damping."""
     sysm = lin.linearize(X, Lm)
-    lam = cfg.initial_lambda * float(sysm.H.diagonal().max(initial=1.0))
+    # Marquardt's damping lam * diag(H): invariant to the very different scales of headings,
+    # positions and landmarks (information 1e8 against 1e2 on an MRCLAM log)
+    dscale = np.maximum(sysm.H.diagonal(), 1e-12)
+    lam = cfg.initial_lambda
     its = 0
     converged = False
-    n = sysm.H.shape[0]
     while its < cfg.max_iterations:
         its += 1
         accepted = False
         while True:
-            Hd = sysm.H if lam == 0 else sysm.H + sp.diags(np.full(n, lam), format="csc")
+            Hd = sysm.H if lam == 0 else sysm.H + sp.diags(lam * dscale, format="csc")
             if cfg.solver == "reduced":
                 delta = graphslam_solve_reduced(Hd, sysm.b, sysm.n_pose_vars)
+            elif cfg.solver == "schur":
+                delta = graphslam_solve_schur(Hd, sysm.b, sysm.n_pose_vars)
             else:
                 delta = _sparse_solve(Hd, sysm.b)
             Xn, Ln = _apply(X, Lm, delta)
-            new_cost, _ = lin.residuals(Xn, Ln, False)
+            try:
+                new_cost, _ = lin.residuals(Xn, Ln, False)
+            except ValueError:  # e.g. a landmark moved onto a sensor: reject the step
+                new_cost = np.inf
             if new_cost <= sysm.cost:
                 accepted = True
                 break
-            lam = max(lam * 10.0, 1e-12)
-            if lam > 1e12 * float(sysm.H.diagonal().max(initial=1.0)):
+            lam = max(lam * 10.0, 1e-9)
+            if lam > 1e10:
                 break
         if not accepted:
             converged = True  # no step lowers the cost: a minimum to working precision
@@ -878,6 +973,7 @@ def _gauss_newton(
         X, Lm = Xn, Ln
         lam = lam / 10.0
         sysm = lin.linearize(X, Lm)
+        dscale = np.maximum(sysm.H.diagonal(), 1e-12)
         if (
             drop <= cfg.relative_tolerance * max(sysm.cost, 1e-300)
             or float(np.abs(delta).max(initial=0.0)) < 1e-12
@@ -885,6 +981,82 @@ def _gauss_newton(
             converged = True
             break
     return X, Lm, its, converged, sysm
+
+
+def _prefix(problem: GraphSLAMProblem, k: int) -> tuple[GraphSLAMProblem, IntArray]:
+    """The sub-problem of nodes ``0..k`` (and the landmarks they saw: their slots)."""
+    from dataclasses import replace
+
+    n_steps = int(problem.seg_ptr[k])
+    keep = problem.obs_node <= k
+    used = np.unique(problem.obs_landmark[keep])
+    sub = replace(
+        problem,
+        controls=problem.controls[:n_steps],
+        dts=problem.dts[:n_steps],
+        seg_ptr=problem.seg_ptr[: k + 1],
+        step_node=problem.step_node[:n_steps],
+        obs_node=problem.obs_node[keep],
+        obs_landmark=np.searchsorted(used, problem.obs_landmark[keep]).astype(np.int64),
+        z=problem.z[keep],
+        landmark_ids=problem.landmark_ids[used],
+    )
+    return sub, used
+
+
+def _incremental_start(
+    problem: GraphSLAMProblem,
+    cfg: GraphSLAMConfig,
+    X: FloatArray,
+    Lm: FloatArray,
+    active: BoolArray,
+) -> tuple[FloatArray, FloatArray]:
+    """A starting point for the whole log from growing prefixes (x1.5 nodes at a time): each
+    prefix is solved from the previous solution, extended by dead reckoning and first
+    sightings (Table 11.1 applied to the new part only). Dead reckoning over a whole log can
+    be so far off (MRCLAM robot 1 turns a third too much) that Gauss-Newton crawls from it.
+    """
+    K = problem.n_nodes
+    gate = None if cfg.outlier_probability is None else _chi2_gate_2dof(cfg.outlier_probability)
+    stage = _replace_cfg(cfg, max_iterations=min(cfg.max_iterations, 15), covariances=False)
+    done = 0  # nodes 0..done are solved
+    seen = np.zeros(problem.n_landmarks, dtype=bool)
+    inv = problem.measurement_model.inverse
+    k = min(K - 1, 32)
+    while done < K - 1:
+        if done > 0:  # extend: dead reckoning from the solved end, first sightings
+            from dataclasses import replace
+
+            view = replace(problem, seg_ptr=problem.seg_ptr[done : k + 1])
+            motion_chain(view, X[done : k + 1], cfg.motion_noise_floor, propagate=True)
+        sub, used = _prefix(problem, k)
+        for i in np.flatnonzero(problem.obs_node <= k):
+            j = int(problem.obs_landmark[i])
+            if not seen[j]:
+                Lm[j] = inv(X[problem.obs_node[i]], problem.z[i])[0]
+                seen[j] = True
+        lin = _Linearizer(sub, stage)
+        keep = problem.obs_node <= k
+        lin.active = active[keep].copy()
+        Xs, Ls, _, _, sysm = _gauss_newton(lin, X[: k + 1].copy(), Lm[used].copy(), stage)
+        if gate is not None and sub.z.shape[0]:
+            bad = lin.active & (sysm.chi2 > gate)
+            if bad.any():  # measurements the solved prefix rejects stay out from now on
+                lin.active &= ~bad
+                active[np.flatnonzero(keep)[bad]] = False
+                Xs, Ls, _, _, _ = _gauss_newton(lin, Xs, Ls, stage)
+        X[: k + 1] = Xs
+        Lm[used] = Ls
+        done = k
+        k = min(K - 1, int(np.ceil(k * 1.5)))
+    return X, Lm
+
+
+def _replace_cfg(cfg: GraphSLAMConfig, **changes: Any) -> GraphSLAMConfig:
+    """``dataclasses.replace`` for a config."""
+    from dataclasses import replace
+
+    return replace(cfg, **changes)
 
 
 def optimize_graphslam(
@@ -910,16 +1082,20 @@ def optimize_graphslam(
     """
     cfg = config if config is not None else GraphSLAMConfig()
     t0 = time.perf_counter()
+    active = np.ones(problem.z.shape[0], dtype=bool)
     if initial is None:
         X, Lm = graphslam_initialize(problem, cfg.motion_noise_floor)
+        if cfg.initialization == "incremental":
+            X, Lm = _incremental_start(problem, cfg, X, Lm, active)
     else:
         X = np.array(initial[0], dtype=np.float64).reshape(problem.n_nodes, 3)
         Lm = np.array(initial[1], dtype=np.float64).reshape(problem.n_landmarks, 2)
     lin = _Linearizer(problem, cfg)
+    lin.active = active
     initial_cost, _ = lin.residuals(X, Lm, False)
     X, Lm, its, converged, sysm = _gauss_newton(lin, X, Lm, cfg)
     if cfg.outlier_probability is not None and problem.z.shape[0]:
-        gate = chi2_gate(cfg.outlier_probability)
+        gate = _chi2_gate_2dof(cfg.outlier_probability)
         for _ in range(cfg.outlier_rounds):
             bad = lin.active & (sysm.chi2 > gate)
             if not bad.any():

@@ -13,7 +13,12 @@ from probmap.datasets.simulation import simulate_landmarks
 from probmap.geometry.se2 import wrap_angle
 from probmap.models.measurement import RangeBearingModel
 from probmap.models.motion import AckermannModel, VelocityModel
-from probmap.pipelines.landmark_slam import default_ekf_config, evaluate, run_landmark_slam
+from probmap.pipelines.landmark_slam import (
+    default_ekf_config,
+    default_graphslam_config,
+    evaluate,
+    run_landmark_slam,
+)
 from probmap.slam import _graphslam_kernels as _k
 from probmap.slam.base import LandmarkSLAM
 from probmap.slam.ekf import EKFSLAM
@@ -472,9 +477,33 @@ def test_mrclam_robot1_below_the_ekf(shared_data):
         default_ekf_config(ds),
     )
     m_e = evaluate(run_landmark_slam(ekf, ds), ds, with_dead_reckoning=False)
-    est = build_graphslam(ds, GraphSLAMConfig(outlier_probability=0.9999))
+    est = build_graphslam(ds, default_graphslam_config(ds))
     m_g = evaluate(run_landmark_slam(est, ds), ds, with_dead_reckoning=False)
     g = m_g["ate_aligned"]["translation_m"]["rmse"]
     e = m_e["ate_aligned"]["translation_m"]["rmse"]
     assert g < e, (g, e)
     assert g < 0.25, g
+
+
+def test_cli_slam_graphslam_writes_the_ekf_outputs(tmp_path):
+    import json
+
+    from typer.testing import CliRunner
+
+    from probmap.cli import register
+    from probmap.cli.app import app
+
+    register(app)
+    out = tmp_path / "out"
+    res = CliRunner().invoke(
+        app, ["slam", "graphslam", "simulation", "-o", str(out), "--no-plot", "--robust", "huber"]
+    )
+    assert res.exit_code == 0, res.output
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["estimator"] == "GraphSLAM" and m["ate"]["translation_m"]["rmse"] < 1.0
+    tr = np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1)
+    assert tr.shape == (m["steps"], 7)
+    res = CliRunner().invoke(
+        app, ["slam", "graphslam", "simulation", "-o", str(out), "--robust", "x"]
+    )
+    assert res.exit_code == 1 and "robust" in res.output and "Traceback" not in res.output

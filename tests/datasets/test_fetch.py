@@ -239,6 +239,17 @@ def test_cli_fetch(server, tmp_path):
     assert not (out / "pose-graphs/w100.graph").exists()
 
 
+def test_cli_fetch_into_a_relative_folder(server, tmp_path, monkeypatch):
+    url, _, _ = server
+    monkeypatch.chdir(tmp_path)
+    res = runner.invoke(
+        app, ["datasets", "fetch", "pose-graphs/w100.graph", "--dir", "rel", "--base-url", url]
+    )
+    assert res.exit_code == 0, res.output
+    assert "pose-graphs/w100.graph" in res.output and f"1 file in {tmp_path / 'rel'}" in res.output
+    assert (tmp_path / "rel/pose-graphs/w100.graph").is_file()
+
+
 def test_cli_unknown_name_downloads_nothing(server, tmp_path):
     url, _, requests = server
     out = tmp_path / "data"

@@ -93,7 +93,8 @@ def fetch_command(
 
         for name in names:
             fetch.files_of(name)  # every name is checked before any download
-        root = fetch.default_directory(directory)
+        # absolute, as the fetched paths are (pooch's abspath)
+        root = Path(os.path.abspath(os.path.expanduser(fetch.default_directory(directory))))
         fetched: list[fetch.FetchedFile] = []
         columns = (TextColumn("{task.description}"), DownloadColumn(), TransferSpeedColumn())
         with Progress(*columns, console=Console(stderr=True), transient=True) as bar:
@@ -115,7 +116,8 @@ def fetch_command(
             typer.echo(f"{state:<10}  {f.size / 2**20:7.2f} MiB  {f.path.relative_to(root)}")
         n_new = sum(f.downloaded for f in fetched)
         typer.echo(
-            f"{len(seen)} files in {root}, sha256 checked ({n_new} downloaded, "
+            f"{len(seen)} file{'' if len(seen) == 1 else 's'} in {root}, sha256 checked "
+            f"({n_new} downloaded, "
             f"{len(seen) - n_new} already present)"
         )
         env = os.environ.get(fetch.DATA_ENV)

@@ -18,6 +18,7 @@ __all__ = [
     "DatasetError",
     "GridBoundsError",
     "MapFileError",
+    "MissingExtraError",
     "ParticleFilterWarning",
     "SemanticFileError",
     "SingularInformationError",
@@ -60,6 +61,11 @@ class MapFileError(DatasetError):
 
 class SemanticFileError(DatasetError):
     """A malformed semantic map or labelled scan file; the message names the file and key."""
+
+
+class MissingExtraError(ImportError):
+    """An optional dependency is not installed; the message names the extra to install
+    (``pip install 'probmap[ros]'``). The CLI reports it on one line."""
 
 
 class BadLinesWarning(UserWarning):

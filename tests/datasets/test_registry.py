@@ -27,6 +27,8 @@ def test_guess_format(tmp_path):
 
 def test_names_need_a_data_dir(monkeypatch, tmp_path):
     monkeypatch.delenv("PROBMAP_DATA", raising=False)
+    monkeypatch.chdir(tmp_path)  # no ../shared/data beside it
+    assert registry.data_dir() is None
     with pytest.raises(DatasetError, match="PROBMAP_DATA"):
         registry.load("victoria-park")
     with pytest.raises(DatasetError, match="not found"):
@@ -58,3 +60,16 @@ def test_load_real_by_name_and_path(shared_data):
     assert ds.robot == 2 and len(ds) > 0
     log = registry.load("intel-corrected", data_directory=root)
     assert len(log) > 0
+
+
+def test_the_data_dir_falls_back_to_shared_data_beside_the_working_directory(
+    monkeypatch, tmp_path
+):
+    monkeypatch.delenv("PROBMAP_DATA", raising=False)
+    (tmp_path / "shared" / "data").mkdir(parents=True)
+    (tmp_path / "clone").mkdir()
+    monkeypatch.chdir(tmp_path / "clone")
+    assert registry.data_dir() == registry.DEFAULT_DATA
+    assert registry.data_dir().resolve() == (tmp_path / "shared" / "data").resolve()
+    monkeypatch.setenv("PROBMAP_DATA", str(tmp_path))
+    assert registry.data_dir() == tmp_path  # the variable wins

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 import typer
@@ -19,10 +20,13 @@ class CliError(Exception):
 
 @contextmanager
 def cli_errors() -> Iterator[None]:
-    """Turn expected library errors into a one-line message on stderr and exit code 1."""
+    """Turn expected library errors into a one-line message on stderr and exit code 1 (a
+    missing optional extra too: its message names what to install)."""
+    from probmap.errors import MissingExtraError
+
     try:
         yield
-    except (CliError, ValueError, OSError, EOFError, KeyError) as exc:
+    except (CliError, ValueError, OSError, EOFError, KeyError, MissingExtraError) as exc:
         msg = str(exc) or exc.__class__.__name__
         if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
             msg = f"{exc.filename}: {msg}"
@@ -67,6 +71,62 @@ def note_first_compile(*modules: str) -> None:
         "[dim]compiling numba kernels: the first run after an install takes a few seconds "
         "more; later runs load them from the cache[/dim]"
     )
+
+
+def scan_topic_option() -> Any:
+    """``--scan-topic``: the same option on every command that reads a laser log."""
+    return typer.Option(
+        None,
+        "--scan-topic",
+        help="ROS bag: LaserScan/MultiEchoLaserScan topic (default: the only one).",
+    )
+
+
+def odom_topic_option() -> Any:
+    """``--odom-topic``."""
+    return typer.Option(
+        None, "--odom-topic", help="ROS bag: nav_msgs/Odometry topic (default: the only one)."
+    )
+
+
+def fixed_frame_option() -> Any:
+    """``--fixed-frame``."""
+    return typer.Option(
+        None,
+        "--fixed-frame",
+        help="ROS bag: world frame of the poses (default: odometry frame, map or odom).",
+    )
+
+
+def laser_frame_option() -> Any:
+    """``--laser-frame``."""
+    return typer.Option(
+        None, "--laser-frame", help="ROS bag: the scans' frame (default: their header.frame_id)."
+    )
+
+
+def bag_options_of(
+    scan_topic: str | None,
+    odom_topic: str | None,
+    fixed_frame: str | None,
+    laser_frame: str | None,
+) -> dict[str, Any]:
+    """The ``bag_options`` of :func:`probmap.datasets.open_scans` from the four options."""
+    return {
+        "scan_topic": scan_topic,
+        "odom_topic": odom_topic,
+        "fixed_frame": fixed_frame,
+        "laser_frame": laser_frame,
+    }
+
+
+def laser_input(path: Path | str) -> Path:
+    """The file a laser-log argument names: the path, or a registered laser dataset's file
+    under the data directory (``$PROBMAP_DATA``, else ``../shared/data``). A name that is
+    neither is a one-line error listing the close registry names."""
+    from probmap.datasets.registry import resolve_input
+
+    return resolve_input(path, kind="laser")
 
 
 def print_summary(

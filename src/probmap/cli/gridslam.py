@@ -10,13 +10,25 @@ from typing import Any
 
 import typer
 
-from probmap.cli.common import cli_errors, input_rows, print_summary
+from probmap.cli.common import (
+    bag_options_of,
+    cli_errors,
+    fixed_frame_option,
+    input_rows,
+    laser_frame_option,
+    laser_input,
+    odom_topic_option,
+    print_summary,
+    scan_topic_option,
+)
 from probmap.cli.slam import slam_app
 
 
 @slam_app.command("grid")
 def grid_command(
-    log: Path = typer.Argument(..., help="A raw CARMEN log (plain, .gz or .bz2) or a ROS bag."),
+    log: Path = typer.Argument(
+        ..., help="A raw CARMEN log (plain, .gz or .bz2), a ROS 1/2 bag or a dataset name."
+    ),
     output: str = typer.Option(
         ...,
         "-o",
@@ -33,18 +45,10 @@ def grid_command(
     end_time: float | None = typer.Option(
         None, "--end-time", help="Use only the first this many seconds of the log."
     ),
-    scan_topic: str | None = typer.Option(
-        None, "--scan-topic", help="ROS bag: the LaserScan topic (default: the only one)."
-    ),
-    odom_topic: str | None = typer.Option(
-        None, "--odom-topic", help="ROS bag: the nav_msgs/Odometry topic (default: the only one)."
-    ),
-    fixed_frame: str | None = typer.Option(
-        None, "--fixed-frame", help="ROS bag: the odometry frame (default: guessed from tf)."
-    ),
-    laser_frame: str | None = typer.Option(
-        None, "--laser-frame", help="ROS bag: the scans' frame (default: their header.frame_id)."
-    ),
+    scan_topic: str | None = scan_topic_option(),
+    odom_topic: str | None = odom_topic_option(),
+    fixed_frame: str | None = fixed_frame_option(),
+    laser_frame: str | None = laser_frame_option(),
     config: Path | None = typer.Option(
         None,
         "--config",
@@ -103,17 +107,11 @@ def grid_command(
     with cli_errors():
         if method not in ("graph", "rbpf"):
             raise ValueError(f"--method must be 'graph' or 'rbpf', got {method!r}")
-        if not log.exists():
-            raise FileNotFoundError(f"{log}: no such file")
+        log = laser_input(log)
         from probmap.pipelines import check_output_prefix
 
         prefix = check_output_prefix(output, "slam")
-        bag_options = {
-            "scan_topic": scan_topic,
-            "odom_topic": odom_topic,
-            "fixed_frame": fixed_frame,
-            "laser_frame": laser_frame,
-        }
+        bag_options = bag_options_of(scan_topic, odom_topic, fixed_frame, laser_frame)
         rbpf_options = {
             "particles": particles,
             "linear_update": linear_update,
@@ -129,10 +127,9 @@ def grid_command(
         else:
             if viz or viz_save is not None:
                 raise ValueError("--viz and --viz-save watch the graph method (--method graph)")
-            if any(v is not None for v in bag_options.values()):
-                raise ValueError("--method rbpf reads CARMEN logs only (no bag options)")
             _rbpf(
                 log, prefix, rbpf_options, end_time, config, skip_bad_lines=skip_bad_lines,
+                bag_options=bag_options,
                 tum=tum,
             )  # fmt: skip
 
@@ -298,6 +295,7 @@ def _rbpf(
     config: Path | None,
     *,
     skip_bad_lines: bool = False,
+    bag_options: dict | None = None,
     tum: bool = False,
 ) -> None:
     import warnings
@@ -328,6 +326,7 @@ def _rbpf(
             progress=tick,
             skip_bad_lines=skip_bad_lines,
             readings=reports.append,
+            bag_options=bag_options,
         )
     from probmap.errors import BadLinesWarning
 
@@ -360,7 +359,9 @@ def _rbpf(
 
 def match_command(
     map_file: Path = typer.Argument(..., help="A map: PREFIX.npz or a map_server PREFIX.yaml."),
-    log: Path = typer.Argument(..., help="A CARMEN log holding the scan."),
+    log: Path = typer.Argument(
+        ..., help="The log holding the scan: CARMEN, ROS 1/2 bag or a dataset name."
+    ),
     scan: int = typer.Option(0, "--scan", help="Index of the front-laser scan in the log."),
     x: float | None = typer.Option(None, "--x", help="Initial x (m); default the log's pose."),
     y: float | None = typer.Option(None, "--y", help="Initial y (m)."),
@@ -375,18 +376,22 @@ def match_command(
         "--skip-bad-lines",
         help="Skip and count malformed or physically implausible log lines instead of failing.",
     ),
+    scan_topic: str | None = scan_topic_option(),
+    odom_topic: str | None = odom_topic_option(),
+    fixed_frame: str | None = fixed_frame_option(),
+    laser_frame: str | None = laser_frame_option(),
 ) -> None:
     """Match one scan of a log against a map: prints the pose, its standard deviations and
     the match score (correlative search refined by Gauss-Newton)."""
     with cli_errors():
         import numpy as np
 
-        from probmap.datasets.carmen import load_scans
+        from probmap.datasets.scans import open_scans
         from probmap.slam.scan_matching import MatcherConfig, MatchField, match_scan, scan_points
 
-        for p in (map_file, log):
-            if not p.exists():
-                raise FileNotFoundError(f"{p}: no such file")
+        if not map_file.exists():
+            raise FileNotFoundError(f"{map_file}: no such file")
+        log = laser_input(log)
         suffix = map_file.suffix.lower()
         if suffix == ".npz":
             from probmap.grid.io import load_npz
@@ -407,12 +412,15 @@ def match_command(
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", BadLinesWarning)  # counted in the summary
-            batch = load_scans(log, poses="corrected", skip_bad_lines=skip_bad_lines)
+            batch = open_scans(
+                log,
+                poses="corrected",
+                skip_bad_lines=skip_bad_lines,
+                bag_options=bag_options_of(scan_topic, odom_topic, fixed_frame, laser_frame),
+            )
         n = len(batch.times)
         if not 0 <= scan < n:
             raise ValueError(f"--scan must lie in 0..{n - 1} for {log}, got {scan}")
-        if batch.readings is not None:
-            require_usable(batch.readings, log, batch.max_range)
         _, one = validate_ranges(
             batch.ranges[scan : scan + 1], batch.max_range, beams=batch.beams[scan : scan + 1]
         )

@@ -8,7 +8,18 @@ from typing import Any
 import typer
 
 from probmap._atomic import atomic_path
-from probmap.cli.common import CliError, cli_errors, input_rows, print_summary
+from probmap.cli.common import (
+    CliError,
+    bag_options_of,
+    cli_errors,
+    fixed_frame_option,
+    input_rows,
+    laser_frame_option,
+    laser_input,
+    odom_topic_option,
+    print_summary,
+    scan_topic_option,
+)
 
 
 def _plot(ax: Any, spec: Any, probability: Any, poses: Any, reference: Any | None) -> None:
@@ -32,27 +43,42 @@ def _plot(ax: Any, spec: Any, probability: Any, poses: Any, reference: Any | Non
     ax.legend(loc="upper right")
 
 
-def _read_reference(path: Path, offset: float, skip_bad_lines: bool = False) -> tuple[Any, Any]:
-    """Reference (times (M,), poses (M, 3)) from a CSV (time,x,y,theta) or a CARMEN log."""
+def _read_reference(
+    path: Path,
+    offset: float,
+    skip_bad_lines: bool = False,
+    bag_options: dict[str, Any] | None = None,
+) -> tuple[Any, Any]:
+    """Reference (times (M,), poses (M, 3)) from a CSV (time,x,y,theta), or the laser poses
+    of a laser log (CARMEN, ROS 1/2 bag, registry name; ``bag_options`` apply to a bag)."""
     import numpy as np
 
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such file")
+    if path.suffix.lower() != ".csv" or not path.exists():
+        path = laser_input(path)
     if path.suffix.lower() == ".csv":
         try:
             data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=(0, 1, 2, 3), ndmin=2)
         except ValueError as exc:
             raise CliError(f"{path}: expected CSV columns time,x,y,theta: {exc}") from None
         return data[:, 0] + offset, data[:, 1:4]
-    from probmap.datasets.carmen import load_scans
+    from probmap.datasets.rosbag import is_bag
+    from probmap.datasets.scans import open_scans
 
-    ref = load_scans(path, skip_bad_lines=skip_bad_lines)
+    ref = open_scans(
+        path,
+        skip_bad_lines=skip_bad_lines,
+        bag_options=bag_options if is_bag(path) else None,
+        require_readings=False,  # only its poses are used
+    )
     return ref.times + offset, ref.laser_poses
 
 
 def localize_command(
     map_yaml: Path = typer.Argument(..., help="map_server YAML map (e.g. from probmap map)."),
-    log: Path = typer.Argument(..., help="Laser log with odometry: CARMEN, plain, .gz or .bz2."),
+    log: Path = typer.Argument(
+        ...,
+        help="Laser log with odometry: CARMEN (plain, .gz, .bz2), ROS 1/2 bag or a dataset name.",
+    ),
     output: Path = typer.Option(
         ...,
         "-o",
@@ -64,7 +90,10 @@ def localize_command(
         False, "--global", help="Global localization: start from particles over free space."
     ),
     reference: Path | None = typer.Option(
-        None, "--reference", help="Reference trajectory: CSV time,x,y,theta or a CARMEN log."
+        None,
+        "--reference",
+        help="Reference trajectory: CSV time,x,y,theta, or the laser poses of a CARMEN log, "
+        "ROS bag or dataset name.",
     ),
     reference_offset: float = typer.Option(
         0.0,
@@ -84,6 +113,10 @@ def localize_command(
         "--skip-bad-lines",
         help="Skip and count malformed or physically implausible log lines instead of failing.",
     ),
+    scan_topic: str | None = scan_topic_option(),
+    odom_topic: str | None = odom_topic_option(),
+    fixed_frame: str | None = fixed_frame_option(),
+    laser_frame: str | None = laser_frame_option(),
 ) -> None:
     """Track (or globally localize) the robot of a laser log on a map with MCL: writes
     trajectory.csv and trajectory.png (and trajectory.tum with --tum) into OUTPUT."""
@@ -94,7 +127,7 @@ def localize_command(
         from rich.table import Table
 
         from probmap._atomic import atomic_outputs
-        from probmap.datasets.carmen import load_scans
+        from probmap.datasets.scans import open_scans
         from probmap.grid.io import read_map_server
         from probmap.pipelines import check_output_folder
         from probmap.pipelines.localize import (
@@ -106,21 +139,21 @@ def localize_command(
 
         if particles <= 0:
             raise CliError(f"--particles must be positive, got {particles}")
-        for p in (map_yaml, log):
-            if not p.exists():
-                raise FileNotFoundError(f"{p}: no such file")
+        if not map_yaml.exists():
+            raise FileNotFoundError(f"{map_yaml}: no such file")
+        log = laser_input(log)
         check_output_folder(output)
         import warnings
 
-        from probmap.datasets.validate import require_usable
         from probmap.errors import BadLinesWarning
 
+        bags = bag_options_of(scan_topic, odom_topic, fixed_frame, laser_frame)
         m = read_map_server(map_yaml)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", BadLinesWarning)  # counted in the summary
-            batch = load_scans(log, poses="odometry", skip_bad_lines=skip_bad_lines)
-        if batch.readings is not None:
-            require_usable(batch.readings, log, batch.max_range)
+            batch = open_scans(
+                log, poses="odometry", skip_bad_lines=skip_bad_lines, bag_options=bags
+            )
         odo = np.asarray(batch.robot_poses)
         if odo.shape[0] < 2 or np.all(odo == odo[0]):
             raise CliError(f"{log}: no odometry (every scan carries the same robot pose)")
@@ -132,7 +165,7 @@ def localize_command(
         if reference is not None:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", BadLinesWarning)
-                ref_t, ref_p = _read_reference(reference, reference_offset, skip_bad_lines)
+                ref_t, ref_p = _read_reference(reference, reference_offset, skip_bad_lines, bags)
             always, _ = match_times(batch.times, ref_t)
             if always.size == 0:
                 raise CliError(

@@ -11,7 +11,17 @@ from typing import Any
 
 import typer
 
-from probmap.cli.common import cli_errors, input_rows, print_summary
+from probmap.cli.common import (
+    bag_options_of,
+    cli_errors,
+    fixed_frame_option,
+    input_rows,
+    laser_frame_option,
+    laser_input,
+    odom_topic_option,
+    print_summary,
+    scan_topic_option,
+)
 
 
 def run_map_method(
@@ -22,10 +32,12 @@ def run_map_method(
     p0: float = 0.3,
     max_sweeps: int = 50,
     init: str = "free",
+    bag_options: dict[str, Any] | None = None,
 ) -> Any:
     """MAP mapping of ``log`` with a live display of the objective per sweep; writes
     ``PREFIX.{yaml,pgm,npz,png}`` and prints a summary. ``config`` is a
-    :class:`probmap.pipelines.MappingConfig`. Returns the written ``MappingResult``.
+    :class:`probmap.pipelines.MappingConfig`; ``bag_options`` a bag's topics and frames.
+    Returns the written ``MappingResult``.
 
     Raises the library's errors (call it inside :func:`probmap.cli.common.cli_errors`).
     """
@@ -34,8 +46,7 @@ def run_map_method(
     from probmap.mapping.map_mapping import MapMappingConfig, SweepRecord
     from probmap.pipelines import check_output_prefix, map_log_map, write_map
 
-    if not log.exists():
-        raise FileNotFoundError(f"{log}: no such file")
+    log = laser_input(log)
     check_output_prefix(output)
     mcfg = MapMappingConfig(resolution=config.resolution, p0=p0, max_sweeps=max_sweeps, init=init)
     with Progress(
@@ -55,7 +66,7 @@ def run_map_method(
                 status=f"objective {rec.objective:,.1f}, {rec.flips:,} flips",
             )
 
-        result = map_log_map(log, config, tick, map_config=mcfg)
+        result = map_log_map(log, config, tick, map_config=mcfg, bag_options=bag_options)
     result = write_map(output, result)
     ex = result.extra
     spec = result.grid.spec
@@ -89,7 +100,10 @@ def run_map_method(
 
 
 def fit_sensor_model_command(
-    log: Path = typer.Argument(..., help="Laser log: CARMEN .clf/.log, plain, .gz or .bz2."),
+    log: Path = typer.Argument(
+        ...,
+        help="Laser log: CARMEN .clf/.log (plain, .gz, .bz2), ROS 1/2 bag or a dataset name.",
+    ),
     output: str | None = typer.Option(
         None,
         "-o",
@@ -112,6 +126,10 @@ def fit_sensor_model_command(
         "--skip-bad-lines",
         help="Skip and count malformed or physically implausible log lines instead of failing.",
     ),
+    scan_topic: str | None = scan_topic_option(),
+    odom_topic: str | None = odom_topic_option(),
+    fixed_frame: str | None = fixed_frame_option(),
+    laser_frame: str | None = laser_frame_option(),
 ) -> None:
     """Fit the beam model's parameters to a log by EM (Probabilistic Robotics Table 6.2)."""
     with cli_errors():
@@ -123,8 +141,7 @@ def fit_sensor_model_command(
         from probmap.pipelines import check_output_prefix
         from probmap.pipelines.fit import fit_log
 
-        if not log.exists():
-            raise FileNotFoundError(f"{log}: no such file")
+        log = laser_input(log)
         target = None if output is None else check_output_prefix(output, "beam_model.yaml")
         import warnings
 
@@ -142,6 +159,7 @@ def fit_sensor_model_command(
                 poses=poses,
                 skip_bad_lines=skip_bad_lines,
                 readings=reports.append,
+                bag_options=bag_options_of(scan_topic, odom_topic, fixed_frame, laser_frame),
             )
         params = dataclasses.asdict(fit.params)
         rows = [(k, f"{v:.6g}") for k, v in params.items()]

@@ -3,11 +3,20 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import typer
 
-from probmap.cli.common import cli_errors, mapping_rows, print_summary
+from probmap.cli.common import (
+    bag_options_of,
+    cli_errors,
+    fixed_frame_option,
+    laser_frame_option,
+    laser_input,
+    mapping_rows,
+    odom_topic_option,
+    print_summary,
+    scan_topic_option,
+)
 
 
 def _fmt(v: object) -> str:
@@ -19,8 +28,8 @@ def _fmt(v: object) -> str:
 def map_command(
     logs: list[Path] = typer.Argument(
         ...,
-        help="Laser log(s): CARMEN .clf/.log (plain, .gz, .bz2) or ROS bag. Several logs are "
-        "mapped together on a Dask cluster.",
+        help="Laser log(s): CARMEN .clf/.log (plain, .gz, .bz2), ROS 1/2 bag or a dataset name "
+        "(probmap datasets list). Several logs are mapped together on a Dask cluster.",
     ),
     output: str = typer.Option(
         ...,
@@ -55,22 +64,10 @@ def map_command(
         "--method",
         help="log-odds: per-cell Bayes filter; map: MAP mapping with the beam model (Table 9.3).",
     ),
-    scan_topic: str | None = typer.Option(
-        None,
-        "--scan-topic",
-        help="ROS bag: LaserScan/MultiEchoLaserScan topic (default: the only one).",
-    ),
-    odom_topic: str | None = typer.Option(
-        None, "--odom-topic", help="ROS bag: nav_msgs/Odometry topic (default: the only one)."
-    ),
-    fixed_frame: str | None = typer.Option(
-        None,
-        "--fixed-frame",
-        help="ROS bag: world frame of the map (default: odometry frame, map or odom).",
-    ),
-    laser_frame: str | None = typer.Option(
-        None, "--laser-frame", help="ROS bag: the scans' frame (default: their header.frame_id)."
-    ),
+    scan_topic: str | None = scan_topic_option(),
+    odom_topic: str | None = odom_topic_option(),
+    fixed_frame: str | None = fixed_frame_option(),
+    laser_frame: str | None = laser_frame_option(),
     to_bag: Path | None = typer.Option(
         None,
         "--to-bag",
@@ -103,10 +100,11 @@ def map_command(
             write_map,
         )
 
-        for path in logs:
-            if not path.exists() and not allow_partial:
-                raise FileNotFoundError(f"{path}: no such file")
+        # registry names become their files; a missing file is an error (--allow-partial: the
+        # run reports it)
+        logs = [laser_input(p) if p.exists() or not allow_partial else p for p in logs]
         log = logs[0]
+        bag_options = bag_options_of(scan_topic, odom_topic, fixed_frame, laser_frame)
         prefix = check_output_prefix(output, "map")
         if to_bag is not None:
             from probmap.datasets.rosbag import is_bag
@@ -143,12 +141,7 @@ def map_command(
                 scheduler=scheduler,
                 chunks=chunks,
                 allow_partial=allow_partial,
-                bag_options={
-                    "scan_topic": scan_topic,
-                    "odom_topic": odom_topic,
-                    "fixed_frame": fixed_frame,
-                    "laser_frame": laser_frame,
-                },
+                bag_options=bag_options,
             )
             return
         if method not in ("log-odds", "map"):
@@ -158,7 +151,7 @@ def map_command(
 
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", BadLinesWarning)
-                run_map_method(log, prefix, cfg)
+                run_map_method(log, prefix, cfg, bag_options=bag_options)
             return
         with Progress(transient=True) as bar, warnings.catch_warnings():
             # the summary table reports skipped lines; no Python warning text on the terminal
@@ -168,12 +161,6 @@ def map_command(
             def tick(done: int, total: int) -> None:
                 bar.update(task, completed=done, total=total)
 
-            bag_options: dict[str, Any] = {
-                "scan_topic": scan_topic,
-                "odom_topic": odom_topic,
-                "fixed_frame": fixed_frame,
-                "laser_frame": laser_frame,
-            }
             result = map_log(log, cfg, progress=tick, bag_options=bag_options)
         with atomic_outputs() as outputs:  # the map files and the bag: all or none
             result = write_map(prefix, result)

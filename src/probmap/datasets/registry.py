@@ -1,13 +1,16 @@
 """The dataset registry: known datasets by name, format guessing, and loading.
 
 ``load("victoria-park")`` looks the name up in :data:`DATASETS` and opens it under the data
-directory (the ``data_dir`` argument, else the ``PROBMAP_DATA`` environment variable);
+directory (the ``data_dir`` argument, else the ``PROBMAP_DATA`` environment variable, else
+``../shared/data`` relative to the working directory when it exists);
 ``load("/some/folder/MRCLAM_Dataset3", robot=2)`` guesses the format from the path instead
-(:func:`guess_format`). Readers are imported only when used.
+(:func:`guess_format`). Readers are imported only when used. :func:`resolve_input` is what every
+command that takes a path uses: the path when it exists, else a registered name's file.
 """
 
 from __future__ import annotations
 
+import difflib
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -16,9 +19,21 @@ from typing import Any
 
 from probmap.errors import DatasetError
 
-__all__ = ["DATASETS", "FORMATS", "DatasetInfo", "data_dir", "guess_format", "load", "resolve"]
+__all__ = [
+    "DATASETS",
+    "FORMATS",
+    "DatasetInfo",
+    "data_dir",
+    "guess_format",
+    "load",
+    "resolve",
+    "resolve_input",
+]
 
 DATA_ENV = "PROBMAP_DATA"
+#: The data directory when neither an argument nor ``$PROBMAP_DATA`` names one (relative to the
+#: working directory: a clone beside ``shared/data``).
+DEFAULT_DATA = Path("..") / "shared" / "data"
 
 
 def _victoria_park(path: Path, **kw: Any) -> Any:
@@ -45,6 +60,12 @@ def _carmen(path: Path, **kw: Any) -> Any:
     return CarmenLog(path, **kw)
 
 
+def _rosbag(path: Path, **kw: Any) -> Any:
+    from probmap.datasets.rosbag import RosBag
+
+    return RosBag(path, **kw)
+
+
 def _simulation(path: Path | None, **kw: Any) -> Any:
     from probmap.datasets.simulation import simulate_landmarks
 
@@ -59,6 +80,7 @@ FORMATS: dict[str, Callable[..., Any]] = {
     "mrclam": _mrclam,
     "g2o": _g2o,
     "carmen": _carmen,
+    "rosbag": _rosbag,
     "simulation": _simulation,
 }
 """Format name -> loader ``(path, **options) -> dataset``."""
@@ -129,6 +151,13 @@ DATASETS: dict[str, DatasetInfo] = {
             "Intel Research Lab, GMapping-corrected poses (910 scans)",
         ),
         DatasetInfo(
+            "intel-bag",
+            "rosbag",
+            "intel-research-lab/intel.orig.bag",
+            "laser",
+            "Intel Research Lab, the raw log as a ROS 1 bag (/scan, /odom, /tf)",
+        ),
+        DatasetInfo(
             "freiburg-campus-corrected",
             "carmen",
             "freiburg-campus/freiburg-campus-corrected.log.gz",
@@ -147,11 +176,14 @@ DATASETS: dict[str, DatasetInfo] = {
 
 
 def data_dir(explicit: str | os.PathLike[str] | None = None) -> Path | None:
-    """The data directory: ``explicit``, else ``$PROBMAP_DATA``, else None."""
+    """The data directory: ``explicit``, else ``$PROBMAP_DATA``, else ``../shared/data``
+    (relative to the working directory) when that folder exists, else None."""
     if explicit is not None:
         return Path(explicit)
     env = os.environ.get(DATA_ENV)
-    return Path(env) if env else None
+    if env:
+        return Path(env)
+    return DEFAULT_DATA if DEFAULT_DATA.is_dir() else None
 
 
 def guess_format(path: str | os.PathLike[str]) -> str:
@@ -183,6 +215,8 @@ def guess_format(path: str | os.PathLike[str]) -> str:
             name = name[: -len(comp)]
     if name.endswith(".g2o"):
         return "g2o"
+    if name.endswith(".bag"):
+        return "rosbag"
     if name.endswith((".clf", ".log", ".carmen")):
         return "carmen"
     raise DatasetError("cannot guess the dataset format from the file name", path=p)
@@ -198,12 +232,53 @@ def resolve(name_or_path: str, data_directory: str | os.PathLike[str] | None = N
     root = data_dir(data_directory)
     if root is None:
         raise DatasetError(
-            f"dataset {info.name!r} needs a data directory: pass --data-dir or set {DATA_ENV}"
+            f"dataset {info.name!r} needs a data directory: pass --data-dir, set {DATA_ENV} "
+            f"or put the data in {DEFAULT_DATA}"
         )
     path = root / info.relpath
     if not path.exists():
         raise DatasetError(f"dataset {info.name!r} not found under the data directory", path=path)
     return path
+
+
+def resolve_input(
+    name_or_path: str | os.PathLike[str],
+    data_directory: str | os.PathLike[str] | None = None,
+    *,
+    kind: str | None = None,
+) -> Path:
+    """What a command's input argument names: the path itself when it exists, else the file
+    of the registered dataset of that name (of ``kind``, when given) under the data directory.
+
+    Raises
+    ------
+    FileNotFoundError
+        Neither an existing path nor a registered name; the one-line message lists the
+        registered names close to it.
+    DatasetError
+        A registered name of another kind, one without a file, or one whose file is absent.
+    """
+    path = Path(name_or_path)
+    if path.exists():
+        return path
+    text = str(name_or_path)
+    names = [n for n, i in DATASETS.items() if kind is None or i.kind == kind]
+    info = DATASETS.get(text)
+    if info is not None and (kind is None or info.kind == kind):
+        return resolve(text, data_directory)
+    if info is not None:
+        raise DatasetError(
+            f"dataset {text!r} holds {info.kind}, not {kind} data ({kind} datasets: "
+            f"{', '.join(names)})"
+        )
+    close = difflib.get_close_matches(text, names, n=3, cutoff=0.6)
+    if close:
+        hint = f" or dataset name (close dataset names: {', '.join(close)})"
+    elif os.sep not in text and "/" not in text and not path.suffix:
+        hint = f" or dataset name ({kind + ' ' if kind else ''}datasets: {', '.join(names)})"
+    else:
+        hint = ""
+    raise FileNotFoundError(f"{text}: no such file{hint}")
 
 
 def load(

@@ -43,7 +43,7 @@ from probmap._atomic import atomic_path
 from probmap._typing import FloatArray
 from probmap.datasets.records import LaserScan, Odometry, ScanBatch
 from probmap.datasets.validate import PoseLimits, PoseTracker, ReadingReport, validate_ranges
-from probmap.errors import BadLinesWarning, BagError
+from probmap.errors import BadLinesWarning, BagError, MissingExtraError
 
 __all__ = [
     "BagMap",
@@ -73,13 +73,14 @@ def require_rosbags() -> Any:
 
     Raises
     ------
-    ImportError
-        When ``rosbags`` is not installed; the message names ``pip install 'probmap[ros]'``.
+    MissingExtraError
+        (an ImportError) When ``rosbags`` is not installed; the message names
+        ``pip install 'probmap[ros]'``.
     """
     try:
         import rosbags
     except ImportError:
-        raise ImportError(
+        raise MissingExtraError(
             "reading ROS bags needs the 'rosbags' package: pip install 'probmap[ros]'"
         ) from None
     return rosbags

@@ -169,34 +169,27 @@ def map_log(
 
     Parameters
     ----------
-    path : path-like
-        A CARMEN log (plain, .gz or .bz2).
+    path : path-like or str
+        A CARMEN log (plain, .gz or .bz2), a ROS 1/2 bag or a registered laser dataset's name
+        (read by :func:`probmap.datasets.open_scans`).
     config : MappingConfig, optional
         Mapping parameters.
     progress : callable, optional
         Called as ``progress(done, total)`` after each chunk of scans.
+    bag_options : dict, optional
+        A bag's topics and frames (``scan_topic``, ``odom_topic``, ``fixed_frame``,
+        ``laser_frame``); guessed when not given.
 
     Returns
     -------
     MappingResult
     """
-    from probmap.datasets.carmen import load_scans
-
     cfg = config or MappingConfig()
     t0 = time.perf_counter()
-    from probmap.datasets.rosbag import is_bag, load_bag_scans
-
-    if is_bag(path):
-        batch = load_bag_scans(path, skip_bad_lines=cfg.skip_bad_lines, **(bag_options or {}))
-    elif bag_options and any(v not in (None, 0) for v in bag_options.values()):
-        raise ValueError(f"{path}: topic/frame options apply to ROS bags only")
-    else:
-        batch = load_scans(
-            path, poses=cfg.poses, max_range=cfg.max_range, skip_bad_lines=cfg.skip_bad_lines
-        )
+    batch = _open(path, cfg, bag_options)
     t1 = time.perf_counter()
-    max_range = float(cfg.max_range if cfg.max_range is not None else batch.max_range)
-    report = _require_readings(path, batch, max_range)
+    max_range = float(batch.max_range)
+    report = batch.readings
     grid = cfg.make_grid()
     stats = ScanStats(0, 0, 0, 0, 0, 0)
     n = len(batch.times)
@@ -224,19 +217,19 @@ def map_log(
     )
 
 
-def _require_readings(path: object, batch: Any, max_range: float) -> Any:
-    """The batch's reading report (against ``max_range``, the one the mapper uses); a log
-    without one usable reading is a :class:`~probmap.errors.DatasetError` naming ``path``."""
-    from dataclasses import replace
+def _open(
+    path: str | os.PathLike[str], cfg: MappingConfig, bag_options: dict[str, Any] | None
+) -> Any:
+    """The scans of ``path`` as every mapping pipeline reads them (one log, one rule)."""
+    from probmap.datasets.scans import open_scans
 
-    from probmap.datasets.validate import require_usable, validate_ranges
-
-    report = batch.readings
-    if report is None or max_range != float(batch.max_range):
-        _, report = validate_ranges(np.asarray(batch.ranges), max_range, beams=batch.beams)
-        report = replace(report, skipped_lines=int(getattr(batch, "skipped_lines", 0)))
-    require_usable(report, path, max_range)
-    return report
+    return open_scans(
+        path,
+        poses=cfg.poses,
+        max_range=cfg.max_range,
+        skip_bad_lines=cfg.skip_bad_lines,
+        bag_options=bag_options,
+    )
 
 
 def _without_padding(stats: ScanStats, batch: Any) -> ScanStats:
@@ -317,11 +310,14 @@ def map_log_map(
     progress: Callable[[SweepRecord], None] | None = None,
     *,
     map_config: MapMappingConfig | None = None,
+    bag_options: dict[str, Any] | None = None,
 ) -> MappingResult:
-    """MAP mapping of a CARMEN log, in the shape of :func:`probmap.pipelines.map_log`.
+    """MAP mapping of a laser log or bag, in the shape of :func:`probmap.pipelines.map_log`.
 
     ``config`` gives the resolution, pose source, maximum range, clamp and bad-line policy;
-    ``map_config`` the MAP parameters (its resolution is replaced by ``config.resolution``).
+    ``map_config`` the MAP parameters (its resolution is replaced by ``config.resolution``);
+    ``bag_options`` a bag's topics and frames. The input is read by
+    :func:`probmap.datasets.open_scans` (a CARMEN log, a ROS 1/2 bag or a registry name).
     The binary map becomes an :class:`~probmap.grid.occupancy.OccupancyGrid` whose occupied
     cells hold ``logit(clamp[1])``, free observed cells ``logit(clamp[0])`` and unobserved
     cells the prior, so :func:`probmap.pipelines.write_map` writes the usual files.
@@ -330,19 +326,16 @@ def map_log_map(
     """
     from dataclasses import replace
 
-    from probmap.datasets.carmen import load_scans
     from probmap.grid.logodds import logit
     from probmap.mapping.map_mapping import MapMappingConfig, map_mapping
 
     cfg = config or MappingConfig(resolution=0.1)
     mcfg = replace(map_config or MapMappingConfig(), resolution=cfg.resolution)
     t0 = time.perf_counter()
-    batch = load_scans(
-        path, poses=cfg.poses, max_range=cfg.max_range, skip_bad_lines=cfg.skip_bad_lines
-    )
+    batch = _open(path, cfg, bag_options)
     t1 = time.perf_counter()
-    max_range = float(cfg.max_range if cfg.max_range is not None else batch.max_range)
-    report = _require_readings(path, batch, max_range)
+    max_range = float(batch.max_range)
+    report = batch.readings
     res = map_mapping(
         np.asarray(batch.laser_poses), batch.ranges, np.asarray(batch.angles), max_range, mcfg,
         progress=progress,

@@ -152,22 +152,6 @@ def _failed(fut: Any) -> str | None:
     return None
 
 
-def _load(path: str, config: MappingConfig, bag_options: dict[str, Any] | None) -> ScanBatch:
-    """A CARMEN log or a ROS bag (with its topic and frame options), as ``map_log`` reads it."""
-    from probmap.datasets.carmen import load_scans
-    from probmap.datasets.rosbag import is_bag, load_bag_scans
-
-    if is_bag(path):
-        return load_bag_scans(path, **(bag_options or {}))
-    return load_scans(
-        path, poses=config.poses, max_range=config.max_range, skip_bad_lines=config.skip_bad_lines
-    )
-
-
-def _max_range(batch: ScanBatch, config: MappingConfig) -> float:
-    return float(config.max_range if config.max_range is not None else batch.max_range)
-
-
 @_task
 def _map_log_task(
     path: str, config: MappingConfig, bag_options: dict[str, Any] | None
@@ -195,13 +179,12 @@ def _batch_task(
 def _log_task(
     path: str, config: MappingConfig, tile: int, bag_options: dict[str, Any] | None
 ) -> IncrementGrid:
-    """A whole log: read, check that it has a usable reading, count its updates."""
-    from probmap.pipelines import _require_readings
+    """A whole log (or bag): read as ``map_log`` reads it (refusing one without a usable
+    reading), count its updates."""
+    from probmap.pipelines import _open
 
-    batch = _load(path, config, bag_options)
-    max_range = _max_range(batch, config)
-    _require_readings(path, batch, max_range)
-    return _batch_task(batch, max_range, config, tile)
+    batch = _open(path, config, bag_options)
+    return _batch_task(batch, float(batch.max_range), config, tile)
 
 
 @_task
@@ -397,8 +380,9 @@ def map_logs_distributed(
     Parameters
     ----------
     paths : sequence of path-like
-        The logs, CARMEN (plain, .gz, .bz2) or ROS 1/2 bags; all are mapped into one grid in
-        the world frame of their poses.
+        The logs, CARMEN (plain, .gz, .bz2) or ROS 1/2 bags, or registered laser datasets'
+        names (resolved here, before any task: workers get the files' paths); all are mapped
+        into one grid in the world frame of their poses.
     config : MappingConfig, optional
         Mapping parameters, as for :func:`probmap.pipelines.map_log`.
     workers : int, optional
@@ -427,8 +411,8 @@ def map_logs_distributed(
 
     Raises
     ------
-    ImportError
-        Dask is not installed (``pip install 'probmap[distributed]'``).
+    MissingExtraError
+        (an ImportError) Dask is not installed (``pip install 'probmap[distributed]'``).
     FileNotFoundError, ValueError
         Before anything is submitted: a missing input, bag options without a bag, chunks of
         a bag, a bad option.
@@ -437,16 +421,19 @@ def map_logs_distributed(
         once (a bad input is not retried).
     """
     from probmap.datasets.rosbag import is_bag
+    from probmap.datasets.scans import resolve_log
+    from probmap.errors import MissingExtraError
 
     try:
         from distributed import Client
     except ImportError as exc:  # pragma: no cover - dask is in the test extra
-        raise ImportError(
+        raise MissingExtraError(
             "distributed mapping needs Dask: pip install 'probmap[distributed]'"
         ) from exc
     cfg = config or MappingConfig()
     opts = options or DistributedOptions()
-    files = [Path(p) for p in paths]
+    # registry names become their files here, where the data directory is known
+    files = [resolve_log(p) if not Path(p).exists() else Path(p) for p in paths]
     if not files:
         raise ValueError("no input logs given")
     bags = [f for f in files if is_bag(f)]

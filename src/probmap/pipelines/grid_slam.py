@@ -7,7 +7,6 @@ CLI (``probmap slam grid``) only parses options and prints what it returns.
 
 from __future__ import annotations
 
-import math
 import os
 import time
 from collections.abc import Callable
@@ -114,88 +113,47 @@ def load_laser_log(
     bag_options: dict[str, Any] | None = None,
     skip_bad_lines: bool = False,
 ) -> Any:
-    """Read a raw CARMEN log or a ROS bag into a :class:`~probmap.datasets.records.ScanBatch`
-    whose ``laser_poses`` are the laser's odometry poses and ``robot_poses`` the robot's.
+    """The scans graph SLAM runs on: :func:`probmap.datasets.open_scans` (a raw CARMEN log, a
+    ROS 1/2 bag or a registry name; float32 ranges) and the checks graph SLAM needs.
 
-    CARMEN: ``FLASER`` and ``ROBOTLASER1`` lines (scans of different beam counts are kept as
-    they are); the laser pose fields of a raw log are its odometry. ROS bags: the scan topic
-    posed through tf in the odometry frame (topics and frames guessed as ``probmap map`` does).
-    ``end_time`` keeps the first ``end_time`` seconds.
+    ``laser_poses`` are the laser's odometry poses (the laser pose fields of a raw CARMEN log;
+    a bag's scans posed through tf in the odometry frame, topics and frames guessed as
+    ``probmap map`` does) and ``robot_poses`` the robot's. ``end_time`` keeps the first
+    ``end_time`` seconds.
 
     Raises
     ------
     DatasetError
-        Unreadable or malformed input (naming the file and line).
+        Unreadable or malformed input (naming the file and line), or no usable reading.
     ValueError
-        A log without odometry (every pose the same), without one usable range reading, or
-        with fewer than two scans.
+        A log without odometry (every pose the same) or with fewer than two scans.
     """
-    from probmap.datasets.carmen import load_scans
-    from probmap.datasets.rosbag import is_bag, load_bag_scans
+    from probmap.datasets.scans import open_scans
 
-    if is_bag(path):
-        batch = load_bag_scans(
-            path, dtype=np.float32, skip_bad_lines=skip_bad_lines, **(bag_options or {})
-        )
-    elif bag_options and any(v not in (None, 0) for v in bag_options.values()):
-        raise ValueError(f"{path}: topic/frame options apply to ROS bags only")
-    else:
-        batch = load_scans(path, poses="corrected", dtype=np.float32, skip_bad_lines=skip_bad_lines)
-    if end_time is not None:
-        if not (math.isfinite(end_time) and end_time > 0):
-            raise ValueError(f"end_time must be a positive number of seconds, got {end_time}")
-        t = np.asarray(batch.times)
-        keep = t <= t[0] + end_time  # log timestamps need not be sorted (Intel's jitter)
-        from dataclasses import replace
-
-        angles = np.asarray(batch.angles)
-        batch = replace(
-            batch,
-            times=t[keep],
-            ranges=batch.ranges[keep],
-            angles=angles if angles.ndim == 1 else angles[keep],
-            laser_poses=batch.laser_poses[keep],
-            robot_poses=batch.robot_poses[keep],
-            beams=batch.beams[keep],
-        )
-    if len(batch.times) < 2:
-        raise ValueError(f"{path}: graph SLAM needs at least 2 scans, found {len(batch.times)}")
-    report = _require_readings(
-        path, np.asarray(batch.ranges), float(batch.max_range), batch.beams, batch.skipped_lines
+    batch = open_scans(
+        path,
+        poses="corrected",
+        dtype=np.float32,
+        skip_bad_lines=skip_bad_lines,
+        bag_options=bag_options,
+        end_time=end_time,
     )
-    if batch.readings is not None and report != batch.readings:
-        from dataclasses import replace as _replace
+    _require_odometry(path, batch)
+    return batch
 
-        batch = _replace(batch, readings=report)  # the scans kept by end_time
+
+def _require_odometry(path: object, batch: Any) -> None:
+    """Refuse what no grid SLAM can run on: fewer than two scans, or no odometry."""
+    if len(batch.times) < 2:
+        raise ValueError(f"{path}: grid SLAM needs at least 2 scans, found {len(batch.times)}")
     laser = np.asarray(batch.laser_poses)
     if not np.isfinite(laser).all():
         raise ValueError(f"{path}: the scans' odometry poses are not finite")
     if np.all(laser == laser[0]):
         raise ValueError(
-            f"{path}: no odometry (every scan has the same pose); graph SLAM needs "
+            f"{path}: no odometry (every scan has the same pose); grid SLAM needs "
             "odometry to predict the motion between scans"
         )
-    return batch
-
-
-def _require_readings(
-    path: object,
-    ranges: NDArray,
-    max_range: float,
-    beams: NDArray | None = None,
-    skipped_lines: int = 0,
-) -> Any:
-    """Refuse a log without one usable reading (NaN, inf, zero or negative everywhere, or
-    only max-range returns): SLAM on it would write an empty map and exit as if it worked.
-    The one rule of every command: :func:`probmap.datasets.validate.require_usable`."""
-    from dataclasses import replace
-
-    from probmap.datasets.validate import require_usable, validate_ranges
-
-    _, report = validate_ranges(ranges, max_range, beams=beams)
-    report = replace(report, skipped_lines=int(skipped_lines))
-    require_usable(report, path, max_range)
-    return report
 
 
 def run_graph_slam(
@@ -248,8 +206,8 @@ def run_graph_slam(
         if i % 200 == 199 or i == n - 1:
             peak = max(peak, slam.memory_bytes())
             release_freed_memory()  # finished submaps' grids and evicted max-grids
-            if progress is not None:
-                progress(i + 1, n)
+        if progress is not None and (i % 20 == 19 or i == n - 1):
+            progress(i + 1, n)  # often enough for a steady rate (and ETA) in the bar
     if n < n_total:  # stopped early: the scans it got to
         times, mount = times[:n], mount[:n]
     slam.finish()
@@ -304,36 +262,41 @@ def slam_log(
     progress: Callable[[int, int], None] | None = None,
     skip_bad_lines: bool = False,
     readings: Callable[[Any], None] | None = None,
+    bag_options: dict[str, Any] | None = None,
 ) -> GridSlamResult:
-    """Read a raw CARMEN log and run :func:`~probmap.slam.gridslam.run_grid_slam` on its front-laser scans.
+    """Read a raw CARMEN log, a ROS 1/2 bag or a registry name
+    (:func:`probmap.datasets.open_scans`) and run :func:`~probmap.slam.gridslam.run_grid_slam`
+    on its front-laser scans.
 
     ``end_time`` keeps the scans of the first ``end_time`` seconds only; ``skip_bad_lines``
-    skips and counts malformed or implausible lines instead of failing. ``readings``, when
-    given, is called with the :class:`~probmap.datasets.validate.ReadingReport` of the scans
-    used.
+    skips and counts malformed or implausible lines instead of failing; ``bag_options`` a
+    bag's topics and frames (guessed when not given). ``readings``, when given, is called with
+    the :class:`~probmap.datasets.validate.ReadingReport` of the scans used.
     """
-    from probmap.datasets.carmen import load_scans
+    from probmap.datasets.scans import open_scans
     from probmap.geometry.se2 import between
     from probmap.slam.gridslam import run_grid_slam
 
-    batch = load_scans(path, poses="odometry", dtype=np.float32, skip_bad_lines=skip_bad_lines)
+    batch = open_scans(
+        path,
+        poses="odometry",
+        dtype=np.float32,
+        skip_bad_lines=skip_bad_lines,
+        bag_options=bag_options,
+        end_time=end_time,
+    )
     times = np.asarray(batch.times, dtype=np.float64)
-    ranges = np.asarray(batch.ranges)
     angles = np.asarray(batch.angles, dtype=np.float64)
     if angles.ndim != 1:
         raise ValueError(f"{path}: scans with different beam geometries are not supported")
     robot = np.asarray(batch.robot_poses, dtype=np.float64)
     laser = np.asarray(batch.laser_poses, dtype=np.float64)
     mount = between(robot[0], laser[0])
-    if end_time is not None:
-        keep = times <= times[0] + end_time
-        times, ranges, robot = times[keep], ranges[keep], robot[keep]
-    report = _require_readings(path, ranges, float(batch.max_range), None, batch.skipped_lines)
     if readings is not None:
-        readings(report)
+        readings(batch.readings)
     return run_grid_slam(
-        times, ranges, angles, robot, float(batch.max_range), config, mount=mount,
-        progress=progress,
+        times, np.asarray(batch.ranges), angles, robot, float(batch.max_range), config,
+        mount=mount, progress=progress,
     )  # fmt: skip
 
 

@@ -507,3 +507,62 @@ def test_cli_slam_graphslam_writes_the_ekf_outputs(tmp_path):
         app, ["slam", "graphslam", "simulation", "-o", str(out), "--robust", "x"]
     )
     assert res.exit_code == 1 and "robust" in res.output and "Traceback" not in res.output
+
+
+# ------------------------------------------------------------- unknown correspondences
+def test_correspondence_test_is_table_11_8():
+    """d2 and the density of Delta = m_j - m_k = 0 from the dense inverse of H; one landmark's
+    sightings split under two ids pass the test, two different landmarks do not."""
+    from probmap.slam.graphslam import graphslam_correspondence_test, landmark_joint_covariance
+
+    sim = simulate_landmarks(10, 60, seed=3, density=0.06)
+    est = build_graphslam(sim)
+    first = {}
+    for st in sim:  # the second half of every landmark's sightings gets id + 100
+        est.predict(st.control, st.dt)
+        ids = np.array(
+            [i if first.setdefault(int(i), st.time) > st.time - 2.0 else i + 100 for i in st.ids]
+        )
+        est.update(st.z, ids)
+    res = est.optimize()
+    prob = est.problem()
+    sysm = graphslam_linearize(prob, res.nodes, res.landmarks)
+    S = landmark_joint_covariance(sysm.H, sysm.n_pose_vars)
+    Hinv = np.linalg.inv(sysm.H.toarray())
+    np.testing.assert_allclose(
+        S, Hinv[sysm.n_pose_vars :, sysm.n_pose_vars :], rtol=1e-6, atol=1e-12
+    )
+    ids = prob.landmark_ids
+    split = [
+        (int(np.flatnonzero(ids == i)[0]), int(np.flatnonzero(ids == i + 100)[0]))
+        for i in ids
+        if i + 100 in ids
+    ]
+    other = [(0, 1), (0, 2), (1, 2)]
+    d2, p = graphslam_correspondence_test(res.landmarks, S, np.array(split + other))
+    j, k = split[0]
+    D = np.array([[1, 0, -1, 0], [0, 1, 0, -1]])
+    r = sysm.n_pose_vars + np.r_[2 * j, 2 * j + 1, 2 * k, 2 * k + 1]
+    Sd = D @ Hinv[np.ix_(r, r)] @ D.T
+    delta = res.landmarks[j] - res.landmarks[k]
+    np.testing.assert_allclose(d2[0], delta @ np.linalg.solve(Sd, delta), rtol=1e-6)
+    np.testing.assert_allclose(
+        p[0], np.exp(-0.5 * d2[0]) / np.sqrt(np.linalg.det(2 * np.pi * Sd)), rtol=1e-6
+    )
+    assert split and np.all(d2[: len(split)] < 18.42)  # chi-square 2 dof, 0.9999
+    assert np.all(d2[len(split) :] > 100)
+
+
+def test_unknown_correspondences_merge_to_about_the_true_map():
+    """Table 11.9 from one hypothesis per observation: the merged map is close to the true
+    number of landmarks and the trajectory to the EKF's with maximum-likelihood association."""
+    sim = simulate_landmarks(20, 100, seed=0, density=0.05, known_correspondences=False)
+    truth = simulate_landmarks(20, 100, seed=0, density=0.05)
+    n_true = len({int(i) for st in truth for i in st.ids})
+    gs = run_landmark_slam(build_graphslam(sim), sim)
+    m = evaluate(gs, sim, with_dead_reckoning=False)
+    ekf = EKFSLAM(sim.motion_model, sim.measurement_model, sim.initial_pose, sim.initial_covariance)
+    me = evaluate(run_landmark_slam(ekf, sim), sim, with_dead_reckoning=False)
+    assert n_true <= m["landmarks_mapped"] <= 1.5 * n_true
+    assert m["ate"]["translation_m"]["rmse"] < 1.2 * me["ate"]["translation_m"]["rmse"]
+    assert m["landmarks"]["error_m"]["rmse"] < 0.3

@@ -80,6 +80,9 @@ __all__ = [
     "graphslam_reduce",
     "graphslam_solve_reduced",
     "graphslam_solve_schur",
+    "graphslam_correspondence_test",
+    "landmark_joint_covariance",
+    "optimize_graphslam_unknown",
     "marginal_covariances",
     "optimize_graphslam",
     "segment_log",
@@ -138,6 +141,9 @@ class GraphSLAMConfig:
         Observations closer than this (m) are ignored, as in the EKF.
     covariances : bool
         Compute the marginal covariances of the result (poses of every step, landmarks).
+    correspondence_probability : float
+        Unknown correspondences (ids -1): chi-square gate (2 dof) of the correspondence test
+        under which two landmark hypotheses are merged (Tables 11.8-11.9).
     """
 
     max_iterations: int = 50
@@ -153,6 +159,7 @@ class GraphSLAMConfig:
     initialization: Literal["incremental", "dead_reckoning"] = "incremental"
     min_range: float = 0.0
     covariances: bool = True
+    correspondence_probability: float = 0.99
 
     def __post_init__(self) -> None:
         mi = self.max_iterations
@@ -198,6 +205,14 @@ class GraphSLAMConfig:
             raise ValueError(
                 "initialization must be 'incremental' or 'dead_reckoning', got "
                 f"{self.initialization!r}"
+            )
+        if not (
+            _finite_number(self.correspondence_probability)
+            and 0 < self.correspondence_probability < 1
+        ):
+            raise ValueError(
+                "correspondence_probability must lie in (0, 1), got "
+                f"{self.correspondence_probability}"
             )
         if not (_finite_number(self.min_range) and self.min_range >= 0):
             raise ValueError(f"min_range must be a finite number >= 0, got {self.min_range}")
@@ -1154,6 +1169,148 @@ def _recover_steps(
     return poses, covs, Pn, Lc
 
 
+# ------------------------------------------------------------------ Tables 11.8-11.9
+def landmark_joint_covariance(H: sp.spmatrix, n_pose_vars: int) -> FloatArray:
+    """The joint marginal covariance ``Sigma_mm`` (2L, 2L) of all landmarks: the landmark rows
+    of ``H^-1``, from one sparse factorization and ``2L`` solves (small maps only)."""
+    Hc = sp.csc_matrix(H)
+    n = Hc.shape[0]
+    m = n - n_pose_vars
+    if m == 0:
+        return np.zeros((0, 0))
+    lu = splu(
+        Hc, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
+    )
+    E = np.zeros((n, m))
+    E[n_pose_vars + np.arange(m), np.arange(m)] = 1.0
+    Sm = np.asarray(lu.solve(E), dtype=np.float64)[n_pose_vars:]
+    return 0.5 * (Sm + Sm.T)
+
+
+def graphslam_correspondence_test(
+    landmarks: FloatArray, joint_covariance: FloatArray, pairs: IntArray
+) -> tuple[FloatArray, FloatArray]:
+    """The correspondence test of Table 11.8 for landmark pairs ``(j, k)``.
+
+    The book marginalizes everything but ``m_j, m_k`` (lines 2-3), maps them to the difference
+    ``Delta = m_j - m_k`` (lines 4-6) and returns the Gaussian density of ``Delta = 0``
+    (line 7). In moments: ``Delta ~ N(mu_j - mu_k, Sigma_jj + Sigma_kk - Sigma_jk - Sigma_kj)``.
+
+    Parameters
+    ----------
+    landmarks : ndarray, shape (L, 2)
+    joint_covariance : ndarray, shape (2L, 2L)
+        :func:`landmark_joint_covariance`.
+    pairs : ndarray of int, shape (P, 2)
+
+    Returns
+    -------
+    d2 : ndarray, shape (P,)
+        ``mu_Delta^T Sigma_Delta^-1 mu_Delta`` (chi-square, 2 dof, when ``j`` and ``k`` are one
+        landmark).
+    probability : ndarray, shape (P,)
+        ``|2 pi Sigma_Delta|^-1/2 exp(-d2 / 2)``, the book's value.
+    """
+    pr = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    j, k = pr[:, 0], pr[:, 1]
+    C = joint_covariance.reshape(landmarks.shape[0], 2, landmarks.shape[0], 2)
+    S = C[j, :, j, :] + C[k, :, k, :] - C[j, :, k, :] - C[k, :, j, :]
+    d = landmarks[j] - landmarks[k]
+    det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
+    det = np.maximum(det, 1e-300)
+    d2 = S[:, 1, 1] * d[:, 0] ** 2 - 2 * S[:, 0, 1] * d[:, 0] * d[:, 1] + S[:, 0, 0] * d[:, 1] ** 2
+    d2 = d2 / det
+    return d2, np.exp(-0.5 * d2) / (2 * np.pi * np.sqrt(det))
+
+
+def _merge_pass(
+    problem: GraphSLAMProblem, Lm: FloatArray, Sigma_mm: FloatArray, gate: float
+) -> IntArray | None:
+    """One round of Table 11.9's merges: landmark pairs passing the correspondence test, most
+    likely first, joined unless the two were seen from one pose (two observations at one time
+    are two landmarks). Returns the new slot of every landmark, or None when nothing merges.
+    (Merging each hypothesis at most once per round, so that every merge is re-solved first,
+    stalled with more duplicates left on simulation.)"""
+    from scipy.spatial import cKDTree
+
+    L = Lm.shape[0]
+    if L < 2:
+        return None
+    sd = np.sqrt(np.maximum(np.diagonal(Sigma_mm).reshape(L, 2).max(axis=1), 0.0))
+    radius = float(np.sqrt(gate) * 2.0 * sd.max()) + 1e-9
+    pairs = np.array(sorted(cKDTree(Lm).query_pairs(radius)), dtype=np.int64).reshape(-1, 2)
+    if pairs.size == 0:
+        return None
+    d2, _ = graphslam_correspondence_test(Lm, Sigma_mm, pairs)
+    ok = d2 < gate
+    pairs, d2 = pairs[ok], d2[ok]
+    if pairs.size == 0:
+        return None
+    nodes = [set() for _ in range(L)]
+    for n, j in zip(problem.obs_node, problem.obs_landmark, strict=True):
+        nodes[int(j)].add(int(n))
+    parent = np.arange(L)
+
+    def root(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = int(parent[a])
+        return a
+
+    merged = False
+    for a, b in pairs[np.argsort(d2)]:
+        ra, rb = root(int(a)), root(int(b))
+        if ra == rb or nodes[ra] & nodes[rb]:
+            continue
+        parent[rb] = ra
+        nodes[ra] |= nodes[rb]
+        merged = True
+    if not merged:
+        return None
+    roots = np.array([root(i) for i in range(L)])
+    _, slot = np.unique(roots, return_inverse=True)
+    return slot.astype(np.int64)
+
+
+def optimize_graphslam_unknown(
+    problem: GraphSLAMProblem,
+    config: GraphSLAMConfig | None = None,
+    *,
+    correspondence_probability: float = 0.99,
+    max_rounds: int = 40,
+) -> tuple[GraphSLAMResult, GraphSLAMProblem]:
+    """GraphSLAM with unknown correspondences (Table 11.9): start from the given landmark
+    hypotheses (e.g. one per observation), solve, merge the pairs that pass the correspondence
+    test (Table 11.8) at the chi-square ``correspondence_probability`` gate, and repeat until
+    nothing merges. Needs the joint landmark covariance, so it suits small maps (hundreds of
+    hypotheses).
+
+    Returns the final result and the problem with its merged landmark slots.
+    """
+    cfg = config if config is not None else GraphSLAMConfig()
+    gate = _chi2_gate_2dof(correspondence_probability)
+    res = optimize_graphslam(problem, cfg)
+    for _ in range(max_rounds):
+        sysm = graphslam_linearize(problem, res.nodes, res.landmarks, cfg)
+        Sigma_mm = landmark_joint_covariance(sysm.H, sysm.n_pose_vars)
+        slot = _merge_pass(problem, res.landmarks, Sigma_mm, gate)
+        if slot is None:
+            break
+        from dataclasses import replace
+
+        n_new = int(slot.max()) + 1
+        Lm = np.zeros((n_new, 2))
+        np.add.at(Lm, slot, res.landmarks)
+        Lm /= np.bincount(slot, minlength=n_new)[:, None]
+        problem = replace(
+            problem,
+            obs_landmark=slot[problem.obs_landmark],
+            landmark_ids=np.arange(n_new, dtype=np.int64),
+        )
+        res = optimize_graphslam(problem, cfg, initial=(res.nodes, Lm))
+    return res, problem
+
+
 # ------------------------------------------------------------------------------ the class
 @dataclass
 class _Log:
@@ -1203,6 +1360,7 @@ class GraphSLAM:
         self._log = _Log()
         self._result: GraphSLAMResult | None = None
         self._problem: GraphSLAMProblem | None = None
+        self._unknown = False
         self.last_nis: float = np.nan
         self.last_nis_dof: int = 0
 
@@ -1231,10 +1389,11 @@ class GraphSLAM:
             raise ValueError("update before the first predict: record a step first")
         if not np.all(np.isfinite(z)):
             raise ValueError("measurements must be finite (NaN or inf found)")
-        if np.any(ids < 0):
+        if np.any(ids < -1):
+            raise ValueError("landmark ids must be >= 0, or -1 for unknown")
+        if np.any(ids < 0) and np.any(ids >= 0):
             raise ValueError(
-                "GraphSLAM needs known correspondences (landmark ids >= 0); unknown ids (-1) "
-                "are not supported yet"
+                "mix of known and unknown landmark ids in one log: give all ids or none"
             )
         keep = z[:, 0] > max(self.config.min_range, 1e-9)
         self._log.z[-1] = np.concatenate([self._log.z[-1], z[keep]])
@@ -1253,6 +1412,9 @@ class GraphSLAM:
         z = np.concatenate(log.z) if T else np.zeros((0, 2))
         ids = np.concatenate(log.ids) if T else np.zeros(0, dtype=np.int64)
         obs_node = np.repeat(step_node, n_obs)
+        if ids.size and ids[0] < 0:  # unknown: one landmark hypothesis per observation
+            ids = np.arange(ids.size, dtype=np.int64)
+            self._unknown = True
         landmark_ids, slot = np.unique(ids, return_inverse=True)
         return GraphSLAMProblem(
             motion_model=self.motion_model,
@@ -1273,7 +1435,14 @@ class GraphSLAM:
         """Solve the whole recorded log (:func:`optimize_graphslam`)."""
         if self._result is None:
             self._problem = self.problem()
-            self._result = optimize_graphslam(self._problem, self.config)
+            if self._unknown:
+                self._result, self._problem = optimize_graphslam_unknown(
+                    self._problem,
+                    self.config,
+                    correspondence_probability=self.config.correspondence_probability,
+                )
+            else:
+                self._result = optimize_graphslam(self._problem, self.config)
         return self._result
 
     def smooth(self) -> tuple[FloatArray, FloatArray]:

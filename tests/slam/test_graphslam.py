@@ -452,7 +452,8 @@ def test_bad_inputs_one_line_errors():
     cases += [
         (lambda: est2.update([[1.0, np.nan]], [0]), "finite"),
         (lambda: est2.update([[1.0, 0.0]], [0, 1]), "rows"),
-        (lambda: est2.update([[1.0, 0.0]], [-1]), "known correspondences"),
+        (lambda: est2.update([[1.0, 0.0]], [-2]), "ids must be >= 0"),
+        (lambda: est2.update([[1.0, 0.0], [2.0, 0.1]], [3, -1]), "mix of known and unknown"),
     ]
     for call, match in cases:
         with pytest.raises(ValueError, match=match) as info:

@@ -203,6 +203,11 @@ def graphslam_command(
         None, "--data-dir", help="Data directory for registered names (default $PROBMAP_DATA)."
     ),
     robot: int = typer.Option(1, "--robot", help="MRCLAM robot number (1-5)."),
+    unknown: bool = typer.Option(
+        False,
+        "--unknown",
+        help="Ignore given landmark ids: Table 11.9's correspondence test (small maps only).",
+    ),
     robust: str = typer.Option(
         "none", "--robust", help="Robust kernel on the measurements: none, huber or cauchy."
     ),
@@ -229,7 +234,7 @@ def graphslam_command(
         from probmap.slam.graphslam import build_graphslam
 
         check_output_folder(output)
-        ds = open_landmark_dataset(dataset, data_dir, robot, False, end_time)
+        ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
         config = replace(default_graphslam_config(ds), robust=robust, robust_scale=None)
         run_and_report(build_graphslam(ds, config), ds, output, "GraphSLAM", plot, tum=tum)
 

@@ -1246,7 +1246,7 @@ def _merge_pass(
     pairs, d2 = pairs[ok], d2[ok]
     if pairs.size == 0:
         return None
-    nodes = [set() for _ in range(L)]
+    nodes: list[set[int]] = [set() for _ in range(L)]
     for n, j in zip(problem.obs_node, problem.obs_landmark, strict=True):
         nodes[int(j)].add(int(n))
     parent = np.arange(L)
@@ -1412,6 +1412,10 @@ class GraphSLAM:
         z = np.concatenate(log.z) if T else np.zeros((0, 2))
         ids = np.concatenate(log.ids) if T else np.zeros(0, dtype=np.int64)
         obs_node = np.repeat(step_node, n_obs)
+        if ids.size and np.any(ids < 0) and np.any(ids >= 0):
+            raise ValueError(
+                "mix of known and unknown landmark ids in one log: give all ids or none"
+            )
         if ids.size and ids[0] < 0:  # unknown: one landmark hypothesis per observation
             ids = np.arange(ids.size, dtype=np.int64)
             self._unknown = True

@@ -14,11 +14,9 @@ import pytest
 pytest.importorskip("rosbags")
 
 from rosbags.highlevel import AnyReader  # noqa: E402
-from rosbags.rosbag1 import Writer as Writer1  # noqa: E402
-from rosbags.rosbag2 import StoragePlugin  # noqa: E402
-from rosbags.rosbag2 import Writer as Writer2  # noqa: E402
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # noqa: E402
+from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
+from bagwriter import BagBuilder  # noqa: E402
 from probmap.datasets.records import LaserScan  # noqa: E402
 from probmap.datasets.rosbag import (  # noqa: E402
     BagError,
@@ -54,135 +52,6 @@ def se2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def se2_inv(a: np.ndarray) -> np.ndarray:
     c, s = math.cos(a[2]), math.sin(a[2])
     return np.array([-c * a[0] - s * a[1], s * a[0] - c * a[1], -a[2]])
-
-
-class BagBuilder:
-    """Writes ROS 1 or ROS 2 bags with rosbags' own writers and typestores."""
-
-    def __init__(self, path: Path, ros: int, storage: str = "sqlite3") -> None:
-        self.ros = ros
-        if ros == 1:
-            self.store = get_typestore(Stores.ROS1_NOETIC)
-            self.store.register(
-                get_types_from_msg(
-                    "geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage"
-                )
-            )
-            self.writer = Writer1(path)
-        else:
-            self.store = get_typestore(Stores.ROS2_HUMBLE)
-            plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-            self.writer = Writer2(path, version=9, storage_plugin=plugin)
-        self.writer.open()
-        self.conns: dict[str, object] = {}
-        self.t = self.store.types
-
-    def close(self) -> None:
-        self.writer.close()
-
-    def write(self, topic: str, msgtype: str, stamp: float, msg: object) -> None:
-        if topic not in self.conns:
-            self.conns[topic] = self.writer.add_connection(topic, msgtype, typestore=self.store)
-        data = (
-            self.store.serialize_ros1(msg, msgtype)
-            if self.ros == 1
-            else self.store.serialize_cdr(msg, msgtype)
-        )
-        self.writer.write(self.conns[topic], int(round(stamp * 1e9)), data)
-
-    def header(self, stamp: float, frame: str) -> object:
-        sec = int(math.floor(stamp))
-        t = self.t["builtin_interfaces/msg/Time"](sec=sec, nanosec=int(round((stamp - sec) * 1e9)))
-        if self.ros == 1:
-            return self.t["std_msgs/msg/Header"](seq=0, stamp=t, frame_id=frame)
-        return self.t["std_msgs/msg/Header"](stamp=t, frame_id=frame)
-
-    def pose_msg(self, p: np.ndarray) -> tuple[object, object]:
-        q = self.t["geometry_msgs/msg/Quaternion"](
-            x=0.0, y=0.0, z=math.sin(p[2] / 2), w=math.cos(p[2] / 2)
-        )
-        return self.t["geometry_msgs/msg/Point"](x=p[0], y=p[1], z=0.0), q
-
-    def scan(
-        self,
-        topic: str,
-        stamp: float,
-        frame: str,
-        ranges: np.ndarray,
-        amin: float,
-        ainc: float,
-        rmin: float,
-        rmax: float,
-    ) -> None:
-        n = len(ranges)
-        msg = self.t["sensor_msgs/msg/LaserScan"](
-            header=self.header(stamp, frame),
-            angle_min=amin,
-            angle_max=amin + ainc * (n - 1),
-            angle_increment=ainc,
-            time_increment=0.0,
-            scan_time=0.0,
-            range_min=rmin,
-            range_max=rmax,
-            ranges=np.asarray(ranges, dtype=np.float32),
-            intensities=np.zeros(0, dtype=np.float32),
-        )
-        self.write(topic, "sensor_msgs/msg/LaserScan", stamp, msg)
-
-    def multiecho(
-        self, topic: str, stamp: float, frame: str, echoes: list[list[float]], amin: float
-    ) -> None:
-        e = self.t["sensor_msgs/msg/LaserEcho"]
-        msg = self.t["sensor_msgs/msg/MultiEchoLaserScan"](
-            header=self.header(stamp, frame),
-            angle_min=amin,
-            angle_max=amin + 0.01 * (len(echoes) - 1),
-            angle_increment=0.01,
-            time_increment=0.0,
-            scan_time=0.0,
-            range_min=0.1,
-            range_max=30.0,
-            ranges=[e(echoes=np.asarray(x, dtype=np.float32)) for x in echoes],
-            intensities=[],
-        )
-        self.write(topic, "sensor_msgs/msg/MultiEchoLaserScan", stamp, msg)
-
-    def odom(self, topic: str, stamp: float, parent: str, child: str, p: np.ndarray) -> None:
-        t = self.t
-        pos, q = self.pose_msg(p)
-        cov = np.zeros(36)
-        v3 = t["geometry_msgs/msg/Vector3"]
-        msg = t["nav_msgs/msg/Odometry"](
-            header=self.header(stamp, parent),
-            child_frame_id=child,
-            pose=t["geometry_msgs/msg/PoseWithCovariance"](
-                pose=t["geometry_msgs/msg/Pose"](position=pos, orientation=q), covariance=cov
-            ),
-            twist=t["geometry_msgs/msg/TwistWithCovariance"](
-                twist=t["geometry_msgs/msg/Twist"](
-                    linear=v3(x=0.5, y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=0.1)
-                ),
-                covariance=cov,
-            ),
-        )
-        self.write(topic, "nav_msgs/msg/Odometry", stamp, msg)
-
-    def tf(self, topic: str, stamp: float, links: list[tuple[str, str, np.ndarray]]) -> None:
-        t = self.t
-        trs = []
-        for parent, child, p in links:
-            pos, q = self.pose_msg(p)
-            trs.append(
-                t["geometry_msgs/msg/TransformStamped"](
-                    header=self.header(stamp, parent),
-                    child_frame_id=child,
-                    transform=t["geometry_msgs/msg/Transform"](
-                        translation=t["geometry_msgs/msg/Vector3"](x=pos.x, y=pos.y, z=0.0),
-                        rotation=q,
-                    ),
-                )
-            )
-        self.write(topic, "tf2_msgs/msg/TFMessage", stamp, t["tf2_msgs/msg/TFMessage"](trs))
 
 
 @pytest.fixture(scope="module")

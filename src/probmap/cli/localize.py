@@ -106,6 +106,13 @@ def localize_command(
         help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
     ),
     seed: int = typer.Option(0, "--seed", help="Random seed."),
+    allow_lost: bool = typer.Option(
+        False,
+        "--allow-lost",
+        help="Write the trajectory even when the filter loses track (its particles spread "
+        "beyond 3 m, or its estimate leaves the map's free space, for 10 updates); without it "
+        "that is an error and nothing is written.",
+    ),
     start: int = typer.Option(0, "--start", help="First scan to use."),
     stop: int | None = typer.Option(None, "--stop", help="Scan to stop before."),
     skip_bad_lines: bool = typer.Option(
@@ -121,6 +128,8 @@ def localize_command(
     """Track (or globally localize) the robot of a laser log on a map with MCL: writes
     trajectory.csv and trajectory.png (and trajectory.tum with --tum) into OUTPUT."""
     with cli_errors():
+        import warnings
+
         import numpy as np
         from rich.console import Console
         from rich.progress import Progress
@@ -131,6 +140,7 @@ def localize_command(
         from probmap.grid.io import read_map_server
         from probmap.pipelines import check_output_folder
         from probmap.pipelines.localize import (
+            FilterLostWarning,
             LocalizeConfig,
             localize_scans,
             match_times,
@@ -143,7 +153,6 @@ def localize_command(
             raise FileNotFoundError(f"{map_yaml}: no such file")
         log = laser_input(log)
         check_output_folder(output)
-        import warnings
 
         from probmap.errors import BadLinesWarning
 
@@ -179,19 +188,26 @@ def localize_command(
             def tick(done: int, total: int) -> None:
                 bar.update(task, completed=done, total=total)
 
-            run = localize_scans(
-                m.spec,
-                m.probability,
-                batch.times,
-                batch.ranges,
-                angles,
-                odo,
-                batch.max_range,
-                cfg,
-                start=start,
-                stop=stop,
-                always_update=always,
-                progress=tick,
+            with warnings.catch_warnings():  # a lost filter is reported below, in one line
+                warnings.simplefilter("ignore", FilterLostWarning)
+                run = localize_scans(
+                    m.spec,
+                    m.probability,
+                    batch.times,
+                    batch.ranges,
+                    angles,
+                    odo,
+                    batch.max_range,
+                    cfg,
+                    start=start,
+                    stop=stop,
+                    always_update=always,
+                    progress=tick,
+                )
+        if run.lost is not None and not allow_lost:
+            raise CliError(
+                f"{log}: {run.lost.describe()}; nothing written (--allow-lost writes the "
+                "trajectory anyway)"
             )
         errors = None
         if ref_t is not None and ref_p is not None:
@@ -224,6 +240,7 @@ def localize_command(
             *input_rows(batch.readings, batch.skipped_lines),
             ("updates", f"{run.times.size:,}"),
             ("final spread", f"{run.spread[-1]:.3f} m" if run.spread.size else "-"),
+            *([("lost", run.lost.describe())] if run.lost is not None else []),
             ("wrote", ", ".join(str(f) for f in (traj, plot, *extra))),
         ]
         print_summary(f"probmap localize {log.name}", summary_rows, console=console)

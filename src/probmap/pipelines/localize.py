@@ -18,8 +18,10 @@ from numpy.typing import ArrayLike, NDArray
 from probmap.models.grid_map import GridGeometry
 
 __all__ = [
+    "FilterLostWarning",
     "LocalizationRun",
     "LocalizeConfig",
+    "LostReport",
     "localize_scans",
     "match_times",
     "trajectory_errors",
@@ -55,6 +57,13 @@ class LocalizeConfig:
     free_threshold : float
         Cells with occupancy probability below this are free space for random particles.
     seed : int
+    lost_spread : float
+        The filter counts as lost once its particles' spread (metres, ``sqrt(var_x +
+        var_y)``) stays above this, or its estimate stays off the map's free space (outside the
+        grid, on an unknown or occupied cell), for ``lost_updates`` updates in a row after it
+        had converged (spread below ``lost_spread``; a tracking run starts converged).
+    lost_updates : int
+        Consecutive updates beyond those bounds before the filter counts as lost.
     """
 
     n_particles: int = 2000
@@ -73,6 +82,8 @@ class LocalizeConfig:
     beam_step: int = 3
     free_threshold: float = 0.3
     seed: int = 0
+    lost_spread: float = 3.0
+    lost_updates: int = 10
 
     def __post_init__(self) -> None:
         if self.n_particles <= 0:
@@ -103,6 +114,46 @@ class LocalizeConfig:
             raise ValueError(f"max_range must be a finite number > 0 m, got {self.max_range}")
         if not 0 <= self.free_threshold <= 1:
             raise ValueError(f"free_threshold must lie in [0, 1], got {self.free_threshold}")
+        if not (math.isfinite(self.lost_spread) and self.lost_spread > 0):
+            raise ValueError(f"lost_spread must be a finite number > 0 m, got {self.lost_spread}")
+        if self.lost_updates < 1:
+            raise ValueError(f"lost_updates must be >= 1, got {self.lost_updates}")
+
+
+class FilterLostWarning(UserWarning):
+    """The particle filter lost track (:attr:`LocalizationRun.lost` says where and why)."""
+
+
+@dataclass(frozen=True)
+class LostReport:
+    """Where a localization run lost track.
+
+    Attributes
+    ----------
+    scan_index : int
+        The scan of the first update of the run of ``LocalizeConfig.lost_updates`` lost ones.
+    time : float
+        Its timestamp (s).
+    reason : str
+        ``"off the map"`` (the estimate left the map's free space) or ``"spread"`` (the
+        particles spread beyond ``lost_spread``).
+    value : float
+        The spread (m) at that update.
+    """
+
+    scan_index: int
+    time: float
+    reason: str
+    value: float
+
+    def describe(self) -> str:
+        """One line for a warning or an error message."""
+        what = (
+            "its estimate left the map's free space"
+            if self.reason == "off the map"
+            else f"its particles spread to {self.value:.1f} m"
+        )
+        return f"the filter lost track at scan {self.scan_index} (t = {self.time:.2f} s): {what}"
 
 
 @dataclass(frozen=True, eq=False)
@@ -119,12 +170,15 @@ class LocalizationRun:
         Positional spread ``sqrt(var_x + var_y)`` of the particles (m).
     scan_index : (T,) int ndarray
         Index of the scan each row used.
+    lost : LostReport or None
+        Where the filter lost track (see ``LocalizeConfig.lost_spread``), None if it did not.
     """
 
     times: NDArray[np.float64]
     poses: NDArray[np.float64]
     spread: NDArray[np.float64]
     scan_index: NDArray[np.int64]
+    lost: LostReport | None = None
 
 
 def localize_scans(
@@ -171,7 +225,14 @@ def localize_scans(
         a reference pose, so that errors can be measured there).
     progress : callable, optional
         ``progress(done, total)`` in scans.
+
+    Warns
+    -----
+    FilterLostWarning
+        Once, naming the scan, when the filter loses track (``LocalizationRun.lost``).
     """
+    import warnings
+
     from probmap.filters.mcl import FreeSpaceSampler, MCLConfig, MonteCarloLocalization
     from probmap.models.likelihood_field import LikelihoodField
     from probmap.models.sampling import OdometryMotionModel
@@ -230,6 +291,12 @@ def localize_scans(
         idx = np.asarray(always_update, dtype=np.int64)
         forced[idx[(idx >= 0) & (idx < s_count)]] = True
     last = start
+    x0, y0 = (float(v) for v in spec.origin)
+    res = float(spec.resolution)
+    h, w = free_mask.shape
+    converged = not cfg.global_localization
+    streak: list[tuple[int, str, float]] = []  # the current run of lost-looking updates
+    lost: LostReport | None = None
     for k in range(start + 1, stop):
         d = odo[k] - odo[last]
         turn = abs((d[2] + math.pi) % (2 * math.pi) - math.pi)
@@ -240,6 +307,19 @@ def localize_scans(
         last = k
         p = est.best_cluster
         rows.append((t[k], p[0], p[1], p[2], est.spread, k))
+        if lost is None:
+            ix, iy = math.floor((p[0] - x0) / res), math.floor((p[1] - y0) / res)
+            on_map = 0 <= ix < w and 0 <= iy < h and bool(free_mask[iy, ix])
+            wide = not est.spread <= cfg.lost_spread
+            converged = converged or not wide
+            if converged and (wide or not on_map):
+                streak.append((k, "spread" if wide else "off the map", float(est.spread)))
+                if len(streak) >= cfg.lost_updates:
+                    k0, why, val = streak[0]
+                    lost = LostReport(int(k0), float(t[k0]), why, val)
+                    warnings.warn(lost.describe(), FilterLostWarning, stacklevel=2)
+            else:
+                streak.clear()
         if progress is not None and len(rows) % 50 == 0:
             progress(k - start, stop - start)
         if max_updates is not None and len(rows) >= max_updates:
@@ -247,7 +327,7 @@ def localize_scans(
     if progress is not None:
         progress(stop - start, stop - start)
     arr = np.array(rows, dtype=np.float64).reshape(-1, 6)
-    return LocalizationRun(arr[:, 0], arr[:, 1:4], arr[:, 4], arr[:, 5].astype(np.int64))
+    return LocalizationRun(arr[:, 0], arr[:, 1:4], arr[:, 4], arr[:, 5].astype(np.int64), lost=lost)
 
 
 def match_times(

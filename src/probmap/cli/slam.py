@@ -239,6 +239,44 @@ def graphslam_command(
         run_and_report(build_graphslam(ds, config), ds, output, "GraphSLAM", plot, tum=tum)
 
 
+@slam_app.command("fastslam")
+def fastslam_command(
+    dataset: str = typer.Argument(..., help=DATASET_HELP),
+    output: Path = typer.Option(
+        ..., "-o", "--output", help="Output folder (created when missing)."
+    ),
+    data_dir: Path | None = typer.Option(
+        None, "--data-dir", help="Data directory for registered names (default $PROBMAP_DATA)."
+    ),
+    robot: int = typer.Option(1, "--robot", help="MRCLAM robot number (1-5)."),
+    particles: int = typer.Option(100, "--particles", "-n", help="Particles."),
+    version: int = typer.Option(2, "--version", help="FastSLAM 1 or 2 (Tables 13.1, 13.3)."),
+    seed: int = typer.Option(0, "--seed", help="Random seed."),
+    end_time: float | None = typer.Option(
+        None, "--end-time", help="Stop after this many seconds of data."
+    ),
+    plot: bool = typer.Option(True, "--plot/--no-plot", help="Write slam.png."),
+    tum: bool = typer.Option(
+        False,
+        "--tum",
+        help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
+    ),
+) -> None:
+    """FastSLAM 1.0 / 2.0 with known landmark ids (Probabilistic Robotics ch. 13): writes
+    trajectory.csv (weighted mean pose), landmarks.csv (heaviest particle), metrics.json and
+    slam.png (and trajectory.tum with --tum) into OUTPUT, like 'probmap slam ekf'."""
+    with cli_errors():
+        from probmap.pipelines import check_output_folder
+        from probmap.slam.fastslam import FastSLAM, FastSLAMConfig
+
+        cfg = FastSLAMConfig(n_particles=particles, version=version, seed=seed)
+        check_output_folder(output)
+        ds = open_landmark_dataset(dataset, data_dir, robot, False, end_time)
+        slam = FastSLAM(ds.motion_model, ds.measurement_model, ds.initial_pose, cfg)
+        title = f"FastSLAM {version}.0 ({particles} particles)"
+        run_and_report(slam, ds, output, title, plot, tum=tum)
+
+
 def register(app: typer.Typer) -> None:
     """Mount ``probmap slam`` (``probmap datasets`` is in :mod:`probmap.cli.datasets`)."""
     app.add_typer(slam_app, name="slam")

@@ -165,6 +165,11 @@ def test_every_laser_dataset_of_the_registry_has_a_readable_format():
     for name in laser:
         rel = DATASETS[name].relpath
         assert rel is not None and rel.endswith((".bag", ".clf.bz2", ".log.gz"))
+    # the names agree with those of probmap datasets fetch
+    from probmap.datasets.fetch import DATASETS as REMOTE
+
+    for name in laser:
+        assert DATASETS[name].relpath in REMOTE[name].files
 
 
 def test_a_name_that_is_neither_file_nor_dataset_lists_the_close_names(tmp_path, monkeypatch):

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from probmap.cli.common import cli_errors, print_summary
+from probmap.cli.common import cli_errors, laser_input, print_summary
 
 
 def _seconds(t: float) -> str:
@@ -16,7 +16,9 @@ def _seconds(t: float) -> str:
 
 def info_command(
     bag: Path = typer.Argument(
-        ..., help="A ROS 1 .bag file, or a ROS 2 bag folder (.db3 or .mcap storage)."
+        ...,
+        help="A ROS 1 .bag file, or a ROS 2 bag folder (.db3 or .mcap storage), or a dataset "
+        "name (intel-bag).",
     ),
 ) -> None:
     """List a ROS bag's topics, message types, counts, frames and time spans."""
@@ -26,6 +28,7 @@ def info_command(
 
         from probmap.datasets.rosbag import SCAN_TYPES, summarize_bag
 
+        bag = laser_input(bag)
         s = summarize_bag(bag)
         console = Console()
         table = Table(title=f"{bag.name}: ROS {s.ros_version} bag")

@@ -158,6 +158,21 @@ DATASETS: dict[str, DatasetInfo] = {
             "Intel Research Lab, the raw log as a ROS 1 bag (/scan, /odom, /tf)",
         ),
         DatasetInfo(
+            "freiburg-clinic",
+            "carmen",
+            "freiburg-clinic/fr-clinic_robotlaser.clf.bz2",
+            "laser",
+            "Freiburg university hospital: raw ROBOTLASER1 log",
+        ),
+        DatasetInfo(
+            "deutsches-museum-bag",
+            "rosbag",
+            "ros-bags/b0-2014-07-21-12-42-53-short.bag",
+            "laser",
+            "Cartographer's Deutsches Museum backpack, 10 s ROS 1 bag (two multi-echo lasers: "
+            "--scan-topic)",
+        ),
+        DatasetInfo(
             "freiburg-campus-corrected",
             "carmen",
             "freiburg-campus/freiburg-campus-corrected.log.gz",

@@ -567,3 +567,19 @@ def test_unknown_correspondences_merge_to_about_the_true_map():
     assert n_true <= m["landmarks_mapped"] <= 1.5 * n_true
     assert m["ate"]["translation_m"]["rmse"] < 1.2 * me["ate"]["translation_m"]["rmse"]
     assert m["landmarks"]["error_m"]["rmse"] < 0.3
+
+
+def test_cli_compare_with_graphslam():
+    from typer.testing import CliRunner
+
+    from probmap.cli import register
+    from probmap.cli.app import app
+
+    register(app)
+    res = CliRunner().invoke(
+        app, ["slam", "compare", "simulation", "--methods", "ekf,graphslam"], env={"COLUMNS": "200"}
+    )
+    assert res.exit_code == 0, res.output
+    assert "EKF vs GraphSLAM" in res.output and "GraphSLAM" in res.output
+    res = CliRunner().invoke(app, ["slam", "compare", "simulation", "--methods", "ekf,fast"])
+    assert res.exit_code == 1 and "--methods" in res.output and "Traceback" not in res.output

@@ -96,9 +96,13 @@ def compare_command(
         None, "--end-time", help="Stop after this many seconds of data."
     ),
     threads: int = typer.Option(1, "--threads", help="BLAS threads."),
+    methods: str = typer.Option(
+        "ekf,seif", "--methods", help="Comma-separated estimators: ekf, seif, graphslam."
+    ),
 ) -> None:
-    """Run EKF and SEIF on the same data in one process and print one table: time per step,
-    state memory, robot and landmark RMSE, pose ANEES."""
+    """Run EKF and SEIF (or the --methods given, GraphSLAM included) on the same data in one
+    process and print one table: time per step, state memory, robot and landmark RMSE, pose
+    ANEES."""
     limit_threads(threads)
     with cli_errors():
         from rich.console import Console
@@ -107,25 +111,40 @@ def compare_command(
         from probmap.pipelines.landmark_slam import default_ekf_config, evaluate, run_landmark_slam
         from probmap.slam.ekf import EKFSLAM
 
+        chosen = [m.strip().lower() for m in methods.split(",") if m.strip()]
+        known = ("ekf", "seif", "graphslam")
+        if not chosen or any(m not in known for m in chosen):
+            raise ValueError(f"--methods takes a list of {', '.join(known)}, got {methods!r}")
         ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
-        ekf = EKFSLAM(
-            ds.motion_model,
-            ds.measurement_model,
-            ds.initial_pose,
-            ds.initial_covariance,
-            default_ekf_config(ds),
-        )
-        seif = _seif(ds, max_active, context_hops)
         console = Console(stderr=True)
         runs = []
         seif_name = f"SEIF-{max_active or 'unbounded'}" + (
             f"-ctx{context_hops}" if context_hops else ""
         )
-        for name, est in (("EKF", ekf), (seif_name, seif)):
+        estimators: list[tuple[str, Any]] = []
+        for method in dict.fromkeys(chosen):
+            if method == "ekf":
+                est: Any = EKFSLAM(
+                    ds.motion_model,
+                    ds.measurement_model,
+                    ds.initial_pose,
+                    ds.initial_covariance,
+                    default_ekf_config(ds),
+                )
+                estimators.append(("EKF", est))
+            elif method == "seif":
+                estimators.append((seif_name, _seif(ds, max_active, context_hops)))
+            else:
+                from probmap.pipelines.landmark_slam import default_graphslam_config
+                from probmap.slam.graphslam import build_graphslam
+
+                estimators.append(("GraphSLAM", build_graphslam(ds, default_graphslam_config(ds))))
+        for name, est in estimators:
             with console.status(f"running {name} on {len(ds):,} steps"):
                 result = run_landmark_slam(est, ds)
             runs.append((name, evaluate(result, ds, with_dead_reckoning=False), est, result))
-        table = Table(title=f"EKF vs SEIF on {getattr(ds, 'name', dataset)}")
+        names = " vs ".join(name.split("-")[0] for name, _ in estimators)
+        table = Table(title=f"{names} on {getattr(ds, 'name', dataset)}")
 
         def get(m: dict[str, Any], *keys: str) -> str:
             v: Any = m
@@ -137,7 +156,9 @@ def compare_command(
 
         columns: list[tuple[str, tuple[str, ...]]] = [
             ("robot m", ("ate", "translation_m", "rmse")),
+            ("robot al. m", ("ate_aligned", "translation_m", "rmse")),
             ("landmark m", ("landmarks", "error_m", "rmse")),
+            ("landmark al. m", ("landmarks_aligned", "error_m", "rmse")),
             ("GPS m", ("gps", "rmse_m")),
             ("ANEES", ("pose_nees", "mean")),
         ]
@@ -161,7 +182,7 @@ def compare_command(
         )
         peak = max(r.peak_rss_bytes for _, _, _, r in runs)
         Console().print(
-            f"process peak RSS {peak / 2**20:.1f} MiB (both runs). pose ANEES = mean NEES over "
+            f"process peak RSS {peak / 2**20:.1f} MiB (all runs). pose ANEES = mean NEES over "
             "the steps: 3 (the pose's dof) for a consistent filter, larger = overconfident."
         )
 

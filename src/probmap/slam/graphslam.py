@@ -1459,6 +1459,17 @@ class GraphSLAM:
         return r.step_poses.copy(), covs.copy()
 
     # ------------------------------------------------------------------ state access
+    def state_nbytes(self) -> int:
+        """Bytes of the recorded log and, once solved, of the problem's arrays and solution
+        (the batch estimator's state; the information matrix is rebuilt per iteration)."""
+        log = self._log
+        total = sum(a.nbytes for a in log.controls) + 8 * len(log.dts)
+        total += sum(a.nbytes for a in log.z) + sum(a.nbytes for a in log.ids)
+        for obj in (self._problem, self._result):
+            if obj is not None:
+                total += sum(v.nbytes for v in vars(obj).values() if isinstance(v, np.ndarray))
+        return int(total)
+
     @property
     def result(self) -> GraphSLAMResult | None:
         """The last solution (None before :meth:`optimize`)."""

@@ -78,3 +78,69 @@ def test_without_save_partial_ctrl_c_writes_nothing(tmp_path, sim_log, monkeypat
     res = CliRunner().invoke(app, ["slam", "grid", str(log), "-o", str(out), "--no-save-partial"])
     assert res.exit_code != 0
     assert not out.parent.exists()
+
+
+def test_resumed_pipeline_run_equals_the_whole_run(tmp_path, sim_log):
+    """run_graph_slam on the first half with save_session, then on the second half with
+    resume: the same trajectory and map as one run, covering every scan."""
+    from dataclasses import replace
+
+    from probmap.slam.graph_slam import GraphSlam
+
+    batch = load_laser_log(sim_log(tmp_path / "tour.log"))
+    n = len(batch.times)
+    h = n // 2
+
+    def part(lo: int, hi: int):
+        return replace(
+            batch, times=batch.times[lo:hi], ranges=batch.ranges[lo:hi],
+            laser_poses=batch.laser_poses[lo:hi], robot_poses=batch.robot_poses[lo:hi],
+            angles=batch.angles if np.ndim(batch.angles) == 1 else batch.angles[lo:hi],
+            beams=batch.beams[lo:hi],
+        )  # fmt: skip
+
+    whole = run_graph_slam(batch)
+    first = run_graph_slam(part(0, h), save_session=tmp_path / "s.session")
+    assert len(first.times) == h
+    second = run_graph_slam(part(h, n), resume=GraphSlam.load_session(tmp_path / "s.session"))
+    assert len(second.times) == n and second.scans_total == n and not second.interrupted
+    np.testing.assert_array_equal(second.times, whole.times)
+    np.testing.assert_array_equal(second.poses, whole.poses)
+    np.testing.assert_array_equal(second.grid.log_odds, whole.grid.log_odds)
+
+
+def test_save_session_and_resume_on_the_cli(tmp_path, sim_log):
+    """Two halves of a log, the second resuming the first's session: the trajectory file
+    equals the whole log's, row for row."""
+    lines = sim_log(tmp_path / "tour.log").read_text().splitlines()
+    head, scans = lines[:1], lines[1:]
+    h = len(scans) // 2
+    (tmp_path / "a.log").write_text("\n".join(head + scans[:h]) + "\n")
+    (tmp_path / "b.log").write_text("\n".join(head + scans[h:]) + "\n")
+    runner = CliRunner()
+    whole = runner.invoke(
+        app, ["slam", "grid", str(tmp_path / "tour.log"), "-o", str(tmp_path / "w")]
+    )
+    assert whole.exit_code == 0, whole.output
+    session = tmp_path / "s" / "tour.session"
+    first = runner.invoke(
+        app, ["slam", "grid", str(tmp_path / "a.log"), "-o", str(tmp_path / "a"),
+              "--save-session", str(session)],
+    )  # fmt: skip
+    assert first.exit_code == 0, first.output
+    assert session.is_file()
+    second = runner.invoke(
+        app, ["slam", "grid", str(tmp_path / "b.log"), "-o", str(tmp_path / "b"),
+              "--resume", str(session)],
+    )  # fmt: skip
+    assert second.exit_code == 0, second.output
+    assert f"{h:,} scans before this log" in second.output
+    assert (tmp_path / "b.trajectory.csv").read_text() == (
+        tmp_path / "w.trajectory.csv"
+    ).read_text()
+    bad = runner.invoke(
+        app, ["slam", "grid", str(tmp_path / "b.log"), "-o", str(tmp_path / "c"),
+              "--resume", str(tmp_path / "a.log")],
+    )  # fmt: skip
+    assert bad.exit_code == 1 and "not a probmap graph-SLAM session" in bad.output
+    assert not (tmp_path / "c.yaml").exists()

@@ -98,6 +98,18 @@ def grid_command(
         help="graph: on Ctrl-C, finish with the scans so far and write their map and trajectory "
         "(exit 130); a second Ctrl-C aborts without writing.",
     ),
+    save_session: Path | None = typer.Option(
+        None,
+        "--save-session",
+        help="graph: also write the run's state to FILE, to continue it later with --resume "
+        "(a Python pickle: load only sessions you wrote).",
+    ),
+    resume: Path | None = typer.Option(
+        None,
+        "--resume",
+        help="graph: continue the session saved in FILE with this log, in the same odometry "
+        "frame (the rest of a log); the outputs cover the whole session.",
+    ),
 ) -> None:
     """Grid SLAM from a raw log or ROS bag: writes the map (PREFIX.yaml/.pgm/.npz/.png, as
     'probmap map'), PREFIX.trajectory.csv (robot pose at every scan time) and, for the graph
@@ -123,10 +135,13 @@ def grid_command(
             _graph(
                 log, prefix, end_time, bag_options, config, skip_bad_lines=skip_bad_lines,
                 viz=viz, viz_save=viz_save, save_partial=save_partial, tum=tum,
+                save_session=save_session, resume=resume,
             )  # fmt: skip
         else:
             if viz or viz_save is not None:
                 raise ValueError("--viz and --viz-save watch the graph method (--method graph)")
+            if save_session is not None or resume is not None:
+                raise ValueError("--save-session and --resume are for the graph method")
             _rbpf(
                 log, prefix, rbpf_options, end_time, config, skip_bad_lines=skip_bad_lines,
                 bag_options=bag_options,
@@ -157,8 +172,13 @@ def _graph(
     viz_save: Path | None = None,
     save_partial: bool = True,
     tum: bool = False,
+    save_session: Path | None = None,
+    resume: Path | None = None,
 ) -> None:
+    import os
     import resource
+    import shutil
+    import tempfile
     import warnings
 
     from rich.progress import Progress
@@ -169,8 +189,21 @@ def _graph(
     from probmap.pipelines.grid_slam import load_laser_log, run_graph_slam, write_graph_slam
     from probmap.slam.graph_slam import GraphSlamConfig
 
-    cfg = _resolve(GraphSlamConfig, config)
+    session = None
+    if resume is not None:
+        from probmap.slam.graph_slam import GraphSlam
+
+        if config is not None:
+            raise ValueError("--resume continues with the session's own configuration; no --config")
+        session = GraphSlam.load_session(resume)
+        cfg = session.config
+    else:
+        cfg = _resolve(GraphSlamConfig, config)
     prefix = check_output_prefix(output)
+    if save_session is not None:
+        from probmap.pipelines import check_output_folder
+
+        check_output_folder(save_session.parent if str(save_session.parent) else Path("."))
     from probmap.cli.common import note_first_compile
     from probmap.errors import BadLinesWarning
 
@@ -203,28 +236,55 @@ def _graph(
         def tick(done: int, total: int) -> None:
             bar.update(task, completed=done, total=total)
 
+        # the session is saved before the map is built, into a temporary file; it joins the
+        # other outputs (all or none) below
+        part = None
+        if save_session is not None:
+            fd, name = tempfile.mkstemp(suffix=".session")
+            os.close(fd)
+            part = Path(name)
         try:
             with _stop_on_ctrl_c(save_partial) as stop:
-                run = run_graph_slam(batch, cfg, progress=tick, observer=observer, stop=stop)
+                run = run_graph_slam(
+                    batch, None if session is not None else cfg, progress=tick,
+                    observer=observer, stop=stop, resume=session, save_session=part,
+                )  # fmt: skip
         except BaseException:
             if observer is not None:
                 observer.view.close(keep=False)
+            if part is not None:
+                part.unlink(missing_ok=True)
             raise
         if observer is not None:
             observer.view.close()
-    with atomic_outputs():  # every file or none
-        files = write_graph_slam(prefix, run)
-        files.append(write_config(f"{prefix}.config.yaml", cfg))
-        if tum:
-            from probmap.datasets.tum import write_tum
+    try:
+        with atomic_outputs():  # every file or none
+            files = write_graph_slam(prefix, run)
+            files.append(write_config(f"{prefix}.config.yaml", cfg))
+            if save_session is not None and part is not None:
+                from probmap._atomic import atomic_write
 
-            files.append(write_tum(f"{prefix}.tum", run.times, run.poses))
+                with open(part, "rb") as src, atomic_write(save_session, "wb") as dst:
+                    shutil.copyfileobj(src, dst)
+                files.append(save_session)
+            if tum:
+                from probmap.datasets.tum import write_tum
+
+                files.append(write_tum(f"{prefix}.tum", run.times, run.poses))
+    finally:
+        if part is not None:
+            part.unlink(missing_ok=True)
     spec = run.grid.spec
     weights = run.closure_weights
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
     rows = [
         ("scans", f"{len(run.times):,}"),
         *input_rows(batch.readings, batch.skipped_lines),
+        *(
+            [("resumed", f"{resume}: {run.scans_total - len(batch.times):,} scans before this log")]
+            if resume is not None
+            else []
+        ),
         ("nodes", f"{run.nodes:,}"),
         ("submaps", f"{run.submaps:,}"),
         (

@@ -163,6 +163,8 @@ def run_graph_slam(
     progress: Callable[[int, int], None] | None = None,
     observer: Any = None,
     stop: Callable[[], bool] | None = None,
+    resume: Any = None,
+    save_session: str | os.PathLike[str] | None = None,
 ) -> GraphSlamRun:
     """Run :class:`~probmap.slam.graph_slam.GraphSlam` over a scan batch (see
     :func:`load_laser_log`) and build the final map.
@@ -176,6 +178,13 @@ def run_graph_slam(
     (``GraphSlamRun.interrupted``). The CLI's Ctrl-C handler sets it, so that an interrupted
     run still writes what it mapped. Stopping between scans keeps the state consistent, which
     an exception raised inside a scan's update would not.
+
+    ``resume`` continues a saved run (:meth:`GraphSlam.load_session
+    <probmap.slam.graph_slam.GraphSlam.load_session>`) with this batch, in the same odometry
+    frame (the rest of a log, or a log that carries on where the saved one stopped); the
+    result then covers every scan of the session, and the earlier scans' robot poses use this
+    batch's first mounting offset (a robot's laser does not move). ``save_session`` writes the
+    run's state before it is finished, to be resumed later (a pickle: load only your own).
     """
     from probmap._memory import release_freed_memory
     from probmap.geometry.se2 import between, compose, inverse, wrap_angle
@@ -189,7 +198,16 @@ def run_graph_slam(
     mount = between(robot, laser)  # per scan (constant on every log we know)
     angles = np.asarray(batch.angles, dtype=np.float64)
     beams = np.asarray(batch.beams)
-    slam = GraphSlam(cfg, max_range=float(batch.max_range))
+    if resume is not None:
+        if not isinstance(resume, GraphSlam):
+            raise TypeError(f"resume must be a GraphSlam session, got {type(resume).__name__}")
+        if config is not None and config != resume.config:
+            raise ValueError("a resumed session keeps its own configuration; pass config=None")
+        slam = resume
+        cfg = slam.config
+    else:
+        slam = GraphSlam(cfg, max_range=float(batch.max_range))
+    earlier = len(slam.scan_times)  # scans of the session before this batch
     n_total = n = len(times)
     peak = 0
     for i in range(n):
@@ -210,6 +228,11 @@ def run_graph_slam(
             progress(i + 1, n)  # often enough for a steady rate (and ETA) in the bar
     if n < n_total:  # stopped early: the scans it got to
         times, mount = times[:n], mount[:n]
+    if earlier:  # a resumed session: the result covers all of its scans
+        times = np.concatenate([np.asarray(slam.scan_times[:earlier]), times])
+        mount = np.concatenate([np.repeat(mount[:1], earlier, axis=0), mount])
+    if save_session is not None:
+        slam.save_session(save_session)
     slam.finish()
     release_freed_memory()  # the matching phase's freed pages, before the map is laid out
     _, sensor = slam.trajectory()
@@ -234,7 +257,7 @@ def run_graph_slam(
         duration=float(times[-1] - times[0]),
         memory_bytes=peak,
         slam=slam,
-        scans_total=n_total,
+        scans_total=earlier + n_total,
     )
     if observer is not None and hasattr(observer, "finish"):
         observer.finish(run)

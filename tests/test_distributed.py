@@ -402,7 +402,8 @@ def test_cli_helper_writes_map_and_lists_inputs(client, fleet, tmp_path: Path, c
 
     address = client.scheduler.address
     res = run_map_distributed(fleet, tmp_path / "fleet", NO_CLAMP, scheduler=address, chunks=2)
-    names = ["fleet.npz", "fleet.pgm", "fleet.plot.png", "fleet.png", "fleet.yaml"]
+    names = ["fleet.config.yaml", "fleet.npz", "fleet.pgm", "fleet.plot.png", "fleet.png"]
+    names.append("fleet.yaml")
     assert sorted(p.name for p in tmp_path.iterdir()) == names
     from probmap.grid.io import load_npz
 

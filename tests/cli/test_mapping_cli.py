@@ -191,3 +191,34 @@ def test_to_bag_is_refused_with_a_cluster_before_any_work(tmp_path, shared_data)
         assert res.exit_code == 1, res.output
         assert "--to-bag writes the map of one bag" in res.output and "Traceback" not in res.output
     assert list(tmp_path.iterdir()) == []
+
+
+def test_map_config_file_options_over_it_and_the_recorded_configuration(tmp_path):
+    """--config FILE.yaml sets MappingConfig's fields, options given override them, and
+    PREFIX.config.yaml records the configuration the map was built with (it loads back equal);
+    a bad file is one line naming the file and the field, before any work."""
+    from probmap.config import load_config
+    from probmap.grid.io import load_npz
+    from probmap.pipelines import MappingConfig
+
+    log = tmp_path / "a.log"
+    _write_log(log)
+    (tmp_path / "c.yaml").write_text("resolution: 0.2\np_hit: 0.8\n")
+    res = run("map", str(log), "-o", str(tmp_path / "one"), "--config", str(tmp_path / "c.yaml"))
+    assert res.exit_code == 0, res.output
+    assert load_npz(tmp_path / "one.npz").spec.resolution == 0.2
+    recorded = load_config(MappingConfig, tmp_path / "one.config.yaml")
+    assert recorded == MappingConfig(resolution=0.2, p_hit=0.8)
+    res = run("map", str(log), "-o", str(tmp_path / "two"), "--config", str(tmp_path / "c.yaml"),
+              "-r", "0.1")  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert load_config(MappingConfig, tmp_path / "two.config.yaml") == MappingConfig(
+        resolution=0.1, p_hit=0.8
+    )
+    (tmp_path / "bad.yaml").write_text("resolution: fine\n")
+    res = run(
+        "map", str(log), "-o", str(tmp_path / "three"), "--config", str(tmp_path / "bad.yaml")
+    )
+    assert res.exit_code == 1 and "bad.yaml" in res.output and "resolution" in res.output
+    assert len(res.output.strip().splitlines()) == 1
+    assert not list(tmp_path.glob("three*"))

@@ -142,6 +142,7 @@ def inputs(tmp_path_factory) -> dict[str, Path]:
 # ------------------------------------------------------------------------------ the commands
 MAP = (".yaml", ".pgm", ".npz", ".png")
 MAPPED = (*MAP, ".plot.png")  # what write_map writes: the map files and the picture
+MAP_CMD = (*MAPPED, ".config.yaml")  # probmap map also records its configuration
 
 
 @dataclass(frozen=True)
@@ -175,15 +176,15 @@ def _to_bag(i: dict[str, Path], out: str, folder: Path) -> list[str]:
 
 COMMANDS = [
     Command(
-        "map", lambda i, o, f: ["map", str(i["log"]), "-o", o, "-r", "0.1"], MAPPED, default="map"
+        "map", lambda i, o, f: ["map", str(i["log"]), "-o", o, "-r", "0.1"], MAP_CMD, default="map"
     ),
     Command(
         "map --method map",
         lambda i, o, f: ["map", str(i["log"]), "-o", o, "-r", "0.2", "--method", "map"],
-        MAPPED,
+        MAP_CMD,
         default="map",
     ),
-    Command("map --to-bag", _to_bag, MAPPED, default="map", extra=("grid.bag",)),
+    Command("map --to-bag", _to_bag, MAP_CMD, default="map", extra=("grid.bag",)),
     Command(
         "slam grid",
         lambda i, o, f: ["slam", "grid", str(i["log"]), "-o", o],

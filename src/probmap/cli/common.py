@@ -34,6 +34,19 @@ def cli_errors() -> Iterator[None]:
         raise typer.Exit(1) from None
 
 
+def resolve_config(cls: type, path: Any = None, overrides: dict[str, Any] | None = None) -> Any:
+    """The configuration a command runs with: ``cls`` loaded from the YAML file ``path``
+    (:func:`probmap.config.load_config`; the class defaults without one), then the options the
+    user gave (``overrides`` whose value is not None) on top."""
+    import dataclasses
+
+    from probmap.config import load_config
+
+    cfg = load_config(cls, path) if path is not None else cls()
+    given = {k: v for k, v in (overrides or {}).items() if v is not None}
+    return dataclasses.replace(cfg, **given) if given else cfg
+
+
 def kernels_cached(*modules: str) -> bool:
     """Whether numba's on-disk cache holds compiled kernels of every one of ``modules``
     (dotted names of modules whose kernels use ``cache=True``): an index file

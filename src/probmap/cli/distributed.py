@@ -77,7 +77,7 @@ def run_map_distributed(
         if exc.result is not None:
             _inputs_table(exc.result)
         raise CliError(f"{exc} (no map written; --allow-partial writes the others)") from None
-    mapping = write_map(output, result.as_mapping_result())
+    mapping = write_map(output, result.as_mapping_result(), config)
     _inputs_table(result)
     rows = mapping_rows(mapping)
     rows.append(("mode", f"{result.mode} ({result.tasks} tasks on {result.workers} workers)"))

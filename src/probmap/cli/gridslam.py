@@ -19,6 +19,7 @@ from probmap.cli.common import (
     laser_input,
     odom_topic_option,
     print_summary,
+    resolve_config,
     scan_topic_option,
 )
 from probmap.cli.slam import slam_app
@@ -149,17 +150,6 @@ def grid_command(
             )  # fmt: skip
 
 
-def _resolve(cls: type, path: Path | None, overrides: dict | None = None) -> Any:
-    """``cls`` from the YAML file ``path`` (defaults without one), then the options given."""
-    import dataclasses
-
-    from probmap.config import load_config
-
-    cfg = load_config(cls, path) if path is not None else cls()
-    given = {k: v for k, v in (overrides or {}).items() if v is not None}
-    return dataclasses.replace(cfg, **given) if given else cfg
-
-
 def _graph(
     log: Path,
     output: Path,
@@ -198,7 +188,7 @@ def _graph(
         session = GraphSlam.load_session(resume)
         cfg = session.config
     else:
-        cfg = _resolve(GraphSlamConfig, config)
+        cfg = resolve_config(GraphSlamConfig, config)
     prefix = check_output_prefix(output)
     if save_session is not None:
         from probmap.pipelines import check_output_folder
@@ -369,7 +359,7 @@ def _rbpf(
     from probmap.pipelines.grid_slam import slam_log, write_trajectory
     from probmap.slam.gridslam import GridSlamConfig
 
-    cfg = _resolve(GridSlamConfig, config, options)
+    cfg = resolve_config(GridSlamConfig, config, options)
     prefix = check_output_prefix(output)
     with Progress(transient=True) as bar, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -67,7 +67,7 @@ def run_map_method(
             )
 
         result = map_log_map(log, config, tick, map_config=mcfg, bag_options=bag_options)
-    result = write_map(output, result)
+    result = write_map(output, result, config)
     ex = result.extra
     spec = result.grid.spec
     sweeps = int(ex["sweeps"])

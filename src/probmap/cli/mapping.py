@@ -15,6 +15,7 @@ from probmap.cli.common import (
     mapping_rows,
     odom_topic_option,
     print_summary,
+    resolve_config,
     scan_topic_option,
 )
 
@@ -38,24 +39,35 @@ def map_command(
         help="Output prefix: writes PREFIX.{yaml,pgm,npz,png}; an existing folder (or a name "
         "ending in /) writes FOLDER/map.*. Missing folders are created.",
     ),
-    resolution: float = typer.Option(0.05, "--resolution", "-r", help="Cell size in metres."),
+    resolution: float | None = typer.Option(
+        None, "--resolution", "-r", help="Cell size in metres [default: 0.05]."
+    ),
     max_range: float | None = typer.Option(
         None, "--max-range", help="Sensor max range in metres (default: from the log)."
     ),
-    poses: str = typer.Option(
-        "corrected",
+    poses: str | None = typer.Option(
+        None,
         "--poses",
-        help="corrected: the scans' laser poses; odometry: robot odometry + laser offset.",
+        help="corrected: the scans' laser poses; odometry: robot odometry + laser offset "
+        "[default: corrected].",
     ),
-    max_clear: float = typer.Option(
-        10.0,
+    max_clear: float | None = typer.Option(
+        None,
         "--max-clear",
-        help="Free space cleared by a max-range (no-return) reading, metres.",
+        help="Free space cleared by a max-range (no-return) reading, metres [default: 10].",
     ),
-    p_hit: float = typer.Option(
-        0.7, "--p-hit", help="Inverse model: p(occupied) at a beam's endpoint."
+    p_hit: float | None = typer.Option(
+        None, "--p-hit", help="Inverse model: p(occupied) at a beam's endpoint [default: 0.7]."
     ),
-    p_miss: float = typer.Option(0.4, "--p-miss", help="Inverse model: p(occupied) along a beam."),
+    p_miss: float | None = typer.Option(
+        None, "--p-miss", help="Inverse model: p(occupied) along a beam [default: 0.4]."
+    ),
+    config: Path | None = typer.Option(
+        None,
+        "--config",
+        help="A YAML file of MappingConfig fields (as PREFIX.config.yaml records them); the "
+        "options given here override it.",
+    ),
     skip_bad_lines: bool = typer.Option(
         False, "--skip-bad-lines", help="Skip and count malformed log lines."
     ),
@@ -114,14 +126,18 @@ def map_command(
             check_output_folder(to_bag.parent if str(to_bag.parent) else Path("."))
             if to_bag.suffix != ".bag" and to_bag.exists():
                 raise FileExistsError(f"--to-bag {to_bag}: a ROS 2 bag folder exists already")
-        cfg = MappingConfig(
-            resolution=resolution,
-            max_range=max_range,
-            poses=poses,
-            p_hit=p_hit,
-            p_miss=p_miss,
-            max_clear_range=max_clear,
-            skip_bad_lines=skip_bad_lines,
+        cfg = resolve_config(
+            MappingConfig,
+            config,
+            {
+                "resolution": resolution,
+                "max_range": max_range,
+                "poses": poses,
+                "p_hit": p_hit,
+                "p_miss": p_miss,
+                "max_clear_range": max_clear,
+                "skip_bad_lines": True if skip_bad_lines else None,
+            },
         )
         if workers is not None or scheduler is not None or len(logs) > 1 or chunks > 1:
             if method != "log-odds":
@@ -163,7 +179,7 @@ def map_command(
 
             result = map_log(log, cfg, progress=tick, bag_options=bag_options)
         with atomic_outputs() as outputs:  # the map files and the bag: all or none
-            result = write_map(prefix, result)
+            result = write_map(prefix, result, cfg)
             rows = mapping_rows(result)
             if to_bag is not None:
                 from probmap.datasets.rosbag import RosBag, write_map_to_bag

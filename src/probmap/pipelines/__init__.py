@@ -243,10 +243,14 @@ def _without_padding(stats: ScanStats, batch: Any) -> ScanStats:
     return replace(stats, beams=stats.beams - pad, dropped=max(0, stats.dropped - pad))
 
 
-def write_map(prefix: str | os.PathLike[str], result: MappingResult) -> MappingResult:
+def write_map(
+    prefix: str | os.PathLike[str], result: MappingResult, config: Any = None
+) -> MappingResult:
     """Write ``PREFIX.yaml``, ``.pgm``, ``.npz``, ``.png`` and the picture ``PREFIX.plot.png``
-    (axes in metres, a scale bar, the input's name, the trajectory) all-or-nothing (creating a
-    missing folder); returns the result with the files and the write time filled in."""
+    (axes in metres, a scale bar, the input's name, the trajectory), and with ``config`` (the
+    :class:`MappingConfig` the map was built with) ``PREFIX.config.yaml`` (with the probmap
+    version), all-or-nothing (creating a missing folder); returns the result with the files and
+    the write time filled in."""
     from dataclasses import replace
 
     from probmap._atomic import atomic_outputs
@@ -262,6 +266,10 @@ def write_map(prefix: str | os.PathLike[str], result: MappingResult) -> MappingR
                 title=result.source,
             )
         )  # fmt: skip
+        if config is not None:
+            from probmap.config import write_config
+
+            files.append(write_config(f"{prefix}.config.yaml", config))
     return replace(
         result, files=tuple(Path(f) for f in files), write_seconds=time.perf_counter() - t0
     )

@@ -239,7 +239,7 @@ COMMANDS = [
     Command(
         "localize",
         lambda i, o, f: ["localize", str(i["map"]), str(i["log"]), "-o", o, "-n", "200"],
-        ("trajectory.csv", "trajectory.png"),
+        ("trajectory.csv", "trajectory.png", "config.yaml"),
         prefix=False,
     ),
     Command(

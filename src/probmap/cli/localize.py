@@ -85,7 +85,9 @@ def localize_command(
         "--output",
         help="Output folder (created when missing): trajectory.csv and trajectory.png.",
     ),
-    particles: int = typer.Option(2000, "--particles", "-n", help="Number of particles."),
+    particles: int | None = typer.Option(
+        None, "--particles", "-n", help="Number of particles [default: 2000]."
+    ),
     global_: bool = typer.Option(
         False, "--global", help="Global localization: start from particles over free space."
     ),
@@ -105,7 +107,13 @@ def localize_command(
         "--tum",
         help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
     ),
-    seed: int = typer.Option(0, "--seed", help="Random seed."),
+    seed: int | None = typer.Option(None, "--seed", help="Random seed [default: 0]."),
+    config: Path | None = typer.Option(
+        None,
+        "--config",
+        help="A YAML file of LocalizeConfig fields (as OUTPUT/config.yaml records them); the "
+        "options given here override it.",
+    ),
     allow_lost: bool = typer.Option(
         False,
         "--allow-lost",
@@ -126,7 +134,8 @@ def localize_command(
     laser_frame: str | None = laser_frame_option(),
 ) -> None:
     """Track (or globally localize) the robot of a laser log on a map with MCL: writes
-    trajectory.csv and trajectory.png (and trajectory.tum with --tum) into OUTPUT."""
+    trajectory.csv, trajectory.png and config.yaml (the settings used, with the probmap
+    version; and trajectory.tum with --tum) into OUTPUT."""
     with cli_errors():
         import warnings
 
@@ -147,8 +156,16 @@ def localize_command(
             trajectory_errors,
         )
 
-        if particles <= 0:
+        if particles is not None and particles <= 0:
             raise CliError(f"--particles must be positive, got {particles}")
+        from probmap.cli.common import resolve_config
+
+        overrides = {
+            "n_particles": particles,
+            "global_localization": True if global_ else None,
+            "seed": seed,
+        }
+        cfg = resolve_config(LocalizeConfig, config, overrides)
         if not map_yaml.exists():
             raise FileNotFoundError(f"{map_yaml}: no such file")
         log = laser_input(log)
@@ -181,7 +198,6 @@ def localize_command(
                     f"{reference}: no reference time within 20 ms of a scan "
                     "(check --reference-offset)"
                 )
-        cfg = LocalizeConfig(n_particles=particles, global_localization=global_, seed=seed)
         with Progress(transient=True) as bar:
             task = bar.add_task(f"localizing {log.name}", total=None)
 
@@ -234,6 +250,9 @@ def localize_command(
                 from probmap.datasets.tum import write_tum
 
                 extra.append(write_tum(output / "trajectory.tum", run.times, run.poses))
+            from probmap.config import write_config
+
+            extra.append(write_config(output / "config.yaml", cfg))
 
         console = Console()
         summary_rows = [

@@ -1,0 +1,47 @@
+"""``probmap localize --config FILE.yaml``: the settings from a file, options over it, and
+OUTPUT/config.yaml recording what ran."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from probmap.cli import register
+from probmap.cli.app import app
+from probmap.config import load_config
+from probmap.pipelines.localize import LocalizeConfig
+from probmap.sim.localization import simulate_localization_world
+
+register(app)
+
+
+def test_localize_config_file_and_record(tmp_path):
+    spec = importlib.util.spec_from_file_location(
+        "_loc_cli2", Path(__file__).parent / "test_localize_cli.py"
+    )
+    assert spec is not None and spec.loader is not None
+    helpers = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(helpers)
+    world = simulate_localization_world(0)
+    log = helpers._write_log(tmp_path / "sim.log", world, 60)
+    runner = CliRunner()
+    res = runner.invoke(app, ["map", str(log), "-o", str(tmp_path / "map"), "--max-range", "8"])
+    assert res.exit_code == 0, res.output
+    (tmp_path / "loc.yaml").write_text("n_particles: 250\nseed: 4\nbeam_step: 2\n")
+    args = [
+        "localize",
+        str(tmp_path / "map.yaml"),
+        str(log),
+        "--config",
+        str(tmp_path / "loc.yaml"),
+    ]
+    res = runner.invoke(app, [*args, "-o", str(tmp_path / "a")])
+    assert res.exit_code == 0, res.output
+    want = LocalizeConfig(n_particles=250, seed=4, beam_step=2)
+    assert load_config(LocalizeConfig, tmp_path / "a" / "config.yaml") == want
+    res = runner.invoke(app, [*args, "-o", str(tmp_path / "b"), "--particles", "300"])
+    assert res.exit_code == 0, res.output
+    got = load_config(LocalizeConfig, tmp_path / "b" / "config.yaml")
+    assert got == LocalizeConfig(n_particles=300, seed=4, beam_step=2)

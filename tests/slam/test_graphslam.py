@@ -583,3 +583,13 @@ def test_cli_compare_with_graphslam():
     assert "EKF vs GraphSLAM" in res.output and "GraphSLAM" in res.output
     res = CliRunner().invoke(app, ["slam", "compare", "simulation", "--methods", "ekf,fast"])
     assert res.exit_code == 1 and "--methods" in res.output and "Traceback" not in res.output
+
+
+def test_unknown_correspondences_refuse_too_many_hypotheses():
+    from probmap.slam.graphslam import optimize_graphslam_unknown
+
+    sim = simulate_landmarks(10, 20, seed=1, density=0.06, known_correspondences=False)
+    est = _record(build_graphslam(sim), sim)
+    with pytest.raises(ValueError, match="too many") as info:
+        optimize_graphslam_unknown(est.problem(), max_hypotheses=5)
+    assert "\n" not in str(info.value)

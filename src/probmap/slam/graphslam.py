@@ -1278,6 +1278,7 @@ def optimize_graphslam_unknown(
     *,
     correspondence_probability: float = 0.99,
     max_rounds: int = 40,
+    max_hypotheses: int = 4000,
 ) -> tuple[GraphSLAMResult, GraphSLAMProblem]:
     """GraphSLAM with unknown correspondences (Table 11.9): start from the given landmark
     hypotheses (e.g. one per observation), solve, merge the pairs that pass the correspondence
@@ -1285,9 +1286,16 @@ def optimize_graphslam_unknown(
     nothing merges. Needs the joint landmark covariance, so it suits small maps (hundreds of
     hypotheses).
 
-    Returns the final result and the problem with its merged landmark slots.
+    Returns the final result and the problem with its merged landmark slots. More than
+    ``max_hypotheses`` hypotheses raise ``ValueError`` (Victoria Park has 48,000).
     """
     cfg = config if config is not None else GraphSLAMConfig()
+    if problem.n_landmarks > max_hypotheses:
+        raise ValueError(
+            f"{problem.n_landmarks:,} landmark hypotheses are too many for GraphSLAM's unknown-"
+            f"correspondence loop (its joint covariance; at most {max_hypotheses:,}): give "
+            "landmark ids, or use the EKF or SEIF on this log"
+        )
     gate = _chi2_gate_2dof(correspondence_probability)
     res = optimize_graphslam(problem, cfg)
     for _ in range(max_rounds):

@@ -227,13 +227,13 @@ COMMANDS = [
     Command(
         "slam ekf",
         lambda i, o, f: ["slam", "ekf", "simulation", "-o", o],
-        ("trajectory.csv", "landmarks.csv", "metrics.json", "slam.png"),
+        ("trajectory.csv", "landmarks.csv", "metrics.json", "slam.png", "config.yaml"),
         prefix=False,
     ),
     Command(
         "slam seif",
         lambda i, o, f: ["slam", "seif", "simulation", "-o", o],
-        ("trajectory.csv", "landmarks.csv", "metrics.json", "slam.png"),
+        ("trajectory.csv", "landmarks.csv", "metrics.json", "slam.png", "config.yaml"),
         prefix=False,
     ),
     Command(

@@ -45,3 +45,18 @@ def test_bad_dataset_is_one_line_error(tmp_path):
 def test_datasets_list():
     res = runner.invoke(app, ["datasets", "list"])
     assert res.exit_code == 0 and "victoria-park" in res.output and "mrclam7" in res.output
+
+
+def test_metrics_record_version_command_and_configuration(tmp_path):
+    """metrics.json says what ran: the probmap version, the command line and the estimator's
+    configuration (the EKF's EKFConfig, field by field, loadable back)."""
+    from probmap import __version__
+    from probmap.config import load_config
+    from probmap.slam.ekf import EKFConfig
+
+    res = runner.invoke(app, ["slam", "ekf", "simulation", "-o", str(tmp_path), "--no-plot"])
+    assert res.exit_code == 0, res.output
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["probmap_version"] == __version__ and "command" in m
+    assert m["configuration"]["config_class"] == "EKFConfig"
+    assert load_config(EKFConfig, tmp_path / "config.yaml") == EKFConfig()  # exact copy

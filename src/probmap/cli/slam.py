@@ -101,11 +101,33 @@ def metrics_rows(m: dict[str, Any]) -> list[tuple[str, str]]:
     return rows
 
 
+def _provenance(estimator: Any) -> dict[str, Any]:
+    """What metrics.json records of the run itself: the probmap version, the command line and
+    the estimator's configuration (its frozen config dataclass, when it has one; JSON has no
+    infinity, so config.yaml beside it is the exact, loadable copy)."""
+    import dataclasses
+    import sys
+
+    from probmap import __version__
+
+    out: dict[str, Any] = {"probmap_version": __version__, "command": " ".join(sys.argv)}
+    cfg = getattr(estimator, "config", None)
+    if dataclasses.is_dataclass(cfg) and not isinstance(cfg, type):
+        import yaml
+
+        from probmap.config import dump_config
+
+        out["configuration"] = yaml.safe_load(dump_config(cfg))
+    return out
+
+
 def run_and_report(
     estimator: Any, dataset: Any, output: Path, title: str, plot: bool, *, tum: bool = False
 ) -> dict[str, Any]:
     """Run with a progress bar, evaluate, write outputs and a plot (all or none; with ``tum``
     also ``trajectory.tum``), print the metrics table."""
+    import dataclasses
+
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -131,8 +153,14 @@ def run_and_report(
     metrics = evaluate(result, dataset)
     metrics["dataset"] = getattr(dataset, "name", "")
     metrics["estimator"] = title
+    metrics.update(_provenance(estimator))
     with atomic_outputs():  # a missing folder is created; a failed picture leaves no CSV
         files = write_slam_outputs(result, metrics, output)
+        cfg = getattr(estimator, "config", None)
+        if dataclasses.is_dataclass(cfg) and not isinstance(cfg, type):
+            from probmap.config import write_config
+
+            files.append(write_config(output / "config.yaml", cfg))  # exact, loadable
         if tum:
             from probmap.datasets.tum import write_tum
 

@@ -60,3 +60,29 @@ def test_metrics_record_version_command_and_configuration(tmp_path):
     assert m["probmap_version"] == __version__ and "command" in m
     assert m["configuration"]["config_class"] == "EKFConfig"
     assert load_config(EKFConfig, tmp_path / "config.yaml") == EKFConfig()  # exact copy
+
+
+def test_config_file_round_trip_for_landmark_commands(tmp_path):
+    """--config FILE.yaml replaces the dataset's defaults; OUTPUT/config.yaml of one run fed
+    to the next gives the same configuration (ekf, fastslam)."""
+    from probmap.config import load_config
+    from probmap.slam.ekf import EKFConfig
+    from probmap.slam.fastslam import FastSLAMConfig
+
+    (tmp_path / "ekf.yaml").write_text("gate_probability: 0.95\n")
+    res = runner.invoke(app, ["slam", "ekf", "simulation", "-o", str(tmp_path / "a"), "--no-plot",
+                              "--config", str(tmp_path / "ekf.yaml")])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert load_config(EKFConfig, tmp_path / "a" / "config.yaml") == EKFConfig(
+        gate_probability=0.95
+    )
+    (tmp_path / "fs.yaml").write_text("n_particles: 20\nversion: 1\n")
+    res = runner.invoke(app, ["slam", "fastslam", "simulation", "-o", str(tmp_path / "b"),
+                              "--no-plot", "--config", str(tmp_path / "fs.yaml"), "--seed", "3"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    got = load_config(FastSLAMConfig, tmp_path / "b" / "config.yaml")
+    assert got == FastSLAMConfig(n_particles=20, version=1, seed=3)
+    (tmp_path / "bad.yaml").write_text("n_particles: many\n")
+    res = runner.invoke(app, ["slam", "fastslam", "simulation", "-o", str(tmp_path / "c"),
+                              "--config", str(tmp_path / "bad.yaml")])  # fmt: skip
+    assert res.exit_code == 1 and "bad.yaml" in res.output and "n_particles" in res.output

@@ -200,23 +200,31 @@ def ekf_command(
         "--tum",
         help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
     ),
+    config: Path | None = typer.Option(
+        None,
+        "--config",
+        help="A YAML file of the estimator's configuration (as OUTPUT/config.yaml records it) "
+        "instead of the dataset's defaults.",
+    ),
 ) -> None:
     """EKF SLAM (Probabilistic Robotics Table 10.1/10.2): writes trajectory.csv, landmarks.csv,
     metrics.json and slam.png (and trajectory.tum with --tum) into OUTPUT."""
     limit_threads(threads)
     with cli_errors():
+        from probmap.config import load_config
         from probmap.pipelines import check_output_folder
         from probmap.pipelines.landmark_slam import default_ekf_config
-        from probmap.slam.ekf import EKFSLAM
+        from probmap.slam.ekf import EKFSLAM, EKFConfig
 
         check_output_folder(output)
+        file_cfg = None if config is None else load_config(EKFConfig, config)
         ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
         ekf = EKFSLAM(
             ds.motion_model,
             ds.measurement_model,
             ds.initial_pose,
             ds.initial_covariance,
-            default_ekf_config(ds),
+            file_cfg if file_cfg is not None else default_ekf_config(ds),
         )
         run_and_report(ekf, ds, output, "EKF SLAM", plot, tum=tum)
 
@@ -249,6 +257,12 @@ def graphslam_command(
         "--tum",
         help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
     ),
+    config: Path | None = typer.Option(
+        None,
+        "--config",
+        help="A YAML file of GraphSLAMConfig (as OUTPUT/config.yaml records it) instead of the "
+        "dataset's defaults; --robust still applies.",
+    ),
 ) -> None:
     """GraphSLAM over the whole log (Probabilistic Robotics Tables 11.1-11.5, known landmark
     ids): writes trajectory.csv (smoothed), landmarks.csv, metrics.json and slam.png (and
@@ -257,14 +271,17 @@ def graphslam_command(
     with cli_errors():
         from dataclasses import replace
 
+        from probmap.config import load_config
         from probmap.pipelines import check_output_folder
         from probmap.pipelines.landmark_slam import default_graphslam_config
-        from probmap.slam.graphslam import build_graphslam
+        from probmap.slam.graphslam import GraphSLAMConfig, build_graphslam
 
         check_output_folder(output)
+        file_cfg = None if config is None else load_config(GraphSLAMConfig, config)
         ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
-        config = replace(default_graphslam_config(ds), robust=robust, robust_scale=None)
-        run_and_report(build_graphslam(ds, config), ds, output, "GraphSLAM", plot, tum=tum)
+        base = file_cfg if file_cfg is not None else default_graphslam_config(ds)
+        gcfg = replace(base, robust=robust, robust_scale=None)
+        run_and_report(build_graphslam(ds, gcfg), ds, output, "GraphSLAM", plot, tum=tum)
 
 
 @slam_app.command("fastslam")
@@ -277,9 +294,19 @@ def fastslam_command(
         None, "--data-dir", help="Data directory for registered names (default $PROBMAP_DATA)."
     ),
     robot: int = typer.Option(1, "--robot", help="MRCLAM robot number (1-5)."),
-    particles: int = typer.Option(100, "--particles", "-n", help="Particles."),
-    version: int = typer.Option(2, "--version", help="FastSLAM 1 or 2 (Tables 13.1, 13.3)."),
-    seed: int = typer.Option(0, "--seed", help="Random seed."),
+    particles: int | None = typer.Option(
+        None, "--particles", "-n", help="Particles [default: 100]."
+    ),
+    version: int | None = typer.Option(
+        None, "--version", help="FastSLAM 1 or 2 (Tables 13.1, 13.3) [default: 2]."
+    ),
+    seed: int | None = typer.Option(None, "--seed", help="Random seed [default: 0]."),
+    config: Path | None = typer.Option(
+        None,
+        "--config",
+        help="A YAML file of FastSLAMConfig (as OUTPUT/config.yaml records it); the options "
+        "given here override it.",
+    ),
     end_time: float | None = typer.Option(
         None, "--end-time", help="Stop after this many seconds of data."
     ),
@@ -294,14 +321,16 @@ def fastslam_command(
     trajectory.csv (weighted mean pose), landmarks.csv (heaviest particle), metrics.json and
     slam.png (and trajectory.tum with --tum) into OUTPUT, like 'probmap slam ekf'."""
     with cli_errors():
+        from probmap.cli.common import resolve_config
         from probmap.pipelines import check_output_folder
         from probmap.slam.fastslam import FastSLAM, FastSLAMConfig
 
-        cfg = FastSLAMConfig(n_particles=particles, version=version, seed=seed)
+        overrides = {"n_particles": particles, "version": version, "seed": seed}
+        cfg = resolve_config(FastSLAMConfig, config, overrides)
         check_output_folder(output)
         ds = open_landmark_dataset(dataset, data_dir, robot, False, end_time)
         slam = FastSLAM(ds.motion_model, ds.measurement_model, ds.initial_pose, cfg)
-        title = f"FastSLAM {version}.0 ({particles} particles)"
+        title = f"FastSLAM {cfg.version}.0 ({cfg.n_particles} particles)"
         run_and_report(slam, ds, output, title, plot, tum=tum)
 
 

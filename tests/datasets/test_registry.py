@@ -62,9 +62,8 @@ def test_load_real_by_name_and_path(shared_data):
     assert len(log) > 0
 
 
-def test_the_data_dir_falls_back_to_shared_data_beside_the_working_directory(
-    monkeypatch, tmp_path
-):
+def test_the_data_dir_falls_back_to_shared_data(monkeypatch, tmp_path):
+    """Without PROBMAP_DATA: ../shared/data relative to the working directory, if present."""
     monkeypatch.delenv("PROBMAP_DATA", raising=False)
     (tmp_path / "shared" / "data").mkdir(parents=True)
     (tmp_path / "clone").mkdir()

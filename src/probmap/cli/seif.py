@@ -8,7 +8,19 @@ from typing import Any
 import typer
 
 from probmap.cli.common import cli_errors
-from probmap.cli.slam import DATASET_HELP, limit_threads, open_landmark_dataset, slam_app
+from probmap.cli.slam import (
+    DATASET_HELP,
+    data_dir_option,
+    end_time_option,
+    limit_threads,
+    open_landmark_dataset,
+    output_folder_option,
+    plot_option,
+    robot_option,
+    slam_app,
+    threads_option,
+    tum_option,
+)
 
 MAX_ACTIVE_HELP = "Bound on the active landmarks (Table 12.4); 0 = unbounded (no sparsification)."
 CONTEXT_HELP = (
@@ -36,28 +48,18 @@ def _label(max_active: int, context_hops: int) -> str:
 @slam_app.command("seif")
 def seif_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
-    output: Path = typer.Option(
-        ..., "-o", "--output", help="Output folder (created when missing)."
-    ),
+    output: Path = output_folder_option(),
     max_active: int = typer.Option(10, "--max-active", help=MAX_ACTIVE_HELP),
     context_hops: int = typer.Option(0, "--context-hops", help=CONTEXT_HELP),
-    data_dir: Path | None = typer.Option(
-        None, "--data-dir", help="Data directory for registered names (default $PROBMAP_DATA)."
-    ),
-    robot: int = typer.Option(1, "--robot", help="MRCLAM robot number (1-5)."),
+    data_dir: Path | None = data_dir_option(),
+    robot: int = robot_option(),
     unknown: bool = typer.Option(
         False, "--unknown", help="Ignore given landmark ids: maximum-likelihood association."
     ),
-    end_time: float | None = typer.Option(
-        None, "--end-time", help="Stop after this many seconds of data."
-    ),
-    threads: int = typer.Option(1, "--threads", help="BLAS threads."),
-    plot: bool = typer.Option(True, "--plot/--no-plot", help="Write slam.png."),
-    tum: bool = typer.Option(
-        False,
-        "--tum",
-        help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
-    ),
+    end_time: float | None = end_time_option(),
+    threads: int = threads_option(),
+    plot: bool = plot_option(),
+    tum: bool = tum_option(),
 ) -> None:
     """SEIF SLAM (Probabilistic Robotics Tables 12.1-12.5): writes trajectory.csv,
     landmarks.csv, metrics.json and slam.png (and trajectory.tum with --tum) into OUTPUT, like
@@ -85,17 +87,13 @@ def compare_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
     max_active: int = typer.Option(10, "--max-active", help=MAX_ACTIVE_HELP),
     context_hops: int = typer.Option(0, "--context-hops", help=CONTEXT_HELP),
-    data_dir: Path | None = typer.Option(
-        None, "--data-dir", help="Data directory for registered names (default $PROBMAP_DATA)."
-    ),
-    robot: int = typer.Option(1, "--robot", help="MRCLAM robot number (1-5)."),
+    data_dir: Path | None = data_dir_option(),
+    robot: int = robot_option(),
     unknown: bool = typer.Option(
         False, "--unknown", help="Ignore given landmark ids: maximum-likelihood association."
     ),
-    end_time: float | None = typer.Option(
-        None, "--end-time", help="Stop after this many seconds of data."
-    ),
-    threads: int = typer.Option(1, "--threads", help="BLAS threads."),
+    end_time: float | None = end_time_option(),
+    threads: int = threads_option(),
     methods: str = typer.Option(
         "ekf,seif", "--methods", help="Comma-separated estimators: ekf, seif, graphslam."
     ),

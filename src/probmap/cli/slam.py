@@ -25,6 +25,41 @@ DATASET_HELP = (
 )
 
 
+# the options every landmark-SLAM command shares (one definition each)
+def output_folder_option() -> Any:
+    return typer.Option(..., "-o", "--output", help="Output folder (created when missing).")
+
+
+def data_dir_option() -> Any:
+    return typer.Option(
+        None, "--data-dir", help="Data directory for registered names (default $PROBMAP_DATA)."
+    )
+
+
+def robot_option() -> Any:
+    return typer.Option(1, "--robot", help="MRCLAM robot number (1-5).")
+
+
+def end_time_option() -> Any:
+    return typer.Option(None, "--end-time", help="Stop after this many seconds of data.")
+
+
+def threads_option() -> Any:
+    return typer.Option(1, "--threads", help="BLAS threads.")
+
+
+def plot_option() -> Any:
+    return typer.Option(True, "--plot/--no-plot", help="Write slam.png.")
+
+
+def tum_option() -> Any:
+    return typer.Option(
+        False,
+        "--tum",
+        help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
+    )
+
+
 def limit_threads(threads: int) -> None:
     """Cap BLAS threads before numpy loads (small dense updates run faster single-threaded)."""
     if "numpy" not in sys.modules:
@@ -180,26 +215,16 @@ def run_and_report(
 @slam_app.command("ekf")
 def ekf_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
-    output: Path = typer.Option(
-        ..., "-o", "--output", help="Output folder (created when missing)."
-    ),
-    data_dir: Path | None = typer.Option(
-        None, "--data-dir", help="Data directory for registered names (default $PROBMAP_DATA)."
-    ),
-    robot: int = typer.Option(1, "--robot", help="MRCLAM robot number (1-5)."),
+    output: Path = output_folder_option(),
+    data_dir: Path | None = data_dir_option(),
+    robot: int = robot_option(),
     unknown: bool = typer.Option(
         False, "--unknown", help="Ignore given landmark ids: maximum-likelihood association."
     ),
-    end_time: float | None = typer.Option(
-        None, "--end-time", help="Stop after this many seconds of data."
-    ),
-    threads: int = typer.Option(1, "--threads", help="BLAS threads."),
-    plot: bool = typer.Option(True, "--plot/--no-plot", help="Write slam.png."),
-    tum: bool = typer.Option(
-        False,
-        "--tum",
-        help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
-    ),
+    end_time: float | None = end_time_option(),
+    threads: int = threads_option(),
+    plot: bool = plot_option(),
+    tum: bool = tum_option(),
     config: Path | None = typer.Option(
         None,
         "--config",
@@ -232,13 +257,9 @@ def ekf_command(
 @slam_app.command("graphslam")
 def graphslam_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
-    output: Path = typer.Option(
-        ..., "-o", "--output", help="Output folder (created when missing)."
-    ),
-    data_dir: Path | None = typer.Option(
-        None, "--data-dir", help="Data directory for registered names (default $PROBMAP_DATA)."
-    ),
-    robot: int = typer.Option(1, "--robot", help="MRCLAM robot number (1-5)."),
+    output: Path = output_folder_option(),
+    data_dir: Path | None = data_dir_option(),
+    robot: int = robot_option(),
     unknown: bool = typer.Option(
         False,
         "--unknown",
@@ -247,16 +268,10 @@ def graphslam_command(
     robust: str = typer.Option(
         "none", "--robust", help="Robust kernel on the measurements: none, huber or cauchy."
     ),
-    end_time: float | None = typer.Option(
-        None, "--end-time", help="Stop after this many seconds of data."
-    ),
-    threads: int = typer.Option(1, "--threads", help="BLAS threads."),
-    plot: bool = typer.Option(True, "--plot/--no-plot", help="Write slam.png."),
-    tum: bool = typer.Option(
-        False,
-        "--tum",
-        help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
-    ),
+    end_time: float | None = end_time_option(),
+    threads: int = threads_option(),
+    plot: bool = plot_option(),
+    tum: bool = tum_option(),
     config: Path | None = typer.Option(
         None,
         "--config",
@@ -287,13 +302,9 @@ def graphslam_command(
 @slam_app.command("fastslam")
 def fastslam_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
-    output: Path = typer.Option(
-        ..., "-o", "--output", help="Output folder (created when missing)."
-    ),
-    data_dir: Path | None = typer.Option(
-        None, "--data-dir", help="Data directory for registered names (default $PROBMAP_DATA)."
-    ),
-    robot: int = typer.Option(1, "--robot", help="MRCLAM robot number (1-5)."),
+    output: Path = output_folder_option(),
+    data_dir: Path | None = data_dir_option(),
+    robot: int = robot_option(),
     particles: int | None = typer.Option(
         None, "--particles", "-n", help="Particles [default: 100]."
     ),
@@ -307,15 +318,9 @@ def fastslam_command(
         help="A YAML file of FastSLAMConfig (as OUTPUT/config.yaml records it); the options "
         "given here override it.",
     ),
-    end_time: float | None = typer.Option(
-        None, "--end-time", help="Stop after this many seconds of data."
-    ),
-    plot: bool = typer.Option(True, "--plot/--no-plot", help="Write slam.png."),
-    tum: bool = typer.Option(
-        False,
-        "--tum",
-        help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
-    ),
+    end_time: float | None = end_time_option(),
+    plot: bool = plot_option(),
+    tum: bool = tum_option(),
 ) -> None:
     """FastSLAM 1.0 / 2.0 with known landmark ids (Probabilistic Robotics ch. 13): writes
     trajectory.csv (weighted mean pose), landmarks.csv (heaviest particle), metrics.json and

@@ -662,3 +662,41 @@ def test_bags_on_the_cluster_map_like_map_log(client, tmp_path: Path) -> None:
         map_logs_distributed([bag, log], cfg, client=client, bag_options=opts)
     with pytest.raises(ValueError, match="tour.bag: a ROS bag is read by one task"):
         map_logs_distributed([bag], cfg, client=client, options=DistributedOptions(chunks=2))
+
+
+def test_every_single_log_option_of_map_works_on_the_cluster(client, tmp_path, sim_log):
+    """--method map and --to-bag with --scheduler (or --workers): the same map as without a
+    cluster; with several logs or --chunks they are one-line errors before any work."""
+    pytest.importorskip("rosbags")
+    from typer.testing import CliRunner
+
+    from bagwriter import write_batch_bag
+    from probmap.cli import register
+    from probmap.cli.app import app
+    from probmap.datasets import open_scans
+    from probmap.grid.io import load_npz
+
+    register(app)
+    runner = CliRunner()
+    log = sim_log(tmp_path / "tour.log")
+    bag = write_batch_bag(open_scans(log), tmp_path / "tour.bag", ros=1)
+    address = ["--scheduler", client.scheduler.address]
+    res = runner.invoke(app, ["map", str(log), "-o", str(tmp_path / "m1"), "-r", "0.2",
+                              "--method", "map", *address])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["map", str(log), "-o", str(tmp_path / "m0"), "-r", "0.2",
+                              "--method", "map"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    a, b = load_npz(tmp_path / "m1.npz"), load_npz(tmp_path / "m0.npz")
+    np.testing.assert_array_equal(a.log_odds, b.log_odds)
+    res = runner.invoke(app, ["map", str(bag), "-o", str(tmp_path / "b1"), "-r", "0.2",
+                              "--to-bag", str(tmp_path / "out" / "map.bag"), *address])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "out" / "map.bag").is_file() and (tmp_path / "b1.yaml").is_file()
+    for source, extra, words in (
+        (log, ["--method", "map", str(log)], "--method map maps one log"),
+        (bag, ["--to-bag", str(tmp_path / "x.bag"), "--chunks", "2"], "--to-bag writes the map"),
+    ):
+        res = runner.invoke(app, ["map", str(source), "-o", str(tmp_path / "no"), *extra, *address])
+        assert res.exit_code == 1 and words in res.output and "Traceback" not in res.output
+    assert not list(tmp_path.glob("no*"))

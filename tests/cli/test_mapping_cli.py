@@ -185,7 +185,7 @@ def test_to_bag_is_refused_with_a_cluster_before_any_work(tmp_path, shared_data)
     """``--to-bag`` writes one bag's map; with --workers (or several logs, or --chunks) it is a
     one-line error up front, not an option silently ignored."""
     bag = shared_data("intel-research-lab/intel.orig.bag")
-    for extra in (["--workers", "1"], ["--chunks", "2"], [str(bag)]):
+    for extra in (["--chunks", "2"], [str(bag)]):
         res = run("map", str(bag), *extra, "-o", str(tmp_path / "out"), "--to-bag",
                   str(tmp_path / "m.bag"))  # fmt: skip
         assert res.exit_code == 1, res.output

@@ -140,13 +140,26 @@ def map_command(
             },
         )
         if workers is not None or scheduler is not None or len(logs) > 1 or chunks > 1:
-            if method != "log-odds":
-                raise ValueError("--method map runs on one log, not on a Dask cluster")
-            if to_bag is not None:
+            several = len(logs) > 1 or chunks > 1
+            if method not in ("log-odds", "map"):
+                raise ValueError(f"--method must be 'log-odds' or 'map', got {method!r}")
+            if method == "map" and several:
                 raise ValueError(
-                    "--to-bag writes the map of one bag; not with --workers, --scheduler, "
-                    "--chunks or several logs"
+                    "--method map maps one log as a whole (its sweeps depend on each other): "
+                    "not with several logs or --chunks"
                 )
+            if to_bag is not None and several:
+                raise ValueError(
+                    "--to-bag writes the map of one bag; not with --chunks or several logs"
+                )
+            if method == "map":
+                from probmap.cli.distributed import run_map_method_distributed
+
+                run_map_method_distributed(
+                    log, prefix, cfg, workers=workers, scheduler=scheduler,
+                    bag_options=bag_options, to_bag=to_bag,
+                )  # fmt: skip
+                return
             from probmap.cli.distributed import run_map_distributed
 
             run_map_distributed(
@@ -158,6 +171,7 @@ def map_command(
                 chunks=chunks,
                 allow_partial=allow_partial,
                 bag_options=bag_options,
+                to_bag=to_bag,
             )
             return
         if method not in ("log-odds", "map"):

@@ -22,7 +22,8 @@ from __future__ import annotations
 import functools
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -54,6 +55,7 @@ __all__ = [
     "integrate_semantic_increments",
     "local_cluster",
     "map_labelled_distributed",
+    "map_log_map_distributed",
     "map_logs_distributed",
     "tree_sum",
 ]
@@ -425,7 +427,7 @@ def map_logs_distributed(
     from probmap.errors import MissingExtraError
 
     try:
-        from distributed import Client
+        import distributed  # noqa: F401
     except ImportError as exc:  # pragma: no cover - dask is in the test extra
         raise MissingExtraError(
             "distributed mapping needs Dask: pip install 'probmap[distributed]'"
@@ -452,25 +454,77 @@ def map_logs_distributed(
     if workers is not None and workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     mode = _resolve_mode(len(files), opts)
-    cluster = None
-    own_client = client is None
     t0 = time.perf_counter()
-    if client is None:
-        if scheduler is not None:
-            client = Client(scheduler)
-        else:
-            cluster = local_cluster(workers or os.cpu_count() or 1)
-            client = Client(cluster)
+    with _connected(client, workers, scheduler) as cl:
+        n_workers = len(cl.scheduler_info()["workers"])
+        return _run(cl, files, cfg, opts, mode, progress, allow_partial, n_workers, t0, bag_options)
+
+
+@contextmanager
+def _connected(client: Any, workers: int | None, scheduler: str | None) -> Iterator[Any]:
+    """``client``, or a client of the scheduler at ``scheduler``, or of a new local cluster of
+    ``workers`` processes (closed again on exit; a given client is left open)."""
+    from distributed import Client
+
+    if client is not None:
+        yield client
+        return
+    if scheduler is not None:
+        with Client(scheduler) as cl:
+            yield cl
+        return
+    with local_cluster(workers or os.cpu_count() or 1) as cluster, Client(cluster) as cl:
+        yield cl
+
+
+@_task
+def _map_log_map_task(
+    path: str, config: MappingConfig, map_config: Any, bag_options: dict[str, Any] | None
+) -> MappingResult:
+    from probmap.pipelines import map_log_map
+
+    return map_log_map(path, config, map_config=map_config, bag_options=bag_options)
+
+
+def map_log_map_distributed(
+    path: str | os.PathLike[str],
+    config: MappingConfig | None = None,
+    *,
+    map_config: Any = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    client: Any = None,
+    bag_options: dict[str, Any] | None = None,
+    retries: int = 2,
+) -> MappingResult:
+    """MAP mapping (:func:`probmap.pipelines.map_log_map`) of one log as one task on a Dask
+    cluster: the sweeps of the MAP search depend on each other, so the log is not split, but
+    the work runs where the cluster is (a bigger machine, ``--scheduler``). A bad input's error
+    is raised once, as :class:`DistributedMappingError` naming the file.
+    """
+    from probmap.datasets.rosbag import is_bag
+    from probmap.errors import MissingExtraError
+
     try:
-        n_workers = len(client.scheduler_info()["workers"])
-        return _run(
-            client, files, cfg, opts, mode, progress, allow_partial, n_workers, t0, bag_options
+        import distributed  # noqa: F401
+    except ImportError as exc:  # pragma: no cover - dask is in the test extra
+        raise MissingExtraError(
+            "distributed mapping needs Dask: pip install 'probmap[distributed]'"
+        ) from exc
+    f = Path(path)
+    if not (f.is_file() or is_bag(f)):
+        raise FileNotFoundError(f"{f}: no such log file")
+    cfg = config or MappingConfig()
+    with _connected(client, workers, scheduler) as cl:
+        fut = cl.submit(
+            _map_log_map_task, str(f), cfg, map_config, bag_options, retries=retries, pure=False
         )
-    finally:
-        if own_client:
-            client.close()
-        if cluster is not None:
-            cluster.close()
+        _wait(cl, [fut], False)
+        msg = _failed(fut)
+        if msg is not None:
+            raise DistributedMappingError(f"could not map {_named(f, msg)}", None)
+        result: MappingResult = fut.result()
+    return result
 
 
 def _run(

@@ -149,3 +149,23 @@ def test_bad_inputs_are_one_line_errors():
                        ({"resample_threshold": 1.5}, "resample_threshold")):  # fmt: skip
         with pytest.raises(ValueError, match=match):
             FastSLAMConfig(**bad)
+
+
+def test_compare_runs_fastslam_beside_the_ekf(monkeypatch):
+    """probmap slam compare --methods ekf,fastslam: one table with both rows."""
+    from dataclasses import replace
+
+    from typer.testing import CliRunner
+
+    from probmap.cli import register
+    from probmap.cli.app import app
+    from probmap.datasets import registry
+
+    register(app)
+    small = replace(registry.DATASETS["simulation"], options={"n_landmarks": 20, "n_steps": 150})
+    monkeypatch.setitem(registry.DATASETS, "simulation", small)
+    res = CliRunner().invoke(
+        app, ["slam", "compare", "simulation", "--methods", "ekf,fastslam"], env={"COLUMNS": "200"}
+    )
+    assert res.exit_code == 0, res.output
+    assert "EKF" in res.output and "FastSLAM" in res.output

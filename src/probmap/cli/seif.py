@@ -95,7 +95,7 @@ def compare_command(
     end_time: float | None = end_time_option(),
     threads: int = threads_option(),
     methods: str = typer.Option(
-        "ekf,seif", "--methods", help="Comma-separated estimators: ekf, seif, graphslam."
+        "ekf,seif", "--methods", help="Comma-separated estimators: ekf, seif, graphslam, fastslam."
     ),
 ) -> None:
     """Run EKF and SEIF (or the --methods given, GraphSLAM included) on the same data in one
@@ -110,7 +110,7 @@ def compare_command(
         from probmap.slam.ekf import EKFSLAM
 
         chosen = [m.strip().lower() for m in methods.split(",") if m.strip()]
-        known = ("ekf", "seif", "graphslam")
+        known = ("ekf", "seif", "graphslam", "fastslam")
         if not chosen or any(m not in known for m in chosen):
             raise ValueError(f"--methods takes a list of {', '.join(known)}, got {methods!r}")
         ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
@@ -132,6 +132,11 @@ def compare_command(
                 estimators.append(("EKF", est))
             elif method == "seif":
                 estimators.append((seif_name, _seif(ds, max_active, context_hops)))
+            elif method == "fastslam":
+                from probmap.slam.fastslam import FastSLAM
+
+                fs = FastSLAM(ds.motion_model, ds.measurement_model, ds.initial_pose)
+                estimators.append(("FastSLAM-2.0", fs))
             else:
                 from probmap.pipelines.landmark_slam import default_graphslam_config
                 from probmap.slam.graphslam import build_graphslam

@@ -306,6 +306,12 @@ class FastSLAM:
                 logw[old] = _gauss_logpdf(innov, Q)
         return logw
 
+    def state_nbytes(self) -> int:
+        """Bytes of the filter's state: particle poses and weights, every particle's landmark
+        means, covariances and seen flags (``O(M L)``)."""
+        arrays = (self.particles, self.log_weights, self._mean, self._cov, self._seen)
+        return int(sum(a.nbytes for a in arrays))
+
     # ------------------------------------------------------------------ estimates
     def _weights(self) -> FloatArray:
         w = np.exp(self.log_weights - self.log_weights.max())

@@ -86,6 +86,16 @@ def note_first_compile(*modules: str) -> None:
     )
 
 
+def skip_bad_lines_option() -> Any:
+    """``--skip-bad-lines``: the same option, with the same meaning, on every command that
+    reads a laser log."""
+    return typer.Option(
+        False,
+        "--skip-bad-lines",
+        help="Skip and count malformed or physically implausible log lines instead of failing.",
+    )
+
+
 def scan_topic_option() -> Any:
     """``--scan-topic``: the same option on every command that reads a laser log."""
     return typer.Option(

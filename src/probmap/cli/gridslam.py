@@ -21,6 +21,7 @@ from probmap.cli.common import (
     print_summary,
     resolve_config,
     scan_topic_option,
+    skip_bad_lines_option,
 )
 from probmap.cli.slam import slam_app
 
@@ -75,11 +76,7 @@ def grid_command(
         "--guard/--no-guard",
         help="rbpf: keep the odometry along featureless corridors [default: guard].",
     ),
-    skip_bad_lines: bool = typer.Option(
-        False,
-        "--skip-bad-lines",
-        help="Skip and count malformed or physically implausible log lines instead of failing.",
-    ),
+    skip_bad_lines: bool = skip_bad_lines_option(),
     viz: bool = typer.Option(
         False, "--viz", help="graph: watch the run in the rerun viewer (extra 'viz')."
     ),
@@ -421,11 +418,7 @@ def match_command(
     angular_window: float = typer.Option(
         0.2, "--angular-window", help="Search half-width in heading (rad)."
     ),
-    skip_bad_lines: bool = typer.Option(
-        False,
-        "--skip-bad-lines",
-        help="Skip and count malformed or physically implausible log lines instead of failing.",
-    ),
+    skip_bad_lines: bool = skip_bad_lines_option(),
     scan_topic: str | None = scan_topic_option(),
     odom_topic: str | None = odom_topic_option(),
     fixed_frame: str | None = fixed_frame_option(),

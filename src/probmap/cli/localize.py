@@ -19,6 +19,7 @@ from probmap.cli.common import (
     odom_topic_option,
     print_summary,
     scan_topic_option,
+    skip_bad_lines_option,
 )
 
 
@@ -123,11 +124,7 @@ def localize_command(
     ),
     start: int = typer.Option(0, "--start", help="First scan to use."),
     stop: int | None = typer.Option(None, "--stop", help="Scan to stop before."),
-    skip_bad_lines: bool = typer.Option(
-        False,
-        "--skip-bad-lines",
-        help="Skip and count malformed or physically implausible log lines instead of failing.",
-    ),
+    skip_bad_lines: bool = skip_bad_lines_option(),
     scan_topic: str | None = scan_topic_option(),
     odom_topic: str | None = odom_topic_option(),
     fixed_frame: str | None = fixed_frame_option(),

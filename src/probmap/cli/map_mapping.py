@@ -21,6 +21,7 @@ from probmap.cli.common import (
     odom_topic_option,
     print_summary,
     scan_topic_option,
+    skip_bad_lines_option,
 )
 
 
@@ -121,11 +122,7 @@ def fit_sensor_model_command(
     poses: str = typer.Option(
         "corrected", "--poses", help="corrected: the scans' laser poses; odometry: odometry."
     ),
-    skip_bad_lines: bool = typer.Option(
-        False,
-        "--skip-bad-lines",
-        help="Skip and count malformed or physically implausible log lines instead of failing.",
-    ),
+    skip_bad_lines: bool = skip_bad_lines_option(),
     scan_topic: str | None = scan_topic_option(),
     odom_topic: str | None = odom_topic_option(),
     fixed_frame: str | None = fixed_frame_option(),

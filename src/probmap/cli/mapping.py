@@ -17,6 +17,7 @@ from probmap.cli.common import (
     print_summary,
     resolve_config,
     scan_topic_option,
+    skip_bad_lines_option,
 )
 
 
@@ -68,9 +69,7 @@ def map_command(
         help="A YAML file of MappingConfig fields (as PREFIX.config.yaml records them); the "
         "options given here override it.",
     ),
-    skip_bad_lines: bool = typer.Option(
-        False, "--skip-bad-lines", help="Skip and count malformed log lines."
-    ),
+    skip_bad_lines: bool = skip_bad_lines_option(),
     method: str = typer.Option(
         "log-odds",
         "--method",

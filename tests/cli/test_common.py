@@ -63,3 +63,39 @@ def test_first_compile_notice_only_while_the_cache_is_empty(tmp_path, monkeypatc
     assert not kernels_cached("fake_kernels_mod")
     (elsewhere / "sub" / "fake_kernels_mod.kernel-12.py311.nbi").write_bytes(b"")
     assert kernels_cached("fake_kernels_mod")
+
+
+def test_progress_bar_eta_follows_the_recent_rate_not_the_average():
+    """The ETA divides the work left by the rate over the last ETA_WINDOW_S seconds: after a
+    slow start (10 steps in 100 s) and a fast stretch (90 steps in 9 s), 100 steps left take
+    about 10 s, where the rate since the start (100 steps in 109 s) would say about 109 s."""
+    from probmap.cli.common import ETA_WINDOW_S, progress_bar
+
+    console = Console(file=open(__import__("os").devnull, "w"), width=100)  # noqa: SIM115
+    clock = [0.0]
+    with progress_bar("test", unit="scans", console=console) as bar:
+        bar.get_time = lambda: clock[0]
+        task = bar.add_task("t", total=200)
+        clock[0] = 100.0
+        bar.update(task, completed=10)
+        for k in range(1, 10):  # 10 steps a second
+            clock[0] = 100.0 + k
+            bar.update(task, completed=10 + 10 * k)
+        state = bar.tasks[0]
+        assert ETA_WINDOW_S < 100.0  # the slow start has left the window
+        assert state.time_remaining is not None and 8.0 < state.time_remaining < 13.0
+
+
+def test_stopwatch_row_covers_the_phases():
+    import time
+
+    from probmap.cli.common import Stopwatch
+
+    watch = Stopwatch()
+    with watch("read"):
+        time.sleep(0.01)
+    with watch("write"):
+        time.sleep(0.01)
+    name, value = watch.row()
+    assert name == "time" and "read 0.0 s" in value and "write 0.0 s" in value
+    assert watch.total >= sum(watch.phases.values()) > 0.015

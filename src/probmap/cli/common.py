@@ -229,3 +229,99 @@ def mapping_rows(result: Any) -> list[tuple[str, str]]:
     for f in result.files:
         rows.append(("wrote", str(f)))
     return rows
+
+
+# Seconds of recent progress the ETA is computed over: long enough that a slow patch (a loop
+# closure, a map write) does not make it jump, short enough to follow a real change of pace.
+ETA_WINDOW_S = 60.0
+
+
+def progress_bar(
+    description: str = "", *, unit: str = "steps", console: Console | None = None
+) -> Any:
+    """The progress bar every command shows (on stderr, removed when done).
+
+    Columns: the description, the bar, ``done/total UNIT``, the elapsed time and the time left.
+    The time left divides the work still to do by the rate over the last :data:`ETA_WINDOW_S`
+    seconds (rich's ``speed_estimate_period``), not by the rate since the start, so it settles
+    within a few seconds and then moves smoothly. Use as a context manager::
+
+        with progress_bar("mapping", unit="scans") as bar:
+            task = bar.add_task("mapping", total=n)
+            ...
+            bar.update(task, completed=i)
+
+    Parameters
+    ----------
+    description : str
+        Shown left of the bar (a task's own description is used when this is empty).
+    unit : str
+        What the counts count (``scans``, ``steps``, ``runs``).
+    console : rich.console.Console, optional
+        Default: a new console on stderr, so stdout keeps only the summary.
+    """
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    return Progress(
+        TextColumn(description or "{task.description}"),
+        BarColumn(),
+        TextColumn(f"{{task.completed:,.0f}}/{{task.total:,.0f}} {unit}"),
+        TimeElapsedColumn(),
+        TextColumn("eta"),
+        TimeRemainingColumn(),
+        console=console or Console(stderr=True),
+        transient=True,
+        speed_estimate_period=ETA_WINDOW_S,
+    )
+
+
+class Stopwatch:
+    """Wall time of a command split into phases (read, compute, write), for its summary.
+
+    >>> import time
+    >>> watch = Stopwatch()
+    >>> with watch("read"):
+    ...     pass
+    >>> with watch("compute"):
+    ...     pass
+    >>> sorted(watch.phases)
+    ['compute', 'read']
+    >>> watch.row()[0]
+    'time'
+    """
+
+    def __init__(self) -> None:
+        import time
+
+        self._start = time.perf_counter()
+        self.phases: dict[str, float] = {}
+
+    @contextmanager
+    def __call__(self, phase: str) -> Iterator[None]:
+        import time
+
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.phases[phase] = self.phases.get(phase, 0.0) + time.perf_counter() - t0
+
+    @property
+    def total(self) -> float:
+        """Seconds since the stopwatch was made (the whole command so far)."""
+        import time
+
+        return time.perf_counter() - self._start
+
+    def row(self) -> tuple[str, str]:
+        """The summary row: ``("time", "12.3 s (read 1.2 s, compute 10.5 s, write 0.6 s)")``;
+        the total covers the whole command, so it is at least the sum of the phases."""
+        parts = ", ".join(f"{k} {v:.1f} s" for k, v in self.phases.items())
+        return ("time", f"{self.total:.1f} s" + (f" ({parts})" if parts else ""))

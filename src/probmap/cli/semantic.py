@@ -45,66 +45,87 @@ def semantic_command(
         ...,
         "-o",
         "--output",
-        help="Output prefix: PREFIX.{npz,png} and PREFIX.occupancy.{yaml,pgm,npz,png}; an "
+        help="Output prefix: PREFIX.{npz,png}, PREFIX.occupancy.{yaml,pgm,npz,png} and "
+        "PREFIX.config.yaml; an "
         "existing folder (or a name ending in /) writes FOLDER/semantic.*. Missing folders are "
         "created.",
     ),
-    resolution: float = typer.Option(0.05, "--resolution", "-r", help="Cell size in metres."),
-    p_hit: float = typer.Option(0.7, "--p-hit", help="p(not free) at a beam's endpoint."),
-    p_miss: float = typer.Option(0.4, "--p-miss", help="p(not free) along a beam."),
-    p_correct: float = typer.Option(
-        0.9, "--p-correct", help="Probability that a hard label is right (confusion model)."
+    resolution: float | None = typer.Option(
+        None, "--resolution", "-r", help="Cell size in metres [default: 0.05]."
+    ),
+    p_hit: float | None = typer.Option(
+        None, "--p-hit", help="p(not free) at a beam's endpoint [default: 0.7]."
+    ),
+    p_miss: float | None = typer.Option(
+        None, "--p-miss", help="p(not free) along a beam [default: 0.4]."
+    ),
+    p_correct: float | None = typer.Option(
+        None,
+        "--p-correct",
+        help="Probability that a hard label is right (confusion model) [default: 0.9].",
     ),
     max_clear: float | None = typer.Option(
-        None, "--max-clear", help="Free space cleared by max-range readings, metres."
+        None,
+        "--max-clear",
+        help="Free space cleared by max-range readings, metres [default: the max range].",
+    ),
+    config: Path | None = typer.Option(
+        None,
+        "--config",
+        help="A YAML file of SemanticMappingConfig fields (as PREFIX.config.yaml records it); "
+        "the options given here override it.",
     ),
     chunk: int = typer.Option(500, "--chunk", help="Scans per kernel call (progress steps)."),
 ) -> None:
-    """Build a semantic map from labelled scans and write it with its occupancy grid."""
+    """Build a semantic map from labelled scans and write it with its occupancy grid and
+    PREFIX.config.yaml (the settings used, the command line and the probmap version)."""
     with cli_errors():
-        import time
-
-        from rich.progress import Progress
+        import dataclasses
 
         from probmap._atomic import atomic_outputs
-        from probmap.grid.semantic import LabelledInverseModel
+        from probmap.cli._provenance import write_run_config
+        from probmap.cli.common import Stopwatch, progress_bar, resolve_config
+        from probmap.datasets.validate import require_usable, validate_ranges
         from probmap.grid.semantic_io import read_labelled_scans, write_semantic_maps
         from probmap.pipelines import check_output_prefix
+        from probmap.pipelines.semantic import SemanticMappingConfig
 
+        watch = Stopwatch()
         if not scans.exists():
             raise FileNotFoundError(f"{scans}: no such file")
         if chunk < 1:
             raise ValueError(f"--chunk must be >= 1, got {chunk}")
+        overrides = {
+            "resolution": resolution,
+            "p_hit": p_hit,
+            "p_miss": p_miss,
+            "p_correct": p_correct,
+            "max_clear": max_clear,
+        }
+        cfg = resolve_config(SemanticMappingConfig, config, overrides)
         prefix = check_output_prefix(output, "semantic")
-        t0 = time.perf_counter()
-        data = read_labelled_scans(scans)
-        # the one reading rule of every command: zero and invalid readings dropped, +inf no return
-        import dataclasses
+        with watch("read"):
+            data = read_labelled_scans(scans)
+            # the one reading rule of every command: zero and invalid readings dropped, +inf
+            # no return
+            cleaned, readings = validate_ranges(data.ranges, data.max_range)
+            require_usable(readings, scans, data.max_range)
+            if cleaned is not data.ranges:
+                import numpy as np
 
-        from probmap.datasets.validate import require_usable, validate_ranges
-
-        cleaned, readings = validate_ranges(data.ranges, data.max_range)
-        require_usable(readings, scans, data.max_range)
-        if cleaned is not data.ranges:
-            import numpy as np
-
-            data = dataclasses.replace(data, ranges=np.asarray(cleaned, dtype=np.float64))
-        model = LabelledInverseModel(
-            p_hit=p_hit, p_miss=p_miss, p_correct=p_correct, max_clear_range=max_clear
-        )
-        grid = data.make_grid(resolution=resolution, model=model)
-        t1 = time.perf_counter()
-        stats = None
-        with Progress(transient=True) as bar:
-            task = bar.add_task(f"mapping {scans.name}", total=len(data))
-            for start in range(0, len(data), chunk):
-                s = data.integrate_into(grid, start, start + chunk)
-                stats = s if stats is None else stats + s
-                bar.update(task, completed=min(start + chunk, len(data)))
-        t2 = time.perf_counter()
-        with atomic_outputs():  # the six files or none
+                data = dataclasses.replace(data, ranges=np.asarray(cleaned, dtype=np.float64))
+        with watch("compute"):
+            grid = data.make_grid(resolution=cfg.resolution, model=cfg.model())
+            stats = None
+            with progress_bar(f"mapping {scans.name}", unit="scans") as bar:
+                task = bar.add_task(scans.name, total=len(data))
+                for start in range(0, len(data), chunk):
+                    s = data.integrate_into(grid, start, start + chunk)
+                    stats = s if stats is None else stats + s
+                    bar.update(task, completed=min(start + chunk, len(data)))
+        with watch("write"), atomic_outputs():  # the seven files or none
             files = write_semantic_maps(prefix, grid)
-        t3 = time.perf_counter()
+            files.append(write_run_config(f"{prefix}.config.yaml", cfg))
         cls = grid.classify()
         rows = [("scans", f"{len(data):,}")]
         if stats is not None:
@@ -122,12 +143,7 @@ def semantic_command(
         rows.append(("observed cells", f"{int((cls >= 0).sum()):,}"))
         for k, name in enumerate(grid.classes):
             rows.append((f"  {name}", f"{int((cls == k).sum()):,} cells"))
-        rows.append(
-            (
-                "time",
-                f"read {t1 - t0:.2f} s, map {t2 - t1:.2f} s, write {t3 - t2:.2f} s",
-            )
-        )
+        rows.append(watch.row())
         rows += [("wrote", str(f)) for f in files]
         print_summary(f"probmap semantic {scans.name}", rows)
 

@@ -8,8 +8,10 @@ module only runs them in order and returns plain values for the CLI to print.
 
 from __future__ import annotations
 
+import math
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +21,51 @@ from probmap.grid.semantic_io import write_semantic_maps
 from probmap.metrics.map import reliability, semantic_iou, truth_on_grid
 from probmap.sim.semantic import simulate_labelled_world
 
-__all__ = ["run_semantic_demo"]
+__all__ = ["SemanticMappingConfig", "run_semantic_demo"]
+
+
+@dataclass(frozen=True)
+class SemanticMappingConfig:
+    """Settings of semantic mapping from labelled scans (``probmap semantic``); loadable from
+    and dumpable to YAML with :mod:`probmap.config`.
+
+    Attributes
+    ----------
+    resolution : float
+        Cell size of the map, metres (> 0).
+    p_hit : float
+        ``p(m != free | z)`` at a beam's endpoint, in (0, 1)
+        (:class:`~probmap.grid.semantic.LabelledInverseModel`).
+    p_miss : float
+        ``p(m != free | z)`` for the cells a beam crosses, in (0, 1).
+    p_correct : float
+        Probability that a hard label is right, in (0, 1] (the confusion model).
+    max_clear : float or None
+        Free space cleared by a reading at or beyond the maximum range, metres (``None``: the
+        scans' maximum range; 0 ignores such readings).
+    """
+
+    resolution: float = 0.05
+    p_hit: float = 0.7
+    p_miss: float = 0.4
+    p_correct: float = 0.9
+    max_clear: float | None = None
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.resolution) and self.resolution > 0):
+            raise ValueError(f"resolution must be a number > 0, got {self.resolution}")
+        if self.max_clear is not None and not (self.max_clear >= 0):
+            raise ValueError(f"max_clear must be >= 0 or null, got {self.max_clear}")
+        self.model()  # the model's own rules on p_hit, p_miss and p_correct
+
+    def model(self) -> LabelledInverseModel:
+        """The inverse sensor model these settings describe."""
+        return LabelledInverseModel(
+            p_hit=self.p_hit,
+            p_miss=self.p_miss,
+            p_correct=self.p_correct,
+            max_clear_range=self.max_clear,
+        )
 
 
 def run_semantic_demo(out_dir: str | os.PathLike[str], *, seed: int = 0) -> dict[str, Any]:

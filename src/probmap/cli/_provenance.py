@@ -1,0 +1,40 @@
+"""What a command records of its run beside its outputs: the resolved configuration, the
+command line and the probmap version.
+
+:func:`write_run_config` writes ``PREFIX.config.yaml`` as :func:`probmap.config.write_config`
+does (``probmap_version``, ``config_class`` and every field) with the command line on a
+comment line at the top, so that the file still loads back with
+:func:`probmap.config.load_config` and, given to ``--config``, reproduces the run.
+"""
+
+from __future__ import annotations
+
+import os
+import shlex
+import sys
+from pathlib import Path
+from typing import Any
+
+__all__ = ["command_line", "write_run_config"]
+
+
+def command_line(argv: list[str] | None = None) -> str:
+    """The command line of this process on one line, shell-quoted (``probmap semantic ...``);
+    ``argv`` defaults to :data:`sys.argv`, whose first item is shown by its base name."""
+    args = list(sys.argv if argv is None else argv)
+    if args:
+        args[0] = Path(args[0]).name
+    return shlex.join(args).replace("\r", "\\r").replace("\n", "\\n")
+
+
+def write_run_config(path: str | os.PathLike[str], cfg: Any) -> Path:
+    """Write the frozen config dataclass ``cfg`` as YAML to ``path`` atomically (inside the
+    command's :func:`probmap._atomic.atomic_outputs` block, with its other outputs), preceded
+    by a ``# command: ...`` comment line; returns the path."""
+    from probmap._atomic import atomic_write
+    from probmap.config import dump_config
+
+    text = f"# command: {command_line()}\n" + dump_config(cfg)
+    with atomic_write(path, "w", encoding="utf-8") as f:
+        f.write(text)
+    return Path(path)

@@ -4,13 +4,20 @@ Used by ``probmap localize``; the core algorithm is :class:`~probmap.filters.mcl
 The filter updates when the odometry has moved ``update_distance`` or turned ``update_angle``
 since the last update (between updates scans are skipped, as in ROS amcl), using every
 ``beam_step``-th beam with the likelihood field model.
+
+The map is a map_server map or a graph-SLAM session (``probmap slam grid --save-session``):
+:func:`load_localization_map` reads either, and renders a session's occupancy grid at its
+optimized poses.
 """
 
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -19,9 +26,11 @@ from probmap.models.grid_map import GridGeometry
 
 __all__ = [
     "FilterLostWarning",
+    "LocalizationMap",
     "LocalizationRun",
     "LocalizeConfig",
     "LostReport",
+    "load_localization_map",
     "localize_scans",
     "match_times",
     "trajectory_errors",
@@ -181,6 +190,129 @@ class LocalizationRun:
     lost: LostReport | None = None
 
 
+@dataclass(frozen=True, eq=False)
+class LocalizationMap:
+    """The map a log is localized in, read by :func:`load_localization_map`.
+
+    It has what the map pictures and the live view take of an occupancy grid (``spec``,
+    ``log_odds``, ``observed``), so it can be drawn like one.
+
+    Attributes
+    ----------
+    spec : GridSpec
+        Geometry (resolution in m, origin of the lower-left corner in m, shape (H, W)).
+    probability : (H, W) ndarray
+        Occupancy probability per cell, rows from the smallest y, NaN where unknown.
+    source : Path
+        The file it was read from.
+    kind : str
+        ``"map"`` (a map_server YAML map) or ``"session"`` (a graph-SLAM session).
+    times : (S,) ndarray or None
+        A session's scan timestamps (s); None for a map.
+    poses : (S, 3) ndarray or None
+        A session's optimized sensor poses at those scans (m, rad), in the map frame: the
+        run's own trajectory, which a localization in its map can be compared with.
+    """
+
+    spec: Any
+    probability: NDArray[np.float64]
+    source: Path
+    kind: str
+    times: NDArray[np.float64] | None = None
+    poses: NDArray[np.float64] | None = None
+
+    @property
+    def observed(self) -> NDArray[np.bool_]:
+        """(H, W) bool: cells with a known occupancy."""
+        return np.isfinite(self.probability)
+
+    @property
+    def log_odds(self) -> NDArray[np.float64]:
+        """(H, W) log odds ``log(p / (1 - p))`` (0 where unknown; +-inf at p = 1, 0)."""
+        p = np.nan_to_num(self.probability, nan=0.5)
+        with np.errstate(divide="ignore"):
+            return np.log(p) - np.log1p(-p)
+
+    def pose_at(self, time_s: float, max_dt: float = 0.02) -> NDArray[np.float64] | None:
+        """A session's pose (3,) at the scan nearest ``time_s`` when one lies within
+        ``max_dt`` seconds; None otherwise (and always for a map)."""
+        if self.times is None or self.poses is None:
+            return None
+        i, j = match_times(self.times, [time_s], max_dt)
+        return self.poses[i[0]].copy() if j.size else None
+
+
+# a pickle of protocol 2 or newer (every session) starts with the PROTO opcode
+_PICKLE_MAGIC = b"\x80"
+
+
+def load_localization_map(path: str | os.PathLike[str]) -> LocalizationMap:
+    """A map to localize in: a map_server YAML map, or a graph-SLAM session saved by
+    ``probmap slam grid --save-session`` (:meth:`GraphSlam.save_session
+    <probmap.slam.graph_slam.GraphSlam.save_session>`).
+
+    A session's run is finished as ``slam grid`` finishes it (the final optimization), and
+    its occupancy grid is rendered with every scan at its optimized pose
+    (:meth:`GraphSlam.map <probmap.slam.graph_slam.GraphSlam.map>`): the map ``slam grid``
+    wrote beside the session. Its frame is the session's, the sensor odometry frame of its
+    first scan. A session is a Python pickle: load only sessions you wrote.
+
+    Parameters
+    ----------
+    path : path-like
+        ``*.yaml`` / ``*.yml``: a map_server map; anything else: a session.
+
+    Returns
+    -------
+    LocalizationMap
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    ValueError
+        A file that is neither (one line naming the file), a malformed map (a
+        :class:`~probmap.errors.MapFileError` naming the field), or a session of another
+        format version.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"{p}: no such map or session file")
+    if p.suffix.lower() in (".yaml", ".yml"):
+        from probmap.grid.io import read_map_server
+
+        m = read_map_server(p)
+        return LocalizationMap(m.spec, np.asarray(m.probability, dtype=np.float64), p, "map")
+    neither = (
+        f"{p}: neither a map_server YAML map (*.yaml) nor a probmap graph-SLAM session "
+        "(probmap slam grid --save-session)"
+    )
+    with open(p, "rb") as f:
+        if f.read(1) != _PICKLE_MAGIC:
+            raise ValueError(neither)
+    import pickle
+
+    from probmap.slam.graph_slam import GraphSlam
+
+    try:
+        slam = GraphSlam.load_session(p)
+    except ValueError as exc:
+        if "format version" in str(exc):
+            raise
+        raise ValueError(neither) from None
+    except (pickle.PickleError, TypeError, KeyError, UnicodeDecodeError, MemoryError):
+        raise ValueError(neither) from None
+    if slam.nodes == 0:
+        raise ValueError(f"{p}: the session holds no scans")
+    slam.finish()  # the final optimization, as slam grid ran it before writing its map
+    grid = slam.map()
+    prob = np.where(grid.observed, grid.probability(), np.nan)
+    times, poses = slam.trajectory()
+    return LocalizationMap(
+        grid.spec, prob, p, "session", np.asarray(times, dtype=np.float64), poses
+    )
+
+
 def localize_scans(
     spec: GridGeometry,
     probability: ArrayLike,
@@ -196,6 +328,7 @@ def localize_scans(
     max_updates: int | None = None,
     always_update: ArrayLike | None = None,
     progress: Callable[[int, int], None] | None = None,
+    observer: Any = None,
 ) -> LocalizationRun:
     """Run MCL over a scan sequence.
 
@@ -225,6 +358,13 @@ def localize_scans(
         a reference pose, so that errors can be measured there).
     progress : callable, optional
         ``progress(done, total)`` in scans.
+    observer : callable, optional
+        Called after every filter update as ``observer(index, estimate, particles, ranges,
+        angles)``: the scan index, the :class:`~probmap.filters.mcl.PoseEstimate`, the
+        particles (N, 3) after resampling (m, rad; do not modify them), and the beams the update
+        used, ranges (B',) in m and angles (B',) in rad (the live view:
+        :class:`probmap.viz.live.LocalizationObserver`). If it has a ``finish(run)`` method,
+        that is called with the result.
 
     Warns
     -----
@@ -307,6 +447,8 @@ def localize_scans(
         last = k
         p = est.best_cluster
         rows.append((t[k], p[0], p[1], p[2], est.spread, k))
+        if observer is not None:
+            observer(k, est, mcl.particles, r[k, sel], beams)
         if lost is None:
             ix, iy = math.floor((p[0] - x0) / res), math.floor((p[1] - y0) / res)
             on_map = 0 <= ix < w and 0 <= iy < h and bool(free_mask[iy, ix])
@@ -327,7 +469,10 @@ def localize_scans(
     if progress is not None:
         progress(stop - start, stop - start)
     arr = np.array(rows, dtype=np.float64).reshape(-1, 6)
-    return LocalizationRun(arr[:, 0], arr[:, 1:4], arr[:, 4], arr[:, 5].astype(np.int64), lost=lost)
+    run = LocalizationRun(arr[:, 0], arr[:, 1:4], arr[:, 4], arr[:, 5].astype(np.int64), lost=lost)
+    if observer is not None and hasattr(observer, "finish"):
+        observer.finish(run)
+    return run
 
 
 def match_times(

@@ -80,3 +80,60 @@ def test_real_victoria_park_graph(shared_data):
     g = read_g2o(shared_data("victoria-park/victoriaPark-full.g2o"))
     assert (len(g.poses), len(g.landmarks)) == (6969, 151)
     assert (len(g.pose_edges), len(g.landmark_edges)) == (6968, 3640)
+
+
+def test_write_g2o_is_the_arrays_writer_with_landmarks_and_fix(tmp_path):
+    """Oracle: the expected text written out by hand from the records' definitions."""
+    from probmap.slam.posegraph import write_pose_graph_g2o
+
+    g = PoseGraph()
+    g.poses[5] = np.array([0.1, -0.0, 3.0])
+    g.poses[2] = np.array([1.0, 2.0, 0.5])
+    g.landmarks[9] = np.array([4.0, 1e-300])
+    g.fixed = [5, 9]
+    g.pose_edges.append(PoseEdge(5, 2, np.array([1.0, 2.0, 0.25]), np.diag([1.0, 2.0, 3.0])))
+    g.pose_edges.append(
+        PoseEdge(2, 2, np.zeros(3), np.array([[1.0, 7.0, 0], [0, 1, 0], [0, 0, 1]]))
+    )
+    g.landmark_edges.append(
+        LandmarkEdge(2, 9, np.array([0.5, 0.75]), np.array([[2.0, 0.5], [0.5, 4.0]]))
+    )
+    expected = (
+        "VERTEX_SE2 5 0.1 -0.0 3.0\nVERTEX_SE2 2 1.0 2.0 0.5\nVERTEX_XY 9 4.0 1e-300\n"
+        "FIX 5\nFIX 9\n"
+        "EDGE_SE2 5 2 1.0 2.0 0.25 1.0 0.0 0.0 2.0 0.0 3.0\n"
+        "EDGE_SE2 2 2 0.0 0.0 0.0 1.0 7.0 0.0 1.0 0.0 1.0\n"
+        "EDGE_SE2_XY 2 9 0.5 0.75 2.0 0.5 4.0\n"
+    )
+    assert write_g2o(tmp_path / "a.g2o", g).read_text() == expected
+    b = write_pose_graph_g2o(
+        tmp_path / "b.g2o",
+        [[0.1, -0.0, 3.0], [1.0, 2.0, 0.5]],
+        [[0, 1], [1, 1]],
+        [e.measurement for e in g.pose_edges],
+        [e.information for e in g.pose_edges],
+        ids=[5, 2],
+        landmarks=[[4.0, 1e-300]],
+        landmark_ids=[9],
+        landmark_edges=[[1, 0]],
+        landmark_measurements=[[0.5, 0.75]],
+        landmark_information=[[[2.0, 0.5], [0.5, 4.0]]],
+        fixed_ids=[5, 9],
+    )
+    assert b.read_text() == expected
+    g.pose_edges.append(PoseEdge(2, 7, np.zeros(3), np.eye(3)))
+    with pytest.raises(ValueError, match="missing vertex 7"):
+        write_g2o(tmp_path / "c.g2o", g)
+    with pytest.raises(ValueError, match="landmark_edge 0 .* index 1 outside"):
+        write_pose_graph_g2o(
+            tmp_path / "d.g2o",
+            np.zeros((1, 3)),
+            np.zeros((0, 2), int),
+            np.zeros((0, 3)),
+            np.zeros((0, 3, 3)),
+            landmarks=np.zeros((1, 2)),
+            landmark_edges=[[0, 1]],
+            landmark_measurements=np.zeros((1, 2)),
+            landmark_information=np.zeros((1, 2, 2)),
+        )
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["a.g2o", "b.g2o"]

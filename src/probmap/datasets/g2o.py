@@ -34,7 +34,6 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
-from probmap._atomic import atomic_write
 from probmap._typing import FloatArray, IntArray
 from probmap.datasets.validate import text_lines
 from probmap.errors import DatasetError
@@ -255,35 +254,51 @@ def _chain_odometry(g: PoseGraph, edge_lines: list[tuple[int, str, int, int]], p
     g.chained = True
 
 
-def _fmt(v: float) -> str:
-    return repr(float(v))
-
-
 def write_g2o(path: str | os.PathLike[str], graph: PoseGraph) -> Path:
     """Write ``graph`` to ``path`` in g2o format, atomically, at full precision.
 
-    TORO input is written as g2o (``VERTEX_SE2``/``EDGE_SE2`` with the information in g2o's
-    order); ``EQUIV`` pairs have no g2o record and are not written.
+    Vertices in the order of ``graph.poses`` and ``graph.landmarks``, then the ``FIX`` lines,
+    then the edges in list order; the lines are written by the package's one g2o writer,
+    :func:`probmap.slam.posegraph.write_pose_graph_g2o`. TORO input is written as g2o
+    (``VERTEX_SE2``/``EDGE_SE2`` with the information in g2o's order); ``EQUIV`` pairs have no
+    g2o record and are not written.
+
+    Raises
+    ------
+    ValueError
+        An edge names a vertex the graph does not have.
     """
-    path = Path(path)
-    lines = []
-    for vid, p in graph.poses.items():
-        lines.append(f"VERTEX_SE2 {vid} " + " ".join(_fmt(v) for v in p))
-    for vid, p in graph.landmarks.items():
-        lines.append(f"VERTEX_XY {vid} " + " ".join(_fmt(v) for v in p))
-    for vid in graph.fixed:
-        lines.append(f"FIX {vid}")
-    for e in graph.pose_edges:
-        info = e.information[np.triu_indices(3)]
-        vals = " ".join(_fmt(v) for v in (*e.measurement, *info))
-        lines.append(f"EDGE_SE2 {e.i} {e.j} {vals}")
-    for le in graph.landmark_edges:
-        info = le.information[np.triu_indices(2)]
-        vals = " ".join(_fmt(v) for v in (*le.measurement, *info))
-        lines.append(f"EDGE_SE2_XY {le.i} {le.j} {vals}")
-    with atomic_write(path, "w") as f:
-        f.write("\n".join(lines) + "\n")
-    return path
+    from probmap.slam.posegraph import write_pose_graph_g2o
+
+    pose_row = {vid: k for k, vid in enumerate(graph.poses)}
+    mark_row = {vid: k for k, vid in enumerate(graph.landmarks)}
+
+    def rows(edges: list[PoseEdge] | list[LandmarkEdge], j_rows: dict[int, int]) -> IntArray:
+        try:
+            ij = [(pose_row[e.i], j_rows[e.j]) for e in edges]
+        except KeyError as exc:
+            raise ValueError(f"{graph.name}: an edge references a missing vertex {exc}") from None
+        return np.array(ij, dtype=np.int64).reshape(len(edges), 2)
+
+    E, L = len(graph.pose_edges), len(graph.landmark_edges)
+    return write_pose_graph_g2o(
+        path,
+        np.array(list(graph.poses.values()), dtype=np.float64).reshape(-1, 3),
+        rows(graph.pose_edges, pose_row),
+        np.array([e.measurement for e in graph.pose_edges], dtype=np.float64).reshape(E, 3),
+        np.array([e.information for e in graph.pose_edges], dtype=np.float64).reshape(E, 3, 3),
+        ids=np.array(list(graph.poses), dtype=np.int64),
+        landmarks=np.array(list(graph.landmarks.values()), dtype=np.float64).reshape(-1, 2),
+        landmark_ids=np.array(list(graph.landmarks), dtype=np.int64),
+        landmark_edges=rows(graph.landmark_edges, mark_row),
+        landmark_measurements=np.array(
+            [e.measurement for e in graph.landmark_edges], dtype=np.float64
+        ).reshape(L, 2),
+        landmark_information=np.array(
+            [e.information for e in graph.landmark_edges], dtype=np.float64
+        ).reshape(L, 2, 2),
+        fixed_ids=graph.fixed,
+    )
 
 
 @dataclass(frozen=True, eq=False)

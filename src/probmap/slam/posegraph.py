@@ -630,13 +630,22 @@ def write_pose_graph_g2o(
     information: ArrayLike,
     *,
     ids: ArrayLike | None = None,
+    landmarks: ArrayLike | None = None,
+    landmark_ids: ArrayLike | None = None,
+    landmark_edges: ArrayLike | None = None,
+    landmark_measurements: ArrayLike | None = None,
+    landmark_information: ArrayLike | None = None,
+    fixed_ids: Sequence[int] = (),
 ) -> Path:
-    """Write a pose graph given as arrays to ``path`` in g2o format, atomically.
+    """Write a pose(-landmark) graph given as arrays to ``path`` in g2o format, atomically.
 
-    ``VERTEX_SE2 id x y theta`` per node, ``EDGE_SE2 i j dx dy dtheta`` plus the upper
-    triangle of the information matrix (row by row) per edge, at full precision. (Graphs read
-    from files, with landmarks or ``FIX`` lines, are written by
-    :func:`probmap.datasets.g2o.write_g2o`.)
+    The one g2o writer of the package (:func:`probmap.datasets.g2o.write_g2o` writes a
+    :class:`~probmap.datasets.g2o.PoseGraph` through it). Records, in this order, at full
+    precision (``repr`` of every float): ``VERTEX_SE2 id x y theta`` per pose,
+    ``VERTEX_XY id x y`` per landmark, ``FIX id`` per fixed id, ``EDGE_SE2 i j dx dy dtheta``
+    plus the upper triangle of the information matrix (row by row) per pose edge, and
+    ``EDGE_SE2_XY i j dx dy`` plus the upper triangle of the 2x2 information per landmark
+    edge.
 
     Parameters
     ----------
@@ -648,6 +657,18 @@ def write_pose_graph_g2o(
     information : array_like, shape (E, 3, 3)
     ids : array_like of int, shape (N,), optional
         Vertex ids to write (default ``0 .. N-1``).
+    landmarks : array_like, shape (M, 2), optional
+        Landmark positions, metres (default none).
+    landmark_ids : array_like of int, shape (M,), optional
+        Their vertex ids (default ``N .. N+M-1``).
+    landmark_edges : array_like, shape (L, 2), int, optional
+        Per landmark edge, the row of its pose in ``poses`` and of its landmark in
+        ``landmarks``.
+    landmark_measurements : array_like, shape (L, 2), optional
+        The landmark's position in the pose's frame, metres.
+    landmark_information : array_like, shape (L, 2, 2), optional
+    fixed_ids : sequence of int
+        Vertex ids written as ``FIX`` lines.
 
     Returns
     -------
@@ -656,21 +677,80 @@ def write_pose_graph_g2o(
     from probmap._atomic import atomic_write
 
     x = _as_poses(poses)
-    ei, ej, z, om = _as_edges(edges, measurements, information, len(x))
-    vid = np.arange(len(x)) if ids is None else np.asarray(ids, dtype=np.int64)
-    if vid.shape != (len(x),):
-        raise ValueError(f"ids must have shape ({len(x)},), got {vid.shape}")
-    iu = np.triu_indices(3)
+    vid = _as_ids(ids, len(x), 0, "ids")
+    lm = np.zeros((0, 2)) if landmarks is None else np.asarray(landmarks, dtype=np.float64)
+    if lm.ndim != 2 or lm.shape[1] != 2:
+        raise ValueError(f"landmarks must have shape (M, 2), got {lm.shape}")
+    lid = _as_ids(landmark_ids, len(lm), len(x), "landmark_ids")
+    pe = _edge_arrays("", edges, measurements, information, 3, len(x), len(x))
+    if landmark_edges is None:
+        landmark_edges, landmark_measurements = np.zeros((0, 2), np.int64), np.zeros((0, 2))
+        landmark_information = np.zeros((0, 2, 2))
+    le = _edge_arrays(
+        "landmark_", landmark_edges, landmark_measurements, landmark_information, 2, len(x), len(lm)
+    )
     lines = [
-        f"VERTEX_SE2 {int(n)} {p[0]!r} {p[1]!r} {p[2]!r}"
+        f"VERTEX_SE2 {n} {p[0]!r} {p[1]!r} {p[2]!r}"
         for n, p in zip(vid.tolist(), x.tolist(), strict=True)
     ]
-    upper = om[:, iu[0], iu[1]].tolist()
-    for a, b, zz, u in zip(vid[ei].tolist(), vid[ej].tolist(), z.tolist(), upper, strict=True):
-        lines.append(f"EDGE_SE2 {a} {b} " + " ".join(repr(v) for v in (*zz, *u)))
+    lines += [
+        f"VERTEX_XY {n} {p[0]!r} {p[1]!r}" for n, p in zip(lid.tolist(), lm.tolist(), strict=True)
+    ]
+    lines += [f"FIX {int(n)}" for n in fixed_ids]
+    _edge_lines(lines, "EDGE_SE2", vid[pe[0][:, 0]], vid[pe[0][:, 1]], pe[1], pe[2])
+    _edge_lines(lines, "EDGE_SE2_XY", vid[le[0][:, 0]], lid[le[0][:, 1]], le[1], le[2])
     with atomic_write(path, "w") as f:
         f.write("\n".join(lines) + "\n")
     return Path(path)
+
+
+def _as_ids(ids: ArrayLike | None, n: int, first: int, name: str) -> IntArray:
+    """Vertex ids ``(n,)`` as int64, by default ``first .. first+n-1``."""
+    vid = np.arange(first, first + n) if ids is None else np.asarray(ids, dtype=np.int64)
+    if vid.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},), got {vid.shape}")
+    return vid
+
+
+def _edge_arrays(
+    name: str,
+    edges: ArrayLike,
+    measurements: ArrayLike | None,
+    information: ArrayLike | None,
+    dim: int,
+    n_i: int,
+    n_j: int,
+) -> tuple[IntArray, FloatArray, FloatArray]:
+    """Edges ``(E, 2)`` with rows ``< (n_i, n_j)``, measurements ``(E, dim)`` and information
+    ``(E, dim, dim)`` checked for their shapes and bounds only (a file may hold any values)."""
+    e = np.asarray(edges)
+    if e.size and not np.issubdtype(e.dtype, np.integer):
+        raise ValueError(f"{name}edges must hold integer row indices, got dtype {e.dtype}")
+    e = e.astype(np.int64).reshape(-1, 2) if e.size == 0 else e.astype(np.int64)
+    E = len(e)
+    z = np.asarray(measurements, dtype=np.float64)
+    om = np.asarray(information, dtype=np.float64)
+    if e.shape != (E, 2) or z.shape != (E, dim) or om.shape != (E, dim, dim):
+        raise ValueError(
+            f"{name}edges, {name}measurements and {name}information must have shapes "
+            f"(E, 2), (E, {dim}) and (E, {dim}, {dim}), got {e.shape}, {z.shape} and {om.shape}"
+        )
+    for col, n in ((0, n_i), (1, n_j)):
+        bad = np.flatnonzero((e[:, col] < 0) | (e[:, col] >= n))
+        if bad.size:
+            k = int(bad[0])
+            raise ValueError(f"{name}edge {k} {tuple(e[k].tolist())}: index {col} outside [0, {n})")
+    return e, z, om
+
+
+def _edge_lines(
+    lines: list[str], tag: str, i: IntArray, j: IntArray, z: FloatArray, info: FloatArray
+) -> None:
+    """Append one g2o edge line per row: ``tag i j z...`` and the upper triangle of ``info``."""
+    iu = np.triu_indices(info.shape[1])
+    upper = info[:, iu[0], iu[1]].tolist()
+    for a, b, zz, u in zip(i.tolist(), j.tolist(), z.tolist(), upper, strict=True):
+        lines.append(f"{tag} {a} {b} " + " ".join(repr(v) for v in (*zz, *u)))
 
 
 # --------------------------------------------------------------------------- class tier

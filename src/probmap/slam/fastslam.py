@@ -40,11 +40,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from probmap._typing import FloatArray, IntArray
+from probmap._typing import BoolArray, FloatArray, IntArray
 from probmap.filters.resampling import effective_sample_size, low_variance_resample
 from probmap.geometry.se2 import compose, wrap_angle
 
-__all__ = ["FastSLAM", "FastSLAMConfig"]
+__all__ = ["FastSLAM", "FastSLAMConfig", "FlatLandmarks", "LandmarkTree"]
 
 
 @dataclass(frozen=True)
@@ -62,12 +62,35 @@ class FastSLAMConfig:
         (1.0: every step).
     seed : int
         Seed of the random generator.
+    landmark_store : {"tree", "flat"}
+        Where the particles keep their landmark filters: ``"tree"``, the book's shared
+        balanced tree (:class:`LandmarkTree`: resampling copies ``O(1)`` per particle, an
+        update ``O(log N)`` nodes), or ``"flat"``, one ``(M, N)`` array per quantity
+        (:class:`FlatLandmarks`: resampling copies ``O(M N)``). Both give the same estimates.
+    new_landmark_likelihood : float
+        Unknown correspondences: ``p0`` of Table 13.2 line 15, the likelihood (a density in
+        the measurement's units, 1 / (m rad)) above which an observation is explained by a
+        known landmark rather than a new one; also the importance factor of a new landmark.
+    min_count : int
+        Unknown correspondences: a landmark is reported by :meth:`FastSLAM.landmarks` once its
+        counter (Table 13.2's ``i``: +1 when observed, -1 when in view and not observed) has
+        reached this value (the book's provisional list; the counter below 0 removes it).
+    visibility_range : float
+        Range (m) within which a landmark is expected to be observed (the perceptual range of
+        Table 13.2 line 29).
+    visibility_fov : float
+        Field of view (rad) centred on the sensor heading, for the same test.
     """
 
     n_particles: int = 100
     version: int = 2
     resample_threshold: float = 0.5
     seed: int = 0
+    landmark_store: str = "tree"
+    new_landmark_likelihood: float = 1e-3
+    min_count: int = 2
+    visibility_range: float = math.inf
+    visibility_fov: float = 2.0 * math.pi
 
     def __post_init__(self) -> None:
         if self.n_particles < 1:
@@ -78,6 +101,237 @@ class FastSLAMConfig:
             raise ValueError(
                 f"resample_threshold must lie in [0, 1], got {self.resample_threshold}"
             )
+        if self.landmark_store not in ("tree", "flat"):
+            raise ValueError(
+                f"landmark_store must be 'tree' or 'flat', got {self.landmark_store!r}"
+            )
+        if not (math.isfinite(self.new_landmark_likelihood) and self.new_landmark_likelihood > 0):
+            raise ValueError(
+                f"new_landmark_likelihood must be a finite number > 0, got "
+                f"{self.new_landmark_likelihood}"
+            )
+        if self.min_count < 1:
+            raise ValueError(f"min_count must be >= 1, got {self.min_count}")
+        if not (self.visibility_range > 0 and self.visibility_fov > 0):
+            raise ValueError(
+                f"visibility_range and visibility_fov must be > 0, got {self.visibility_range}, "
+                f"{self.visibility_fov}"
+            )
+
+
+class FlatLandmarks:
+    """Every particle's landmark filters as dense arrays: column ``c`` of particle ``m`` at
+    ``mean[m, c] (2,)``, ``cov[m, c] (2, 2)``, ``count[m, c]``, present where ``found[m, c]``.
+    Resampling copies all ``M N`` entries; kept as the plain reference of :class:`LandmarkTree`.
+
+    Parameters
+    ----------
+    n_particles : int
+    """
+
+    def __init__(self, n_particles: int) -> None:
+        m = n_particles
+        self.mean = np.zeros((m, 0, 2))
+        self.cov = np.zeros((m, 0, 2, 2))
+        self.count = np.zeros((m, 0), dtype=np.int64)
+        self.found = np.zeros((m, 0), dtype=bool)
+
+    @property
+    def n_cols(self) -> int:
+        """Columns (landmark slots) the store can hold."""
+        return int(self.found.shape[1])
+
+    def ensure_cols(self, n: int) -> None:
+        """Make room for columns ``0 .. n - 1``."""
+        extra = n - self.n_cols
+        if extra <= 0:
+            return
+        m = self.found.shape[0]
+        self.mean = np.concatenate([self.mean, np.zeros((m, extra, 2))], 1)
+        self.cov = np.concatenate([self.cov, np.zeros((m, extra, 2, 2))], 1)
+        self.count = np.concatenate([self.count, np.zeros((m, extra), dtype=np.int64)], 1)
+        self.found = np.concatenate([self.found, np.zeros((m, extra), dtype=bool)], 1)
+
+    def gather(self, cols: IntArray) -> tuple[FloatArray, FloatArray, IntArray, BoolArray]:
+        """Column ``cols[m]`` of each particle ``m`` (``-1``: none): ``mean (M, 2)``, ``cov
+        (M, 2, 2)``, ``count (M,)`` and ``found (M,)``."""
+        m = len(cols)
+        ok = cols >= 0
+        rows = np.flatnonzero(ok)
+        mean, cov = np.zeros((m, 2)), np.zeros((m, 2, 2))
+        count, found = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=bool)
+        c = cols[ok]
+        mean[ok], cov[ok] = self.mean[rows, c], self.cov[rows, c]
+        count[ok], found[ok] = self.count[rows, c], self.found[rows, c]
+        return mean, cov, count, found
+
+    def scatter(self, cols: IntArray, mean: FloatArray, cov: FloatArray, count: IntArray) -> None:
+        """Write row ``m`` as column ``cols[m]`` of particle ``m`` (``-1``: untouched)."""
+        ok = cols >= 0
+        rows, c = np.flatnonzero(ok), cols[ok]
+        self.mean[rows, c], self.cov[rows, c] = mean[ok], cov[ok]
+        self.count[rows, c], self.found[rows, c] = count[ok], True
+
+    def clear(self, cols: IntArray) -> None:
+        """Remove column ``cols[m]`` of particle ``m`` (``-1``: untouched)."""
+        ok = cols >= 0
+        self.found[np.flatnonzero(ok), cols[ok]] = False
+
+    def resample(self, keep: IntArray) -> None:
+        """Particle ``m`` becomes a copy of particle ``keep[m]``."""
+        self.mean, self.cov = self.mean[keep], self.cov[keep]
+        self.count, self.found = self.count[keep], self.found[keep]
+
+    def dense(
+        self, particles: IntArray | None = None
+    ) -> tuple[FloatArray, FloatArray, IntArray, BoolArray]:
+        """All columns of ``particles`` (default all): ``(P, N, 2)``, ``(P, N, 2, 2)``,
+        ``(P, N)``, ``(P, N)``."""
+        sel = slice(None) if particles is None else particles
+        return self.mean[sel], self.cov[sel], self.count[sel], self.found[sel]
+
+    def nbytes(self) -> int:
+        """Bytes held (``O(M N)``)."""
+        return int(self.mean.nbytes + self.cov.nbytes + self.count.nbytes + self.found.nbytes)
+
+
+class LandmarkTree:
+    """Every particle's landmark filters in one pool of tree nodes shared between particles
+    (Probabilistic Robotics section 13.8; Montemerlo et al. 2002).
+
+    Column ``c`` of a particle is the leaf reached from the particle's root by the bits of
+    ``c``, most significant first, in a balanced binary tree of depth ``D = ceil(log2 N)``.
+    Particles share subtrees: :meth:`resample` copies roots and reference counts, no landmark;
+    :meth:`scatter` and :meth:`clear` copy only the shared nodes on a landmark's path (``D +
+    1`` at most) and rewrite exclusive ones in place (copy-on-write). The interface is that of
+    :class:`FlatLandmarks`, and so are the values read back.
+
+    Parameters
+    ----------
+    n_particles : int
+    capacity : int
+        Initial size of the node pool (it doubles when full).
+
+    Attributes
+    ----------
+    depth : int
+        ``D``; the tree holds ``2**D`` columns.
+    nodes_copied : int
+        Nodes allocated by path copying so far (the tree's share of an update's cost).
+    """
+
+    def __init__(self, n_particles: int, capacity: int = 1024) -> None:
+        from probmap.slam import _fastslam_kernels as k
+
+        self._k = k
+        cap = max(int(capacity), 2)
+        self._child = np.zeros((cap, 2), dtype=np.int64)
+        self._refc = np.zeros(cap, dtype=np.int64)
+        self._mean = np.zeros((cap, 2))
+        self._cov = np.zeros((cap, 2, 2))
+        self._count = np.zeros(cap, dtype=np.int64)
+        self._free = np.zeros(cap, dtype=np.int64)
+        self._free[: cap - 1] = np.arange(cap - 1, 0, -1)  # node 0 is the empty subtree
+        self._top = np.array([cap - 1], dtype=np.int64)
+        self._copied = np.zeros(1, dtype=np.int64)
+        self.roots = np.zeros(n_particles, dtype=np.int64)
+        self.depth = 0
+        self._n_cols = 0
+
+    @property
+    def nodes_copied(self) -> int:
+        return int(self._copied[0])
+
+    @property
+    def nodes_in_use(self) -> int:
+        """Nodes held by some particle (the empty node 0 not counted)."""
+        return int(len(self._refc) - 1 - self._top[0])
+
+    @property
+    def n_cols(self) -> int:
+        return self._n_cols
+
+    def _reserve(self, n: int) -> None:
+        """At least ``n`` free nodes (the pool grows by doubling)."""
+        if self._top[0] >= n:
+            return
+        cap = len(self._refc)
+        grow = max(cap, n)
+        new_cap = cap + grow
+        self._child = np.concatenate([self._child, np.zeros((grow, 2), dtype=np.int64)])
+        self._refc = np.concatenate([self._refc, np.zeros(grow, dtype=np.int64)])
+        self._mean = np.concatenate([self._mean, np.zeros((grow, 2))])
+        self._cov = np.concatenate([self._cov, np.zeros((grow, 2, 2))])
+        self._count = np.concatenate([self._count, np.zeros(grow, dtype=np.int64)])
+        free = np.zeros(new_cap, dtype=np.int64)
+        top = int(self._top[0])
+        free[:top] = self._free[:top]
+        free[top : top + grow] = np.arange(new_cap - 1, cap - 1, -1)
+        self._free = free
+        self._top[0] = top + grow
+
+    def ensure_cols(self, n: int) -> None:
+        """Make room for columns ``0 .. n - 1`` (the tree grows a level at a time)."""
+        self._n_cols = max(self._n_cols, n)
+        while (1 << self.depth) < n:
+            self._reserve(len(self.roots))
+            self._k.tree_grow(self._child, self._refc, self._free, self._top, self.roots)
+            self.depth += 1
+
+    def gather(self, cols: IntArray) -> tuple[FloatArray, FloatArray, IntArray, BoolArray]:
+        """As :meth:`FlatLandmarks.gather`."""
+        m = len(self.roots)
+        mean, cov = np.zeros((m, 2)), np.zeros((m, 2, 2))
+        count, found = np.zeros(m, dtype=np.int64), np.zeros(m, dtype=bool)
+        self._k.tree_gather(self._child, self._mean, self._cov, self._count, self.roots,
+                            np.ascontiguousarray(cols, dtype=np.int64), self.depth, mean, cov,
+                            count, found)  # fmt: skip
+        return mean, cov, count, found
+
+    def scatter(self, cols: IntArray, mean: FloatArray, cov: FloatArray, count: IntArray) -> None:
+        """As :meth:`FlatLandmarks.scatter`."""
+        self._reserve(len(self.roots) * (self.depth + 1))
+        self._k.tree_scatter(self._child, self._refc, self._mean, self._cov, self._count,
+                             self._free, self._top, self.roots,
+                             np.ascontiguousarray(cols, dtype=np.int64), self.depth,
+                             np.ascontiguousarray(mean, dtype=np.float64),
+                             np.ascontiguousarray(cov, dtype=np.float64),
+                             np.ascontiguousarray(count, dtype=np.int64),
+                             self._copied)  # fmt: skip
+
+    def clear(self, cols: IntArray) -> None:
+        """As :meth:`FlatLandmarks.clear`."""
+        self._reserve(len(self.roots) * (self.depth + 1))
+        self._k.tree_clear(self._child, self._refc, self._mean, self._cov, self._count,
+                           self._free, self._top, self.roots,
+                           np.ascontiguousarray(cols, dtype=np.int64), self.depth,
+                           self._copied)  # fmt: skip
+
+    def resample(self, keep: IntArray) -> None:
+        """Particle ``m`` takes the root of particle ``keep[m]``: ``O(M)``, no node copied."""
+        old = self.roots
+        new = np.ascontiguousarray(old[keep])
+        self._k.tree_incref(self._refc, new)
+        self._k.tree_release(self._child, self._refc, self._free, self._top, old)
+        self.roots = new
+
+    def dense(
+        self, particles: IntArray | None = None
+    ) -> tuple[FloatArray, FloatArray, IntArray, BoolArray]:
+        """As :meth:`FlatLandmarks.dense` (one walk over each particle's tree)."""
+        roots = self.roots if particles is None else np.ascontiguousarray(self.roots[particles])
+        p, n = len(roots), self._n_cols
+        mean, cov = np.zeros((p, n, 2)), np.zeros((p, n, 2, 2))
+        count, found = np.zeros((p, n), dtype=np.int64), np.zeros((p, n), dtype=bool)
+        self._k.tree_dense(self._child, self._mean, self._cov, self._count, roots, self.depth,
+                           mean, cov, count, found)  # fmt: skip
+        return mean, cov, count, found
+
+    def nbytes(self) -> int:
+        """Bytes of the nodes in use (``O(M log N + N)`` after resampling, not ``O(M N)``) and
+        of the roots."""
+        per_node = 2 * 8 + 8 + 2 * 8 + 4 * 8 + 8 + 8  # child, refc, mean, cov, count, free
+        return int(self.nodes_in_use * per_node + self.roots.nbytes)
 
 
 def _batch_measurement(
@@ -116,7 +370,7 @@ def _gauss_logpdf(e: FloatArray, S: FloatArray) -> FloatArray:
 
 
 class FastSLAM:
-    """FastSLAM 1.0 / 2.0 with known correspondences (a :class:`LandmarkSLAM
+    """FastSLAM 1.0 / 2.0 with known or unknown correspondences (a :class:`LandmarkSLAM
     <probmap.slam.base.LandmarkSLAM>`: ``predict`` then ``update`` each step).
 
     Parameters
@@ -128,6 +382,11 @@ class FastSLAM:
     initial_pose : array_like, shape (3,)
         Every particle starts here (the map frame is the first pose's, as for the EKF).
     config : FastSLAMConfig, optional
+
+    Notes
+    -----
+    ``update(z, ids)`` takes either landmark ids (``>= 0``, known correspondences) or ``-1``
+    for every observation (unknown correspondences, Table 13.2); one filter takes one kind.
 
     Examples
     --------
@@ -161,10 +420,13 @@ class FastSLAM:
         m = cfg.n_particles
         self.particles = np.repeat(x0[None, :], m, axis=0)
         self.log_weights = np.zeros(m)
-        self._slot: dict[int, int] = {}  # landmark id -> column of the landmark arrays
-        self._mean = np.zeros((m, 0, 2))
-        self._cov = np.zeros((m, 0, 2, 2))
-        self._seen = np.zeros((m, 0), dtype=bool)
+        self.store: FlatLandmarks | LandmarkTree = (
+            LandmarkTree(m) if cfg.landmark_store == "tree" else FlatLandmarks(m)
+        )
+        self._known: bool | None = None  # set by the first update with observations
+        self._slot: dict[int, int] = {}  # known ids: landmark id -> column
+        self._next_col = np.zeros(m, dtype=np.int64)  # unknown ids: each particle's next column
+        self._log_p0 = math.log(cfg.new_landmark_likelihood)
         self._Rt = np.zeros((3, 3))  # motion noise of the last prediction (2.0's proposal)
         self._predicted = self.particles.copy()
         self.resamples = 0
@@ -197,27 +459,41 @@ class FastSLAM:
         self.particles[:, 2] = wrap_angle(self.particles[:, 2])
 
     def update(self, z: ArrayLike, ids: ArrayLike) -> None:
-        """Measurements ``z (k, 2)`` of landmarks ``ids (k,)`` (all >= 0)."""
+        """Measurements ``z (k, 2)`` (range m, bearing rad) of landmarks ``ids (k,)``: all
+        ``>= 0`` (known correspondences) or all ``-1`` (unknown, Table 13.2)."""
         zs = np.asarray(z, dtype=np.float64).reshape(-1, 2)
         idx = np.asarray(ids, dtype=np.int64).reshape(-1)
         if zs.shape[0] != idx.shape[0]:
             raise ValueError(f"z has {zs.shape[0]} rows and ids {idx.shape[0]}")
         if zs.size and not np.all(np.isfinite(zs)):
             raise ValueError("measurements must be finite")
-        if np.any(idx < 0):
-            raise ValueError(
-                "FastSLAM here needs known correspondences (ids >= 0); an id of -1 (unknown) "
-                "is not supported yet"
-            )
-        for j in idx:
-            if int(j) not in self._slot:
-                self._add_slot(int(j))
-        cols = np.asarray([self._slot[int(j)] for j in idx], dtype=np.int64)
+        if np.any(idx < -1):
+            raise ValueError("landmark ids must be >= 0, or -1 for unknown")
+        if idx.size:
+            known = bool(idx[0] >= 0)
+            if np.any((idx >= 0) != known) or (self._known is not None and known != self._known):
+                raise ValueError(
+                    "FastSLAM takes either known ids (>= 0) or unknown ones (-1), not both"
+                )
+            self._known = known
+        m = len(self.particles)
+        if not idx.size or self._known:
+            for j in idx:
+                if int(j) not in self._slot:
+                    self._slot[int(j)] = len(self._slot)
+            self.store.ensure_cols(len(self._slot))
+            cols = np.asarray([self._slot[int(j)] for j in idx], dtype=np.int64)
+            colmat = np.repeat(cols[:, None], m, axis=1)
+            new_lm = None
+        else:
+            colmat, new_lm, unseen = self._associate(zs)
         if self.config.version == 2 and self._Rt.any():
-            self._propose(zs, cols)
-        logw = np.zeros(len(self.particles))
-        for zk, c in zip(zs, cols, strict=True):
-            logw += self._landmark_update(zk, int(c))
+            self._propose(zs, colmat if new_lm is None else np.where(new_lm, -1, colmat))
+        logw = np.zeros(m)
+        for i, zk in enumerate(zs):
+            logw += self._landmark_update(zk, colmat[i], None if new_lm is None else new_lm[i])
+        if new_lm is not None:
+            self._count_misses(unseen)
         self.log_weights += logw
         self.log_weights -= self.log_weights.max()
         w = np.exp(self.log_weights)
@@ -225,33 +501,91 @@ class FastSLAM:
         if effective_sample_size(w) < self.config.resample_threshold * len(w):
             keep = low_variance_resample(w, self._rng)
             self.particles = self.particles[keep]
-            self._mean = self._mean[keep]
-            self._cov = self._cov[keep]
-            self._seen = self._seen[keep]
+            self.store.resample(keep)
+            self._next_col = self._next_col[keep]
             self.log_weights = np.zeros(len(keep))
             self.resamples += 1
 
-    def _add_slot(self, landmark_id: int) -> None:
-        m = len(self.particles)
-        self._slot[landmark_id] = self._mean.shape[1]
-        self._mean = np.concatenate([self._mean, np.zeros((m, 1, 2))], 1)
-        self._cov = np.concatenate([self._cov, np.zeros((m, 1, 2, 2))], 1)
-        self._seen = np.concatenate([self._seen, np.zeros((m, 1), dtype=bool)], 1)
+    def _associate(self, zs: FloatArray) -> tuple[IntArray, BoolArray, BoolArray]:
+        """Maximum-likelihood association per particle (Table 13.2 lines 5-15): each
+        observation goes to the landmark of largest likelihood not yet taken this step, or to
+        a new landmark (the particle's next column) when none exceeds ``p0``.
 
-    def _propose(self, zs: FloatArray, cols: IntArray) -> None:
+        Returns ``cols (k, M)``, ``new (k, M)`` and ``unseen (M, N)``: landmarks in the
+        perceptual range that no observation matched (their counters go down).
+        """
+        k, m = len(zs), len(self.particles)
+        mean, cov, _, found = self.store.dense()
+        n = found.shape[1]
+        cols = np.full((k, m), -1, dtype=np.int64)
+        new = np.zeros((k, m), dtype=bool)
+        unseen = np.zeros((m, n), dtype=bool)
+        v2 = self.config.version == 2 and bool(self._Rt.any())
+        poses = self._predicted if v2 else self.particles
+        if n:
+            zh, H_x, H_m = _batch_measurement(
+                self.measurement_model, np.repeat(poses, n, axis=0), mean.reshape(-1, 2)
+            )
+            S = self._R + np.einsum("nij,njk,nlk->nil", H_m, cov.reshape(-1, 2, 2), H_m)
+            if v2:  # the likelihood under the proposal's prior, as 2.0's weight (line 16)
+                S += np.einsum("nij,jk,nlk->nil", H_x, self._Rt, H_x)
+            det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
+            inv = np.empty_like(S)
+            inv[:, 0, 0], inv[:, 1, 1] = S[:, 1, 1] / det, S[:, 0, 0] / det
+            inv[:, 0, 1], inv[:, 1, 0] = -S[:, 0, 1] / det, -S[:, 1, 0] / det
+            norm = (-0.5 * np.log(det) - math.log(2.0 * math.pi)).reshape(m, n)
+            zh = zh.reshape(m, n, 2)
+            inv = inv.reshape(m, n, 2, 2)
+            free = found.copy()
+            rows = np.arange(m)
+            for i, zk in enumerate(zs):
+                e = zk - zh
+                e[..., 1] = wrap_angle(e[..., 1])
+                ll = norm - 0.5 * np.einsum("mni,mnij,mnj->mn", e, inv, e)
+                ll[~free] = -np.inf
+                best = np.argmax(ll, axis=1)
+                hit = ll[rows, best] >= self._log_p0
+                cols[i, hit] = best[hit]
+                free[rows[hit], best[hit]] = False
+                new[i] = ~hit
+            visible = (zh[..., 0] <= self.config.visibility_range) & (
+                np.abs(zh[..., 1]) <= 0.5 * self.config.visibility_fov
+            )
+            unseen = free & visible
+        else:
+            new[:] = True
+        for i in range(k):  # new landmarks take each particle's next free column
+            cols[i, new[i]] = self._next_col[new[i]]
+            self._next_col[new[i]] += 1
+        self.store.ensure_cols(int(self._next_col.max()))
+        return cols, new, unseen
+
+    def _count_misses(self, unseen: BoolArray) -> None:
+        """Table 13.2 lines 28-33: a landmark in the perceptual range and not observed loses
+        one from its counter, and is removed below 0."""
+        for c in np.flatnonzero(unseen.any(axis=0)):
+            cols = np.where(unseen[:, c], c, -1)
+            mean, cov, count, found = self.store.gather(cols)
+            count = count - 1
+            gone = found & (count < 0)
+            self.store.scatter(np.where(found & ~gone, cols, -1), mean, cov, count)
+            self.store.clear(np.where(gone, cols, -1))
+
+    def _propose(self, zs: FloatArray, colmat: IntArray) -> None:
         """FastSLAM 2.0: draw each particle's pose from the Gaussian updated by the step's
         measurements of landmarks it has seen (Table 13.3 lines 6-14); 2.0's weights (line
-        16) use the prior ``R_t`` and are taken in :meth:`_landmark_update`."""
+        16) use the prior ``R_t`` and are taken in :meth:`_landmark_update`. ``colmat (k,
+        M)``: each observation's column in each particle (-1: none)."""
         x = self._predicted.copy()  # mean of the proposal, per particle
         P = np.repeat(self._Rt[None, :, :] + 1e-12 * np.eye(3), len(x), axis=0)
         model = self.measurement_model
-        for zk, c in zip(zs, cols, strict=True):
-            seen = self._seen[:, c]
+        for zk, cols in zip(zs, colmat, strict=True):
+            mean, cov, _, seen = self.store.gather(cols)
             if not seen.any():
                 continue
             xs, Ps = x[seen], P[seen]
-            zh, H_x, H_m = _batch_measurement(model, xs, self._mean[seen, c])
-            S = self._R + np.einsum("nij,njk,nlk->nil", H_m, self._cov[seen, c], H_m)
+            zh, H_x, H_m = _batch_measurement(model, xs, mean[seen])
+            S = self._R + np.einsum("nij,njk,nlk->nil", H_m, cov[seen], H_m)
             innov = zk - zh
             innov[:, 1] = wrap_angle(innov[:, 1])
             PHt = np.einsum("nij,nkj->nik", Ps, H_x)
@@ -266,35 +600,44 @@ class FastSLAM:
         self.particles = x + np.einsum("nij,nj->ni", L, e)
         self.particles[:, 2] = wrap_angle(self.particles[:, 2])
 
-    def _landmark_update(self, zk: FloatArray, c: int) -> FloatArray:
-        """One measurement of landmark column ``c`` for every particle: initialize where it
-        is new, EKF-update where it is known; returns each particle's log importance factor."""
+    def _landmark_update(
+        self, zk: FloatArray, cols: IntArray, new_lm: BoolArray | None = None
+    ) -> FloatArray:
+        """One measurement, of column ``cols[m]`` in particle ``m`` (-1: none): initialize the
+        landmark where it is new, EKF-update it where it is known; returns each particle's
+        log importance factor (``log p0`` for a new landmark with unknown correspondences)."""
         model = self.measurement_model
-        logw = np.zeros(len(self.particles))
-        new = ~self._seen[:, c]
+        m = len(self.particles)
+        logw = np.zeros(m)
+        mean, cov, count, found = self.store.gather(cols)
+        active = cols >= 0
+        new = active & ~found
         if new.any():
             poses = self.particles[new]
             spos, _, heading = model._sensor(poses)
             a = heading + zk[1]
             ca, sa = np.cos(a), np.sin(a)
-            self._mean[new, c] = spos + zk[0] * np.stack([ca, sa], -1)
+            mean[new] = spos + zk[0] * np.stack([ca, sa], -1)
             Jz = np.empty((len(poses), 2, 2))
             Jz[:, 0, 0], Jz[:, 0, 1] = ca, -zk[0] * sa
             Jz[:, 1, 0], Jz[:, 1, 1] = sa, zk[0] * ca
-            self._cov[new, c] = np.einsum("nij,jk,nlk->nil", Jz, self._R, Jz)
-            self._seen[new, c] = True
-        old = ~new
+            cov[new] = np.einsum("nij,jk,nlk->nil", Jz, self._R, Jz)
+            count[new] = 1
+            if new_lm is not None:
+                logw[new] = self._log_p0
+        old = active & found
         if old.any():
             poses = self.particles[old]
-            mu, Sig = self._mean[old, c], self._cov[old, c]
+            mu, Sig = mean[old], cov[old]
             zh, H_x, H_m = _batch_measurement(model, poses, mu)
             Q = self._R + np.einsum("nij,njk,nlk->nil", H_m, Sig, H_m)
             innov = zk - zh
             innov[:, 1] = wrap_angle(innov[:, 1])
             K = np.einsum("nij,nkj,nkl->nil", Sig, H_m, np.linalg.inv(Q))
-            self._mean[old, c] = mu + np.einsum("nij,nj->ni", K, innov)
-            cov = Sig - np.einsum("nij,njk,nkl->nil", K, H_m, Sig)
-            self._cov[old, c] = 0.5 * (cov + np.transpose(cov, (0, 2, 1)))
+            mean[old] = mu + np.einsum("nij,nj->ni", K, innov)
+            c = Sig - np.einsum("nij,njk,nkl->nil", K, H_m, Sig)
+            cov[old] = 0.5 * (c + np.transpose(c, (0, 2, 1)))
+            count[old] += 1
             if self.config.version == 2 and self._Rt.any():
                 # Table 13.3 line 16: the measurement's likelihood under the proposal's prior
                 zp, Hp, _ = _batch_measurement(model, self._predicted[old], mu)
@@ -304,13 +647,13 @@ class FastSLAM:
                 logw[old] = _gauss_logpdf(e, L)
             else:
                 logw[old] = _gauss_logpdf(innov, Q)
+        self.store.scatter(cols, mean, cov, count)
         return logw
 
     def state_nbytes(self) -> int:
-        """Bytes of the filter's state: particle poses and weights, every particle's landmark
-        means, covariances and seen flags (``O(M L)``)."""
-        arrays = (self.particles, self.log_weights, self._mean, self._cov, self._seen)
-        return int(sum(a.nbytes for a in arrays))
+        """Bytes of the filter's state: particle poses and weights and the landmark store
+        (``O(M N)`` flat; the tree's nodes in use, ``O(N + M log N)`` per step's changes)."""
+        return int(self.particles.nbytes + self.log_weights.nbytes + self.store.nbytes())
 
     # ------------------------------------------------------------------ estimates
     def _weights(self) -> FloatArray:
@@ -333,10 +676,22 @@ class FastSLAM:
         d[:, 2] = wrap_angle(d[:, 2])
         return np.einsum("n,ni,nj->ij", w, d, d) + 1e-12 * np.eye(3)
 
+    @property
+    def n_landmarks(self) -> int:
+        """Landmarks the heaviest particle holds (provisional ones included)."""
+        best = np.array([int(np.argmax(self.log_weights))])
+        return int(self.store.dense(best)[3].sum())
+
     def landmarks(self) -> tuple[IntArray, FloatArray, FloatArray]:
-        """The heaviest particle's landmarks: ``ids (n,)``, ``xy (n, 2)``, ``cov (n, 2, 2)``."""
-        best = int(np.argmax(self.log_weights))
+        """The heaviest particle's landmarks: ``ids (n,)``, ``xy (n, 2)``, ``cov (n, 2, 2)``.
+        With unknown correspondences the ids are the particle's columns, and only landmarks
+        whose counter reached ``min_count`` are reported."""
+        best = np.array([int(np.argmax(self.log_weights))])
+        mean, cov, count, found = (a[0] for a in self.store.dense(best))
+        if self._known is False:
+            keep = np.flatnonzero(found & (count >= self.config.min_count))
+            return keep.astype(np.int64), mean[keep], cov[keep]
         ids = np.asarray(sorted(self._slot, key=self._slot.__getitem__), dtype=np.int64)
         cols = np.asarray([self._slot[int(i)] for i in ids], dtype=np.int64)
-        seen = self._seen[best, cols] if cols.size else np.zeros(0, dtype=bool)
-        return ids[seen], self._mean[best, cols[seen]], self._cov[best, cols[seen]]
+        seen = found[cols] if cols.size else np.zeros(0, dtype=bool)
+        return ids[seen], mean[cols[seen]], cov[cols[seen]]

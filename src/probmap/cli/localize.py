@@ -1,4 +1,5 @@
-"""``probmap localize``: Monte Carlo localization of a laser log on a map_server map."""
+"""``probmap localize``: Monte Carlo localization of a laser log on a map_server map or in a
+graph-SLAM session."""
 
 from __future__ import annotations
 
@@ -21,27 +22,6 @@ from probmap.cli.common import (
     scan_topic_option,
     skip_bad_lines_option,
 )
-
-
-def _plot(ax: Any, spec: Any, probability: Any, poses: Any, reference: Any | None) -> None:
-    """Draw the map (grey, unknown light blue) and the trajectories on ``ax``."""
-    import numpy as np
-
-    p = np.asarray(probability, dtype=float)
-    img = np.where(np.isnan(p), 0.75, 1.0 - p)
-    x0, y0 = spec.origin
-    h, w = p.shape
-    r = spec.resolution
-    ax.imshow(
-        img, cmap="gray", origin="lower", extent=(x0, x0 + w * r, y0, y0 + h * r), vmin=0, vmax=1
-    )
-    if reference is not None and len(reference):
-        ax.plot(reference[:, 0], reference[:, 1], "-", color="tab:green", lw=0.8, label="reference")
-    ax.plot(poses[:, 0], poses[:, 1], "-", color="tab:red", lw=0.8, label="MCL")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_aspect("equal")
-    ax.legend(loc="upper right")
 
 
 def _read_reference(
@@ -75,10 +55,24 @@ def _read_reference(
 
 
 def localize_command(
-    map_yaml: Path = typer.Argument(..., help="map_server YAML map (e.g. from probmap map)."),
-    log: Path = typer.Argument(
+    first: Path = typer.Argument(
         ...,
+        metavar="MAP",
+        help="The map: a map_server YAML map (e.g. from probmap map) or a session saved by "
+        "probmap slam grid --save-session. With --map, this is the LOG.",
+    ),
+    second: Path | None = typer.Argument(
+        None,
+        metavar="LOG",
         help="Laser log with odometry: CARMEN (plain, .gz, .bz2), ROS 1/2 bag or a dataset name.",
+    ),
+    map_option: Path | None = typer.Option(
+        None,
+        "--map",
+        help="The map as an option (then the one argument is the log): a map_server YAML map or "
+        "a graph-SLAM session (a Python pickle: load only sessions you wrote). A session's map "
+        "is its occupancy grid at its optimized poses, and its trajectory is the reference when "
+        "--reference is not given.",
     ),
     output: Path = typer.Option(
         ...,
@@ -129,95 +123,157 @@ def localize_command(
     odom_topic: str | None = odom_topic_option(),
     fixed_frame: str | None = fixed_frame_option(),
     laser_frame: str | None = laser_frame_option(),
+    viz: bool = typer.Option(
+        False, "--viz", help="Watch the run in the rerun viewer (extra 'viz')."
+    ),
+    viz_save: Path | None = typer.Option(
+        None,
+        "--viz-save",
+        help="Record the live view (map, particles, estimate and trajectory, scan, reference) "
+        "into FILE.rrd, to open later with 'rerun FILE.rrd' (extra 'viz').",
+    ),
 ) -> None:
     """Track (or globally localize) the robot of a laser log on a map with MCL: writes
-    trajectory.csv, trajectory.png and config.yaml (the settings used, with the probmap
-    version; and trajectory.tum with --tum) into OUTPUT."""
+    trajectory.csv, trajectory.png (the map, the final particles, the trajectory from the
+    filter's convergence on and the reference over the localized span) and config.yaml (the
+    settings used, with the command line and the probmap version; and trajectory.tum with
+    --tum) into OUTPUT. The map is a map_server map or a session of probmap slam grid."""
     with cli_errors():
+        import dataclasses
         import warnings
 
         import numpy as np
         from rich.console import Console
-        from rich.progress import Progress
         from rich.table import Table
 
         from probmap._atomic import atomic_outputs
+        from probmap.cli._provenance import write_run_config
+        from probmap.cli.common import Stopwatch, progress_bar, resolve_config
         from probmap.datasets.scans import open_scans
-        from probmap.grid.io import read_map_server
+        from probmap.errors import BadLinesWarning
         from probmap.pipelines import check_output_folder
         from probmap.pipelines.localize import (
             FilterLostWarning,
             LocalizeConfig,
+            load_localization_map,
             localize_scans,
             match_times,
             trajectory_errors,
         )
 
+        watch = Stopwatch()
+        if map_option is not None:
+            if second is not None:
+                raise CliError("--map names the map: give the log as the only argument")
+            map_path, log = map_option, first
+        elif second is None:
+            raise CliError("missing the LOG argument (probmap localize MAP LOG, or LOG --map MAP)")
+        else:
+            map_path, log = first, second
         if particles is not None and particles <= 0:
             raise CliError(f"--particles must be positive, got {particles}")
-        from probmap.cli.common import resolve_config
-
         overrides = {
             "n_particles": particles,
             "global_localization": True if global_ else None,
             "seed": seed,
         }
         cfg = resolve_config(LocalizeConfig, config, overrides)
-        if not map_yaml.exists():
-            raise FileNotFoundError(f"{map_yaml}: no such file")
+        if viz_save is not None and viz_save.suffix != ".rrd":
+            raise CliError(f"--viz-save {viz_save}: a recording is saved as FILE.rrd")
         log = laser_input(log)
         check_output_folder(output)
-
-        from probmap.errors import BadLinesWarning
+        if viz_save is not None:
+            check_output_folder(viz_save.parent if str(viz_save.parent) else Path("."))
 
         bags = bag_options_of(scan_topic, odom_topic, fixed_frame, laser_frame)
-        m = read_map_server(map_yaml)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", BadLinesWarning)  # counted in the summary
-            batch = open_scans(
-                log, poses="odometry", skip_bad_lines=skip_bad_lines, bag_options=bags
-            )
-        odo = np.asarray(batch.robot_poses)
-        if odo.shape[0] < 2 or np.all(odo == odo[0]):
-            raise CliError(f"{log}: no odometry (every scan carries the same robot pose)")
-        angles = np.asarray(batch.angles)
-        if angles.ndim != 1:
-            raise CliError(f"{log}: scans with differing beam geometry are not supported")
-        ref_t = ref_p = None
-        always = None
-        if reference is not None:
+        with watch("read"):
+            m = load_localization_map(map_path)
             with warnings.catch_warnings():
-                warnings.simplefilter("ignore", BadLinesWarning)
-                ref_t, ref_p = _read_reference(reference, reference_offset, skip_bad_lines, bags)
-            always, _ = match_times(batch.times, ref_t)
-            if always.size == 0:
-                raise CliError(
-                    f"{reference}: no reference time within 20 ms of a scan "
-                    "(check --reference-offset)"
+                warnings.simplefilter("ignore", BadLinesWarning)  # counted in the summary
+                batch = open_scans(
+                    log, poses="odometry", skip_bad_lines=skip_bad_lines, bag_options=bags
                 )
-        with Progress(transient=True) as bar:
-            task = bar.add_task(f"localizing {log.name}", total=None)
+            odo = np.asarray(batch.robot_poses)
+            if odo.shape[0] < 2 or np.all(odo == odo[0]):
+                raise CliError(f"{log}: no odometry (every scan carries the same robot pose)")
+            angles = np.asarray(batch.angles)
+            if angles.ndim != 1:
+                raise CliError(f"{log}: scans with differing beam geometry are not supported")
+            if not 0 <= start < len(batch.times):
+                raise CliError(f"--start {start}: the log has {len(batch.times):,} scans")
+            ref_t = ref_p = None
+            ref_name = None
+            always = None
+            if reference is not None:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", BadLinesWarning)
+                    ref_t, ref_p = _read_reference(
+                        reference, reference_offset, skip_bad_lines, bags
+                    )
+                always, _ = match_times(batch.times, ref_t)
+                if always.size == 0:
+                    raise CliError(
+                        f"{reference}: no reference time within 20 ms of a scan "
+                        "(check --reference-offset)"
+                    )
+                ref_name = reference.name
+            elif m.times is not None and m.poses is not None:
+                # a session: its own trajectory, where the log's scans are the session's
+                # (no forced updates: the session has a pose at every scan)
+                if match_times(batch.times, m.times)[0].size:
+                    ref_t, ref_p = m.times, m.poses
+                    ref_name = f"the session's trajectory ({map_path.name})"
+            if m.kind == "session" and not cfg.global_localization and cfg.initial_pose is None:
+                # the session knows where the robot was at the log's first scan (the log being
+                # the session's own, or a part of it); otherwise the odometry frame is taken
+                # for the map frame, as with a map file
+                pose0 = m.pose_at(float(batch.times[start]))
+                if pose0 is not None:
+                    cfg = dataclasses.replace(cfg, initial_pose=tuple(float(v) for v in pose0))
+
+        observer = None
+        if viz or viz_save is not None:
+            from probmap.viz.live import LiveView, LocalizationObserver
+
+            view = LiveView(f"probmap localize {log.name}", save=viz_save, spawn=viz)
+            span = None
+            if ref_t is not None and ref_p is not None:
+                last = len(batch.times) if stop is None else min(stop, len(batch.times))
+                t0, t1 = batch.times[start], batch.times[last - 1]
+                span = ref_p[(ref_t >= t0) & (ref_t <= t1)]
+            observer = LocalizationObserver(view, m, batch.max_range, reference=span)
+        stop_at = len(batch.times) if stop is None else min(stop, len(batch.times))
+        with watch("compute"), progress_bar(f"localizing {log.name}", unit="scans") as bar:
+            task = bar.add_task("localizing", total=max(stop_at - start, 0))
 
             def tick(done: int, total: int) -> None:
                 bar.update(task, completed=done, total=total)
 
-            with warnings.catch_warnings():  # a lost filter is reported below, in one line
-                warnings.simplefilter("ignore", FilterLostWarning)
-                run = localize_scans(
-                    m.spec,
-                    m.probability,
-                    batch.times,
-                    batch.ranges,
-                    angles,
-                    odo,
-                    batch.max_range,
-                    cfg,
-                    start=start,
-                    stop=stop,
-                    always_update=always,
-                    progress=tick,
-                )
+            try:
+                with warnings.catch_warnings():  # a lost filter is reported below, in one line
+                    warnings.simplefilter("ignore", FilterLostWarning)
+                    run = localize_scans(
+                        m.spec,
+                        m.probability,
+                        batch.times,
+                        batch.ranges,
+                        angles,
+                        odo,
+                        batch.max_range,
+                        cfg,
+                        start=start,
+                        stop=stop,
+                        always_update=always,
+                        progress=tick,
+                        observer=observer,
+                    )
+            except BaseException:
+                if observer is not None:
+                    observer.view.close(keep=False)
+                raise
         if run.lost is not None and not allow_lost:
+            if observer is not None:
+                observer.view.close(keep=False)
             raise CliError(
                 f"{log}: {run.lost.describe()}; nothing written (--allow-lost writes the "
                 "trajectory anyway)"
@@ -226,43 +282,55 @@ def localize_command(
         if ref_t is not None and ref_p is not None:
             errors = trajectory_errors(run, ref_t, ref_p)
             if errors[0].size == 0:
+                if observer is not None:
+                    observer.view.close(keep=False)
                 raise CliError("no update coincides with a reference pose")
         rows = np.column_stack([run.times, run.poses, run.spread])
         traj = output / "trajectory.csv"
         plot = output / "trajectory.png"
-        from matplotlib.figure import Figure
+        from probmap.viz.localize import save_localization_figure
 
-        fig = Figure(figsize=(8, 8))
-        _plot(fig.add_subplot(), m.spec, m.probability, run.poses, ref_p)
         extra: list[Path] = []
-        with atomic_outputs():  # every file or none; a missing folder is created
-            with atomic_path(traj) as tmp:
-                np.savetxt(
-                    tmp, rows, delimiter=",", fmt="%.6f", header="time,x,y,theta,spread",
-                    comments="",
-                )  # fmt: skip
-            with atomic_path(plot) as tmp:
-                fig.savefig(tmp, dpi=120, format="png")
-            if tum:
-                from probmap.datasets.tum import write_tum
+        with watch("write"):
+            try:
+                with atomic_outputs():  # every file or none; a missing folder is created
+                    with atomic_path(traj) as tmp:
+                        np.savetxt(
+                            tmp, rows, delimiter=",", fmt="%.6f", header="time,x,y,theta,spread",
+                            comments="",
+                        )  # fmt: skip
+                    save_localization_figure(
+                        plot, m, run.times, run.poses, run.spread,
+                        reference=None if ref_t is None else (ref_t, ref_p),
+                        particles=run.particles, title=f"MCL: {log.name} in {map_path.name}",
+                    )  # fmt: skip
+                    if tum:
+                        from probmap.datasets.tum import write_tum
 
-                extra.append(write_tum(output / "trajectory.tum", run.times, run.poses))
-            from probmap.config import write_config
-
-            extra.append(write_config(output / "config.yaml", cfg))
+                        extra.append(write_tum(output / "trajectory.tum", run.times, run.poses))
+                    extra.append(write_run_config(output / "config.yaml", cfg))
+            except BaseException:
+                if observer is not None:
+                    observer.view.close(keep=False)
+                raise
+            if observer is not None:
+                observer.view.close()
 
         console = Console()
         summary_rows = [
+            ("map", f"{map_path} ({m.kind}, {m.spec.shape[1]} x {m.spec.shape[0]} cells)"),
             *input_rows(batch.readings, batch.skipped_lines),
             ("updates", f"{run.times.size:,}"),
             ("final spread", f"{run.spread[-1]:.3f} m" if run.spread.size else "-"),
             *([("lost", run.lost.describe())] if run.lost is not None else []),
+            watch.row(),
             ("wrote", ", ".join(str(f) for f in (traj, plot, *extra))),
+            *([("recorded", f"{viz_save} (rerun {viz_save})")] if viz_save is not None else []),
         ]
         print_summary(f"probmap localize {log.name}", summary_rows, console=console)
         if errors is not None:
             err, head = errors
-            table = Table(title=f"error against {reference.name if reference else ''}")
+            table = Table(title=f"error against {ref_name}")
             for col in ("", "n", "median", "mean", "95th pct", "max"):
                 table.add_column(col, justify="right")
             for name, e, unit in (("position", err, "m"), ("heading", np.degrees(head), "deg")):

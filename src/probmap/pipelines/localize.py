@@ -181,6 +181,9 @@ class LocalizationRun:
         Index of the scan each row used.
     lost : LostReport or None
         Where the filter lost track (see ``LocalizeConfig.lost_spread``), None if it did not.
+    particles : (N, 3) ndarray or None
+        The particle set after the last update (m, rad), for pictures; None when it is not
+        kept.
     """
 
     times: NDArray[np.float64]
@@ -188,6 +191,7 @@ class LocalizationRun:
     spread: NDArray[np.float64]
     scan_index: NDArray[np.int64]
     lost: LostReport | None = None
+    particles: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -469,7 +473,10 @@ def localize_scans(
     if progress is not None:
         progress(stop - start, stop - start)
     arr = np.array(rows, dtype=np.float64).reshape(-1, 6)
-    run = LocalizationRun(arr[:, 0], arr[:, 1:4], arr[:, 4], arr[:, 5].astype(np.int64), lost=lost)
+    run = LocalizationRun(
+        arr[:, 0], arr[:, 1:4], arr[:, 4], arr[:, 5].astype(np.int64), lost=lost,
+        particles=np.array(mcl.particles),
+    )  # fmt: skip
     if observer is not None and hasattr(observer, "finish"):
         observer.finish(run)
     return run

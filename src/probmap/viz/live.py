@@ -291,3 +291,100 @@ def read_recording(path: str | os.PathLike[str]) -> dict[str, int]:
             continue
         counts[chunk.entity_path] = counts.get(chunk.entity_path, 0) + chunk.num_rows
     return counts
+
+
+class LocalizationObserver:
+    """Streams a Monte Carlo localization run
+    (:func:`probmap.pipelines.localize.localize_scans`) to a :class:`LiveView`.
+
+    On the first call it logs the map (``world/map``) and the reference trajectory
+    (``world/reference``, when given). Called after every filter update (``observer(index,
+    estimate, particles, ranges, angles)``), it logs every ``every`` updates the estimate
+    (``world/estimate``), the scan's endpoints at the estimate (``world/scan``), at most
+    ``max_particles`` particles (``world/particles``, an even subsample) and the spread
+    (``stats/spread``, m); the estimated trajectory (``world/trajectory``) is logged at most
+    once per ``interval`` seconds of wall time; :meth:`finish` logs it whole.
+
+    Parameters
+    ----------
+    view : LiveView
+    grid : OccupancyGrid or LocalizationMap
+        The map: anything with ``spec``, ``log_odds`` and ``observed``.
+    max_range : float
+        Readings at or beyond it (m) are no return and not drawn.
+    reference : (M, 2) or (M, 3) array_like, optional
+        A reference path in the map frame (m), already clipped to the localized span.
+    every : int
+        Updates between logs of the particles, estimate and scan.
+    max_particles : int
+        Most particles logged per update (the viewer slows down with hundreds of thousands
+        of points over a run).
+    interval : float
+        Least wall time (s) between logs of the growing trajectory (0: every ``every``-th
+        update).
+    """
+
+    def __init__(
+        self,
+        view: LiveView,
+        grid: Any,
+        max_range: float,
+        *,
+        reference: ArrayLike | None = None,
+        every: int = 1,
+        max_particles: int = 500,
+        interval: float = 1.0,
+    ) -> None:
+        if every < 1:
+            raise ValueError(f"every must be >= 1, got {every}")
+        if max_particles < 1:
+            raise ValueError(f"max_particles must be >= 1, got {max_particles}")
+        if not interval >= 0:
+            raise ValueError(f"interval must be >= 0 s, got {interval}")
+        self.view = view
+        self.grid = grid
+        self.max_range = float(max_range)
+        self.reference = (
+            None if reference is None else np.asarray(reference, dtype=np.float64)[:, :2]
+        )
+        self.every = int(every)
+        self.max_particles = int(max_particles)
+        self.interval = float(interval)
+        self.updates = 0
+        self._path: list[NDArray[np.float64]] = []
+        self._last = -math.inf
+
+    def __call__(
+        self, index: int, estimate: Any, particles: NDArray, ranges: NDArray, angles: NDArray
+    ) -> None:
+        v = self.view
+        v.step(index)
+        if self.updates == 0:
+            v.grid(self.grid)
+            if self.reference is not None and len(self.reference):
+                v.path("world/reference", self.reference, color=(40, 160, 60))
+        self.updates += 1
+        pose = np.asarray(estimate.best_cluster, dtype=np.float64)
+        self._path.append(pose[:2].copy())
+        if (self.updates - 1) % self.every:
+            return
+        n = len(particles)
+        q = particles[:: max(1, -(-n // self.max_particles)), :2]
+        v.points("world/particles", q, color=(240, 140, 0), radius=0.03)
+        v.points("world/estimate", pose[:2], color=(220, 40, 40), radius=0.12)
+        v.points("world/scan", _scan_points(pose, ranges, angles, self.max_range), radius=0.03)
+        v.scalar("stats/spread", estimate.spread)
+        now = time.perf_counter()
+        if now - self._last >= self.interval:
+            self._last = now
+            v.path("world/trajectory", np.asarray(self._path), color=(220, 40, 40))
+
+    def finish(self, run: Any) -> None:
+        """The whole estimated trajectory of the run (``LocalizationRun``)."""
+        if len(run.times) == 0:
+            return
+        self.view.step(int(run.scan_index[-1]))
+        self.view.path("world/trajectory", run.poses[:, :2], color=(220, 40, 40))
+
+
+__all__ += ["LocalizationObserver"]

@@ -1,0 +1,155 @@
+"""Pictures of Monte Carlo localization: the map, the estimated trajectory from the filter's
+convergence on (broken where the estimate jumps), the reference over the localized time span,
+and optionally the particles (axes first; the caller owns the figure)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from probmap.viz.maps import plot_map
+
+__all__ = ["converged_index", "plot_localization", "save_localization_figure", "split_at_jumps"]
+
+
+def converged_index(spread: ArrayLike, threshold: float = 1.0) -> int:
+    """The first update from which the particles' spread stays at or below ``threshold``
+    (m) to the end of the run; ``len(spread)`` when the last one is above it.
+
+    A global localization's early estimates are the heaviest cluster of particles spread over
+    the whole building: they jump from room to room and mean nothing until the filter
+    converges.
+
+    >>> converged_index([8.0, 5.0, 0.3, 2.0, 0.4, 0.2])
+    4
+    >>> converged_index([0.1, 0.2]), converged_index([0.1, 3.0])
+    (0, 2)
+    """
+    s = np.asarray(spread, dtype=np.float64).reshape(-1)
+    above = np.flatnonzero(~(s <= threshold))  # NaN counts as not converged
+    return 0 if above.size == 0 else int(above[-1]) + 1
+
+
+def split_at_jumps(xy: ArrayLike, max_step: float) -> list[NDArray[np.float64]]:
+    """Cut a path (T, 2) into pieces wherever two consecutive points lie more than
+    ``max_step`` metres apart, so that a plot draws no line across the jump (through a wall).
+    Pieces of one point are kept (a plot marks them as points).
+
+    >>> [p.shape[0] for p in split_at_jumps([[0, 0], [0.1, 0], [5, 0], [5.1, 0]], 1.0)]
+    [2, 2]
+    """
+    p = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    if not max_step > 0:
+        raise ValueError(f"max_step must be > 0 m, got {max_step}")
+    if len(p) == 0:
+        return []
+    step = np.hypot(*np.diff(p, axis=0).T)
+    cuts = np.flatnonzero(~(step <= max_step)) + 1
+    return [piece for piece in np.split(p, cuts) if len(piece)]
+
+
+def plot_localization(
+    ax: Any,
+    grid: Any,
+    times: ArrayLike,
+    poses: ArrayLike,
+    spread: ArrayLike,
+    *,
+    reference: tuple[ArrayLike, ArrayLike] | None = None,
+    particles: ArrayLike | None = None,
+    converged_spread: float = 1.0,
+    max_step: float = 1.0,
+    title: str | None = None,
+) -> Any:
+    """Draw an MCL run on its map.
+
+    The trajectory is drawn from :func:`converged_index` on (the estimates before it are
+    marked as faint dots), broken by :func:`split_at_jumps` where the estimate jumps (a
+    relocalization): it never draws a line through a wall. The reference is clipped to the
+    time span of the drawn trajectory.
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    grid : OccupancyGrid or LocalizationMap
+        Anything with ``spec``, ``log_odds`` and ``observed`` (see
+        :func:`probmap.viz.maps.plot_map`).
+    times : (T,) array_like
+        Update timestamps (s).
+    poses : (T, 3) array_like
+        Estimates (x, y, theta) in the map frame (m, rad).
+    spread : (T,) array_like
+        The particles' positional spread at each update (m).
+    reference : (times (M,), poses (M, 3)), optional
+        A reference trajectory in the same frame and clock.
+    particles : (N, 3) array_like, optional
+        A particle set to draw (the last one, usually).
+    converged_spread : float
+        Spread (m) under which the filter counts as converged.
+    max_step : float
+        Largest distance (m) between consecutive estimates drawn as one line (updates come
+        every 0.1 m of motion by default, so 1 m is a jump).
+    title : str, optional
+
+    Returns
+    -------
+    matplotlib Axes
+    """
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    p = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    s = np.asarray(spread, dtype=np.float64).reshape(-1)
+    if not (t.shape[0] == p.shape[0] == s.shape[0]):
+        raise ValueError(
+            f"times {t.shape}, poses {p.shape} and spread {s.shape} need one row per update"
+        )
+    plot_map(ax, grid, title=title)
+    c = converged_index(s, converged_spread)
+    if reference is not None and c < len(t):
+        rt = np.asarray(reference[0], dtype=np.float64).reshape(-1)
+        rp = np.asarray(reference[1], dtype=np.float64).reshape(-1, 3)
+        keep = (rt >= t[c]) & (rt <= t[-1])
+        for k, piece in enumerate(split_at_jumps(rp[keep, :2], max_step)):
+            ax.plot(
+                piece[:, 0], piece[:, 1], "-", color="tab:green", lw=0.8,
+                label="reference" if k == 0 else None,
+            )  # fmt: skip
+    if particles is not None:
+        q = np.asarray(particles, dtype=np.float64).reshape(-1, 3)
+        ax.plot(q[:, 0], q[:, 1], ".", color="tab:orange", ms=1.0, alpha=0.5, label="particles")
+    if c > 0:
+        ax.plot(
+            p[:c, 0], p[:c, 1], ".", color="tab:red", ms=2.0, alpha=0.3,
+            label=f"before convergence ({c} updates)",
+        )  # fmt: skip
+    for k, piece in enumerate(split_at_jumps(p[c:, :2], max_step)):
+        style = "-" if len(piece) > 1 else "."
+        ax.plot(
+            piece[:, 0], piece[:, 1], style, color="tab:red", lw=0.8, ms=2.0,
+            label="MCL" if k == 0 else None,
+        )  # fmt: skip
+    ax.legend(loc="upper right", fontsize=7)
+    return ax
+
+
+def save_localization_figure(
+    path: str | os.PathLike[str], grid: Any, times: ArrayLike, poses: ArrayLike,
+    spread: ArrayLike, *, dpi: int = 120, **kwargs: Any,
+) -> Path:  # fmt: skip
+    """Render :func:`plot_localization` to a PNG (Agg backend, written atomically; inside
+    :func:`probmap._atomic.atomic_outputs` it is renamed with the command's other files).
+    ``kwargs`` go to :func:`plot_localization`."""
+    from matplotlib.figure import Figure
+
+    from probmap._atomic import atomic_write
+
+    path = Path(path)
+    h, w = grid.spec.shape
+    fig = Figure(figsize=(8, float(np.clip(8 * h / max(w, 1), 3, 12)) + 0.6))
+    plot_localization(fig.add_subplot(), grid, times, poses, spread, **kwargs)
+    with atomic_write(path, "wb") as f:
+        fig.savefig(f, format="png", dpi=dpi, bbox_inches="tight")
+    return path

@@ -111,3 +111,80 @@ def test_semantic_bad_config(labelled_scans, tmp_path):
     res = run("semantic", labelled_scans, "-o", tmp_path / "out", "--config", bad)
     one_line_error(res, "bad.yaml", "p_hit")
     assert not list(tmp_path.glob("out*"))
+
+
+# ----------------------------------------------------------------------------- optimize
+@pytest.fixture(scope="module")
+def square_graph(tmp_path_factory):
+    """A square loop of 17 poses with noisy starting poses, one true and one false closure."""
+    from probmap.geometry.se2 import between, compose
+
+    truth = np.zeros((17, 3))
+    for i in range(16):
+        truth[i + 1] = compose(truth[i], [1.0, 0.0, np.pi / 2 if i % 4 == 3 else 0.0])
+    edges = [(i, i + 1) for i in range(16)] + [(0, 16), (2, 10)]
+    z = [between(truth[i], truth[j]).tolist() for i, j in edges[:-1]] + [[1.0, 0.0, 0.0]]
+    start = truth + np.random.default_rng(0).normal(0, 0.1, truth.shape)
+    start[0] = truth[0]
+    lines = [f"VERTEX_SE2 {n} {p[0]!r} {p[1]!r} {p[2]!r}" for n, p in enumerate(start.tolist())]
+    for (i, j), zz in zip(edges, z, strict=True):
+        lines.append(f"EDGE_SE2 {i} {j} {zz[0]!r} {zz[1]!r} {zz[2]!r} 100 0 0 100 0 400")
+    path = tmp_path_factory.mktemp("graph") / "square.g2o"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_optimize_config(square_graph, tmp_path):
+    from probmap.pipelines.pose_graph import PoseGraphConfig
+    from probmap.slam.posegraph import OptimizerConfig
+
+    ok("optimize", square_graph, "-o", tmp_path / "default.g2o")
+    assert recorded(tmp_path / "default.config.yaml", PoseGraphConfig) == PoseGraphConfig()
+    ok(
+        "optimize", square_graph, "-o", tmp_path / "opt.g2o",
+        "--robust", "cauchy", "--robust-edges", "closures", "--max-iterations", "7",
+    )  # fmt: skip
+    cfg_file = tmp_path / "c.yaml"
+    cfg_file.write_text("robust: cauchy\nmax_iterations: 7\nrobust_edges: closures\n")
+    res = ok("optimize", square_graph, "-o", tmp_path / "file.g2o", "--config", cfg_file)
+    assert "cauchy (scale 2.3849, closures edges)" in res.output
+    by_opt, by_file = ((tmp_path / n).read_text() for n in ("opt.g2o", "file.g2o"))
+    assert by_file == by_opt != (tmp_path / "default.g2o").read_text()
+    # options override the file, field by field (the nested optimizer's fields too)
+    ok(
+        "optimize", square_graph, "-o", tmp_path / "over.g2o", "--config", cfg_file,
+        "--robust", "huber", "--init", "lago",
+    )  # fmt: skip
+    cfg = recorded(tmp_path / "over.config.yaml", PoseGraphConfig)
+    assert cfg == PoseGraphConfig(
+        robust="huber", max_iterations=7, robust_edges="closures", init="lago"
+    )
+    assert cfg.optimizer() == OptimizerConfig(robust="huber", max_iterations=7)
+    assert cfg.optimizer().scale == 1.345  # the Huber default, not Cauchy's
+    # the recorded file reproduces the run
+    ok(
+        "optimize",
+        square_graph,
+        "-o",
+        tmp_path / "again.g2o",
+        "--config",
+        tmp_path / "over.config.yaml",
+    )
+    assert (tmp_path / "again.g2o").read_text() == (tmp_path / "over.g2o").read_text()
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ("robus: huber\n", ["bad.yaml", "robus", "robust?"]),
+        ("robust: tukey\n", ["bad.yaml", "robust", "'tukey'"]),
+        ("max_iterations: -1\n", ["bad.yaml", "max_iterations must be >= 0"]),
+        ("robust_edges: some\n", ["bad.yaml", "robust_edges"]),
+    ],
+)
+def test_optimize_bad_config(square_graph, tmp_path, text, words):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(text)
+    res = run("optimize", square_graph, "-o", tmp_path / "out.g2o", "--config", bad)
+    one_line_error(res, *words)
+    assert not list(tmp_path.glob("out*"))

@@ -57,7 +57,8 @@ def test_optimize_writes_graph_and_summary(tmp_path, toro):
         assert word in res.output
     a = pose_graph_arrays(read_pose_graph(out))
     assert np.allclose(a.poses[:, :2], truth[:, :2], atol=1e-6)
-    assert sorted(x.name for x in tmp_path.iterdir()) == sorted([src.name, "out.g2o"])
+    written = sorted(x.name for x in tmp_path.iterdir())
+    assert written == sorted([src.name, "out.g2o", "out.config.yaml"])
 
 
 def test_robust_closures_only(tmp_path):

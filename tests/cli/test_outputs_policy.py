@@ -200,7 +200,7 @@ COMMANDS = [
     Command(
         "semantic",
         lambda i, o, f: ["semantic", str(i["scans"]), "-o", o, "-r", "0.1"],
-        (".npz", ".png", *(f".occupancy{s}" for s in MAP)),
+        (".npz", ".png", *(f".occupancy{s}" for s in MAP), ".config.yaml"),
         default="semantic",
     ),
     Command(
@@ -210,12 +210,17 @@ COMMANDS = [
         default="beam_model.yaml",
         explicit="beam.yaml",
     ),
-    Command(
+    Command(  # FILE.g2o and FILE.config.yaml beside it: the explicit name gets its .g2o here
         "optimize",
-        lambda i, o, f: ["optimize", str(i["graph"]), "-o", o],
-        ("",),
-        default="optimized.g2o",
-        explicit="out.g2o",
+        lambda i, o, f: [
+            "optimize",
+            str(i["graph"]),
+            "-o",
+            o + ".g2o" if o.endswith("/out") else o,
+        ],
+        (".g2o", ".config.yaml"),
+        default="optimized",
+        explicit="out",
     ),
     Command(
         "evaluate relations",

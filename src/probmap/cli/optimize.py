@@ -31,64 +31,69 @@ def optimize_command(
         help="Optimized graph (g2o); an existing folder (or a name ending in /) gets "
         "FOLDER/optimized.g2o. Missing folders are created.",
     ),
-    robust: str = typer.Option("none", "--robust", help=ROBUST_HELP),
+    robust: str | None = typer.Option(None, "--robust", help=ROBUST_HELP + " [default: none]"),
     robust_scale: float | None = typer.Option(None, "--robust-scale", help=SCALE_HELP),
-    max_iterations: int = typer.Option(
-        100, "--max-iterations", help="Most Levenberg-Marquardt iterations."
+    max_iterations: int | None = typer.Option(
+        None, "--max-iterations", help="Most Levenberg-Marquardt iterations [default: 100]."
     ),
-    robust_edges: str = typer.Option(
-        "all",
+    robust_edges: str | None = typer.Option(
+        None,
         "--robust-edges",
-        help="Edges under the kernel: all, or closures (every edge but i -> i+1 odometry).",
+        help="Edges under the kernel: all, or closures (every edge but i -> i+1 odometry) "
+        "[default: all].",
     ),
-    init: str = typer.Option("auto", "--init", help=INIT_HELP),
+    init: str | None = typer.Option(None, "--init", help=INIT_HELP + " [default: auto]"),
+    config: Path | None = typer.Option(
+        None,
+        "--config",
+        help="A YAML file of PoseGraphConfig fields (iterations, tolerances, damping, robust "
+        "kernel and scale, chart, robust_edges, init), as PREFIX.config.yaml records it; the "
+        "options given here override it.",
+    ),
 ) -> None:
-    """Levenberg-Marquardt on GRAPH; writes the optimized graph and prints the errors
-    (GTSAM's convention: 0.5 * sum e' Omega e, the first pose held fixed)."""
+    """Levenberg-Marquardt on GRAPH; writes the optimized graph and, beside it, the settings
+    used (PREFIX.config.yaml: with the command line and the probmap version), and prints the
+    errors (GTSAM's convention: 0.5 * sum e' Omega e, the first pose held fixed)."""
     with cli_errors():
-        import numpy as np
         from rich.console import Console
         from rich.table import Table
 
         from probmap._atomic import atomic_outputs
-        from probmap.datasets.g2o import pose_graph_arrays, read_pose_graph, with_poses, write_g2o
+        from probmap.cli._provenance import write_run_config
+        from probmap.cli.common import Stopwatch, resolve_config
+        from probmap.datasets.g2o import read_pose_graph, with_poses, write_g2o
         from probmap.pipelines import check_output_prefix
-        from probmap.slam.posegraph import OptimizerConfig, optimize_pose_graph
+        from probmap.pipelines.pose_graph import PoseGraphConfig, optimize_graph
 
+        watch = Stopwatch()
         target = check_output_prefix(output, "optimized.g2o")
-        if init not in ("auto", "given", "lago"):
+        stem = target.name[: -len(".g2o")] if target.name.endswith(".g2o") else target.name
+        config_path = target.with_name(f"{stem}.config.yaml")
+        if init is not None and init not in ("auto", "given", "lago"):
             raise ValueError(f"--init must be auto, given or lago, got {init!r}")
-        if robust not in ("none", "huber", "cauchy", "dcs"):
+        if robust is not None and robust not in ("none", "huber", "cauchy", "dcs"):
             raise ValueError(f"--robust must be none, huber, cauchy or dcs, got {robust!r}")
-        if init == "auto":
-            init = "lago" if robust == "none" else "given"
-        if robust_edges not in ("all", "closures"):
+        if robust_edges is not None and robust_edges not in ("all", "closures"):
             raise ValueError(f"--robust-edges must be 'all' or 'closures', got {robust_edges!r}")
-        config = OptimizerConfig(
-            max_iterations=max_iterations,
-            robust=robust,  # type: ignore[arg-type]  # validated by OptimizerConfig
-            robust_scale=robust_scale,
-        )
-        g = read_pose_graph(graph)
-        a = pose_graph_arrays(g)
-        fixed = a.fixed if a.fixed.size else (0,)
-        ids = a.ids[a.edges]
-        mask = None if robust_edges == "all" else np.abs(ids[:, 1] - ids[:, 0]) != 1
-        try:
-            r = optimize_pose_graph(
-                a.poses,
-                a.edges,
-                a.measurements,
-                a.information,
-                config,
-                fixed=fixed,
-                robust_mask=mask,
-                init=init,  # type: ignore[arg-type]  # checked above
-            )
-        except ValueError as exc:
-            raise ValueError(f"{graph}: {exc}") from None
-        with atomic_outputs():  # a missing folder is created
+        overrides = {
+            "robust": robust,
+            "robust_scale": robust_scale,
+            "max_iterations": max_iterations,
+            "robust_edges": robust_edges,
+            "init": init,
+        }
+        cfg = resolve_config(PoseGraphConfig, config, overrides)
+        with watch("read"):
+            g = read_pose_graph(graph)
+        with watch("compute"):
+            try:
+                run = optimize_graph(g, cfg)
+            except ValueError as exc:
+                raise ValueError(f"{graph}: {exc}") from None
+        a, r, opt = run.arrays, run.result, cfg.optimizer()
+        with watch("write"), atomic_outputs():  # both files or none; a missing folder is made
             write_g2o(target, with_poses(g, a.ids, r.poses))
+            write_run_config(config_path, cfg)
 
         table = Table(title=f"pose-graph optimization of {graph.name}")
         table.add_column("")
@@ -98,20 +103,21 @@ def optimize_command(
         table.add_row("edges", f"{len(a.edges):,}")
         if g.equivalences:
             table.add_row("EQUIV lines (not merged)", f"{len(g.equivalences):,}")
-        table.add_row("fixed nodes", ", ".join(str(int(a.ids[i])) for i in fixed))
-        kernel = f"{config.robust} (scale {config.scale:g}, {robust_edges} edges)"
-        table.add_row("robust kernel", kernel if config.robust != "none" else "none")
-        table.add_row("start", "LAGO estimate" if init == "lago" else "poses in the file")
+        table.add_row("fixed nodes", ", ".join(str(int(a.ids[i])) for i in run.fixed))
+        kernel = f"{opt.robust} (scale {opt.scale:g}, {cfg.robust_edges} edges)"
+        table.add_row("robust kernel", kernel if opt.robust != "none" else "none")
+        table.add_row("start", "LAGO estimate" if cfg.start == "lago" else "poses in the file")
         table.add_row("initial error", f"{r.initial_error:.6g}")
         table.add_row("final error", f"{r.final_error:.6g}")
         table.add_row("iterations", str(r.iterations))
         table.add_row("converged", f"{'yes' if r.converged else 'no'}: {r.message}")
-        table.add_row("time", f"{r.seconds:.3f} s")
-        if config.robust != "none":
+        if opt.robust != "none":
             table.add_row("edges with weight < 0.5", f"{int((r.weights < 0.5).sum()):,}")
+        table.add_row(*watch.row())
         console = Console()
         console.print(table)
         console.print(f"wrote {target}")
+        console.print(f"wrote {config_path}")
 
 
 def register(app: typer.Typer) -> None:

@@ -17,9 +17,12 @@ from probmap.cli.slam import (
     output_folder_option,
     plot_option,
     robot_option,
+    save_partial_option,
     slam_app,
     threads_option,
     tum_option,
+    viz_option,
+    viz_save_option,
 )
 
 MAX_ACTIVE_HELP = "Bound on the active landmarks (Table 12.4); 0 = unbounded (no sparsification)."
@@ -60,19 +63,29 @@ def seif_command(
     threads: int = threads_option(),
     plot: bool = plot_option(),
     tum: bool = tum_option(),
+    viz: bool = viz_option(),
+    viz_save: Path | None = viz_save_option(),
+    save_partial: bool = save_partial_option(),
 ) -> None:
     """SEIF SLAM (Probabilistic Robotics Tables 12.1-12.5): writes trajectory.csv,
     landmarks.csv, metrics.json and slam.png (and trajectory.tum with --tum) into OUTPUT, like
     'probmap slam ekf'."""
+    from probmap.cli.common import Stopwatch
+
+    watch = Stopwatch()  # the summary time covers the whole command
     limit_threads(threads)
     with cli_errors():
         from probmap.cli.slam import run_and_report
         from probmap.pipelines import check_output_folder
 
         check_output_folder(output)
-        ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
+        with watch("read"):
+            ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
         title = f"SEIF SLAM ({_label(max_active, context_hops)})"
-        run_and_report(_seif(ds, max_active, context_hops), ds, output, title, plot, tum=tum)
+        run_and_report(
+            _seif(ds, max_active, context_hops), ds, output, title, plot, tum=tum, watch=watch,
+            viz=viz, viz_save=viz_save, save_partial=save_partial,
+        )  # fmt: skip
 
 
 def _state_bytes(estimator: Any) -> int:

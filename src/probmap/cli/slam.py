@@ -13,7 +13,7 @@ from typing import Any
 
 import typer
 
-from probmap.cli.common import CliError, cli_errors, print_summary
+from probmap.cli.common import CliError, Stopwatch, cli_errors, print_summary
 
 slam_app = typer.Typer(
     help="Landmark SLAM on feature datasets (EKF; SEIF; GraphSLAM).", no_args_is_help=True
@@ -58,6 +58,52 @@ def tum_option() -> Any:
         "--tum",
         help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
     )
+
+
+def viz_option() -> Any:
+    return typer.Option(False, "--viz", help="Watch the run in the rerun viewer (extra 'viz').")
+
+
+def viz_save_option() -> Any:
+    return typer.Option(
+        None,
+        "--viz-save",
+        help="Record the live view into FILE.rrd (open it later with 'rerun FILE.rrd').",
+    )
+
+
+def save_partial_option() -> Any:
+    return typer.Option(
+        True,
+        "--save-partial/--no-save-partial",
+        help="On Ctrl-C, stop after the current step and write the results of the steps so far "
+        "(exit 130); a second Ctrl-C aborts without writing.",
+    )
+
+
+def open_view(title: str, viz: bool, viz_save: Path | None) -> Any:
+    """The live view of ``--viz`` / ``--viz-save`` (None without either), the recording's
+    name and folder checked before any work."""
+    if not viz and viz_save is None:
+        return None
+    from probmap.pipelines import check_output_folder
+    from probmap.viz.live import LiveView
+
+    if viz_save is not None:
+        if viz_save.suffix != ".rrd":
+            raise ValueError(f"--viz-save {viz_save}: a recording is saved as FILE.rrd")
+        check_output_folder(viz_save.parent if str(viz_save.parent) else Path("."))
+    return LiveView(title, save=viz_save, spawn=viz)
+
+
+def interrupted_exit(done: int, total: int, unit: str, wrote: bool) -> None:
+    """After a Ctrl-C: one line on stderr saying what was written, and exit code 130."""
+    if wrote:
+        msg = f"interrupted: wrote the results of the first {done:,} of {total:,} {unit}"
+    else:
+        msg = "interrupted: nothing written (--no-save-partial, or Ctrl-C twice)"
+    typer.echo(msg, err=True)
+    raise typer.Exit(130)
 
 
 def limit_threads(threads: int) -> None:
@@ -157,58 +203,112 @@ def _provenance(estimator: Any) -> dict[str, Any]:
 
 
 def run_and_report(
-    estimator: Any, dataset: Any, output: Path, title: str, plot: bool, *, tum: bool = False
+    estimator: Any,
+    dataset: Any,
+    output: Path,
+    title: str,
+    plot: bool,
+    *,
+    tum: bool = False,
+    watch: Stopwatch | None = None,
+    viz: bool = False,
+    viz_save: Path | None = None,
+    save_partial: bool = True,
 ) -> dict[str, Any]:
     """Run with a progress bar, evaluate, write outputs and a plot (all or none; with ``tum``
-    also ``trajectory.tum``), print the metrics table."""
+    also ``trajectory.tum``), print the metrics table.
+
+    ``watch`` is the command's stopwatch (started before the dataset was read, so that the
+    summary time covers the whole command); ``viz``/``viz_save`` show or record the run
+    (:class:`probmap.viz.live.LandmarkSlamObserver`). Ctrl-C stops after the current step:
+    with ``save_partial`` the outputs of the steps so far are written, then the command exits
+    with code 130 (without it, or on a second Ctrl-C, nothing is written)."""
     import dataclasses
 
-    from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
     from probmap._atomic import atomic_outputs
+    from probmap.cli.common import progress_bar
+    from probmap.cli.gridslam import _stop_on_ctrl_c
     from probmap.pipelines import check_output_folder
     from probmap.pipelines.landmark_slam import evaluate, run_landmark_slam, write_slam_outputs
 
+    watch = watch or Stopwatch()
     check_output_folder(output)
+    view = open_view(f"probmap {title} on {getattr(dataset, 'name', '')}", viz, viz_save)
+    observer = None
+    if view is not None:
+        from probmap.viz.live import LandmarkSlamObserver
 
-    console = Console(stderr=True)
-    with Progress(
-        TextColumn(title),
-        BarColumn(),
-        TextColumn("{task.completed:,}/{task.total:,} steps"),
-        TimeRemainingColumn(),
-        console=console,
-        transient=True,
-    ) as bar:
-        task = bar.add_task(title, total=len(dataset))
-        result = run_landmark_slam(
-            estimator, dataset, progress=lambda i, n: bar.update(task, completed=i)
-        )
-    metrics = evaluate(result, dataset)
+        observer = LandmarkSlamObserver(view, dataset.measurement_model)
+    try:
+        with watch("compute"):
+            with progress_bar(title, unit="steps") as bar, _stop_on_ctrl_c(save_partial) as stop:
+                task = bar.add_task(title, total=len(dataset))
+                result = run_landmark_slam(
+                    estimator,
+                    dataset,
+                    progress=lambda i, n: bar.update(task, completed=i),
+                    observer=observer,
+                    stop=stop,
+                )
+            metrics = evaluate(result, dataset)
+    except KeyboardInterrupt:
+        if view is not None:
+            view.close(keep=False)
+        interrupted_exit(0, len(dataset), "steps", wrote=False)
+        raise  # not reached
+    except BaseException:
+        if view is not None:
+            view.close(keep=False)
+        raise
     metrics["dataset"] = getattr(dataset, "name", "")
     metrics["estimator"] = title
     metrics.update(_provenance(estimator))
-    with atomic_outputs():  # a missing folder is created; a failed picture leaves no CSV
-        files = write_slam_outputs(result, metrics, output)
-        cfg = getattr(estimator, "config", None)
-        if dataclasses.is_dataclass(cfg) and not isinstance(cfg, type):
-            from probmap.config import write_config
+    if result.interrupted:
+        metrics["interrupted"] = {"steps": len(result.trajectory), "of": result.steps_total}
+    with watch("write"):
+        try:
+            if observer is not None:
+                observer.finish(result, dataset, metrics)
+            with atomic_outputs():  # a missing folder is created; a failed picture leaves no CSV
+                files = write_slam_outputs(result, metrics, output)
+                cfg = getattr(estimator, "config", None)
+                if dataclasses.is_dataclass(cfg) and not isinstance(cfg, type):
+                    from probmap.config import write_config
 
-            files.append(write_config(output / "config.yaml", cfg))  # exact, loadable
-        if tum:
-            from probmap.datasets.tum import write_tum
+                    files.append(write_config(output / "config.yaml", cfg))  # exact, loadable
+                if tum:
+                    from probmap.datasets.tum import write_tum
 
-            trajectory = result.trajectory
-            files.append(write_tum(output / "trajectory.tum", trajectory[:, 0], trajectory[:, 1:4]))
-        if plot:
-            from probmap.viz.slam import save_slam_figure
+                    tr = result.trajectory
+                    files.append(write_tum(output / "trajectory.tum", tr[:, 0], tr[:, 1:4]))
+                if plot:
+                    from probmap.viz.slam import save_slam_figure
 
-            files.append(
-                save_slam_figure(output / "slam.png", result, dataset, title=title, metrics=metrics)
-            )
-    rows = [*metrics_rows(metrics), *(("wrote", str(f)) for f in files)]
+                    files.append(
+                        save_slam_figure(
+                            output / "slam.png", result, dataset, title=title, metrics=metrics
+                        )
+                    )
+        except BaseException:
+            if view is not None:
+                view.close(keep=False)
+            raise
+        if view is not None:
+            view.close()
+    rows = metrics_rows(metrics)
+    rows = [r for r in rows if r[0] != "time"]
+    steps = metrics["step_ms"]
+    rows.append(("step time", f"{steps['mean']:.3f} ms mean, {steps['median']:.3f} ms median"))
+    rows.append(watch.row())
+    rows += [("wrote", str(f)) for f in files]
+    if viz_save is not None:
+        rows.append(("recorded", f"{viz_save} (rerun {viz_save})"))
+    if result.interrupted:
+        done = len(result.trajectory)
+        rows.insert(0, ("interrupted", f"at step {done:,} of {result.steps_total:,}"))
     print_summary(f"{title} on {metrics['dataset']}", rows)
+    if result.interrupted:
+        interrupted_exit(len(result.trajectory), result.steps_total, "steps", wrote=True)
     return metrics
 
 
@@ -231,9 +331,13 @@ def ekf_command(
         help="A YAML file of the estimator's configuration (as OUTPUT/config.yaml records it) "
         "instead of the dataset's defaults.",
     ),
+    viz: bool = viz_option(),
+    viz_save: Path | None = viz_save_option(),
+    save_partial: bool = save_partial_option(),
 ) -> None:
     """EKF SLAM (Probabilistic Robotics Table 10.1/10.2): writes trajectory.csv, landmarks.csv,
     metrics.json and slam.png (and trajectory.tum with --tum) into OUTPUT."""
+    watch = Stopwatch()
     limit_threads(threads)
     with cli_errors():
         from probmap.config import load_config
@@ -243,7 +347,8 @@ def ekf_command(
 
         check_output_folder(output)
         file_cfg = None if config is None else load_config(EKFConfig, config)
-        ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
+        with watch("read"):
+            ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
         ekf = EKFSLAM(
             ds.motion_model,
             ds.measurement_model,
@@ -251,7 +356,10 @@ def ekf_command(
             ds.initial_covariance,
             file_cfg if file_cfg is not None else default_ekf_config(ds),
         )
-        run_and_report(ekf, ds, output, "EKF SLAM", plot, tum=tum)
+        run_and_report(
+            ekf, ds, output, "EKF SLAM", plot, tum=tum, watch=watch, viz=viz, viz_save=viz_save,
+            save_partial=save_partial,
+        )  # fmt: skip
 
 
 @slam_app.command("graphslam")
@@ -278,10 +386,14 @@ def graphslam_command(
         help="A YAML file of GraphSLAMConfig (as OUTPUT/config.yaml records it) instead of the "
         "dataset's defaults; --robust still applies.",
     ),
+    viz: bool = viz_option(),
+    viz_save: Path | None = viz_save_option(),
+    save_partial: bool = save_partial_option(),
 ) -> None:
     """GraphSLAM over the whole log (Probabilistic Robotics Tables 11.1-11.5, known landmark
     ids): writes trajectory.csv (smoothed), landmarks.csv, metrics.json and slam.png (and
     trajectory.tum with --tum) into OUTPUT, like 'probmap slam ekf'."""
+    watch = Stopwatch()
     limit_threads(threads)
     with cli_errors():
         from dataclasses import replace
@@ -293,10 +405,14 @@ def graphslam_command(
 
         check_output_folder(output)
         file_cfg = None if config is None else load_config(GraphSLAMConfig, config)
-        ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
+        with watch("read"):
+            ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
         base = file_cfg if file_cfg is not None else default_graphslam_config(ds)
         gcfg = replace(base, robust=robust, robust_scale=None)
-        run_and_report(build_graphslam(ds, gcfg), ds, output, "GraphSLAM", plot, tum=tum)
+        run_and_report(
+            build_graphslam(ds, gcfg), ds, output, "GraphSLAM", plot, tum=tum, watch=watch,
+            viz=viz, viz_save=viz_save, save_partial=save_partial,
+        )  # fmt: skip
 
 
 @slam_app.command("fastslam")
@@ -321,10 +437,14 @@ def fastslam_command(
     end_time: float | None = end_time_option(),
     plot: bool = plot_option(),
     tum: bool = tum_option(),
+    viz: bool = viz_option(),
+    viz_save: Path | None = viz_save_option(),
+    save_partial: bool = save_partial_option(),
 ) -> None:
     """FastSLAM 1.0 / 2.0 with known landmark ids (Probabilistic Robotics ch. 13): writes
     trajectory.csv (weighted mean pose), landmarks.csv (heaviest particle), metrics.json and
     slam.png (and trajectory.tum with --tum) into OUTPUT, like 'probmap slam ekf'."""
+    watch = Stopwatch()
     with cli_errors():
         from probmap.cli.common import resolve_config
         from probmap.pipelines import check_output_folder
@@ -333,10 +453,14 @@ def fastslam_command(
         overrides = {"n_particles": particles, "version": version, "seed": seed}
         cfg = resolve_config(FastSLAMConfig, config, overrides)
         check_output_folder(output)
-        ds = open_landmark_dataset(dataset, data_dir, robot, False, end_time)
+        with watch("read"):
+            ds = open_landmark_dataset(dataset, data_dir, robot, False, end_time)
         slam = FastSLAM(ds.motion_model, ds.measurement_model, ds.initial_pose, cfg)
         title = f"FastSLAM {cfg.version}.0 ({cfg.n_particles} particles)"
-        run_and_report(slam, ds, output, title, plot, tum=tum)
+        run_and_report(
+            slam, ds, output, title, plot, tum=tum, watch=watch, viz=viz, viz_save=viz_save,
+            save_partial=save_partial,
+        )  # fmt: skip
 
 
 def register(app: typer.Typer) -> None:

@@ -93,6 +93,11 @@ class MappingResult:
     """Sensor poses (S, 3) of the scans, drawn on ``PREFIX.plot.png`` (None: no trajectory)."""
     source: str | None = None
     """What was mapped (the log's file name), the title of ``PREFIX.plot.png``."""
+    interrupted: bool = False
+    """The run was stopped (``map_log(stop=)``) before the last scan: the map holds the scans
+    before it (``stats.scans`` of ``scans_total``)."""
+    scans_total: int = 0
+    """Scans of the log (0: not recorded)."""
 
 
 def _check_folder(folder: Path, what: str) -> None:
@@ -164,6 +169,9 @@ def map_log(
     *,
     progress: Callable[[int, int], None] | None = None,
     bag_options: dict[str, Any] | None = None,
+    observer: Callable[..., None] | None = None,
+    observe_every: int = 20,
+    stop: Callable[[], bool] | None = None,
 ) -> MappingResult:
     """Build an occupancy grid from a laser log with known poses (Table 9.1).
 
@@ -179,11 +187,24 @@ def map_log(
     bag_options : dict, optional
         A bag's topics and frames (``scan_topic``, ``odom_topic``, ``fixed_frame``,
         ``laser_frame``); guessed when not given.
+    observer : callable, optional
+        A live view (:class:`probmap.viz.live.MappingObserver`), called as
+        ``observer(done, grid, trajectory, ranges, angles, max_range)`` after every
+        ``observe_every`` scans: the grid so far, the sensor poses (done, 3) so far and the
+        newest scan's ranges (B,) and angles (B,) (metres, radians). It must not change the
+        grid. Watching does not change the map.
+    observe_every : int
+        Scans between calls of ``observer`` (>= 1).
+    stop : callable, optional
+        Asked before each chunk of scans; when it returns True mapping ends there (Ctrl-C in
+        the CLI) and the result holds the scans so far (``interrupted``).
 
     Returns
     -------
     MappingResult
     """
+    if observe_every < 1:
+        raise ValueError(f"observe_every must be >= 1, got {observe_every}")
     cfg = config or MappingConfig()
     t0 = time.perf_counter()
     batch = _open(path, cfg, bag_options)
@@ -195,25 +216,37 @@ def map_log(
     n = len(batch.times)
     poses = np.asarray(batch.laser_poses)
     angles = np.asarray(batch.angles)
-    for start in range(0, n, cfg.chunk):
-        stop = min(start + cfg.chunk, n)
-        ang = angles if angles.ndim == 1 else angles[start:stop]
+    # chunks end at the observer's calls too (the scans are integrated in the same order, so
+    # the map is the same)
+    step = cfg.chunk if observer is None else min(cfg.chunk, observe_every)
+    done = 0
+    for start in range(0, n, step):
+        if stop is not None and stop():
+            break
+        end = min(start + step, n)
+        ang = angles if angles.ndim == 1 else angles[start:end]
         stats = stats + grid.integrate_scans(
-            poses[start:stop], batch.ranges[start:stop], ang, max_range=max_range
+            poses[start:end], batch.ranges[start:end], ang, max_range=max_range
         )
+        done = end
+        if observer is not None:
+            scan_angles = angles if angles.ndim == 1 else angles[end - 1]
+            observer(end, grid, poses[:end], batch.ranges[end - 1], scan_angles, max_range)
         if progress is not None:
-            progress(stop, n)
+            progress(end, n)
     grid = grid.cropped()
     t2 = time.perf_counter()
     return MappingResult(
         grid=grid,
-        stats=_without_padding(stats, batch),
+        stats=_without_padding(stats, batch, done),
         parse_seconds=t1 - t0,
         map_seconds=t2 - t1,
         skipped_lines=int(getattr(batch, "skipped_lines", 0)),
         readings=report,
-        trajectory=poses,
+        trajectory=poses[:done],
         source=Path(path).name,
+        interrupted=done < n,
+        scans_total=n,
     )
 
 
@@ -232,12 +265,14 @@ def _open(
     )
 
 
-def _without_padding(stats: ScanStats, batch: Any) -> ScanStats:
+def _without_padding(stats: ScanStats, batch: Any, scans: int | None = None) -> ScanStats:
     """``stats`` with the padding of short scans (NaN cells of a batch of mixed beam counts)
-    counted neither as beams nor as dropped readings."""
+    counted neither as beams nor as dropped readings (over the first ``scans`` scans; all by
+    default)."""
     from dataclasses import replace
 
-    pad = int(np.asarray(batch.ranges).size - int(np.asarray(batch.beams).sum()))
+    ranges = np.asarray(batch.ranges)[:scans]
+    pad = int(ranges.size - int(np.asarray(batch.beams)[:scans].sum()))
     if pad <= 0:
         return stats
     return replace(stats, beams=stats.beams - pad, dropped=max(0, stats.dropped - pad))

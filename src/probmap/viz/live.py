@@ -13,10 +13,15 @@ world frame is the map's: x to the right, y up, metres. Entities:
     The estimated path, the newest scan's endpoints, accepted loop closures (node to anchor).
 ``world/particles``, ``world/landmarks``
     Particle filters and landmark SLAM (means and 2-sigma ellipses).
+``world/robot``, ``world/measurements``, ``world/reference``
+    Landmark SLAM: the robot's pose, the rays of the current measurements, the ground truth
+    (or GPS, ``world/gps``) when the dataset has it.
 
 Every logged item carries the timeline ``scan`` (the scan index) so that the viewer can scrub
 through the run. :class:`GraphSlamObserver` is the observer that
-:func:`probmap.pipelines.grid_slam.run_graph_slam` calls after each scan.
+:func:`probmap.pipelines.grid_slam.run_graph_slam` calls after each scan;
+:class:`MappingObserver` and :class:`LandmarkSlamObserver` watch ``probmap map`` and landmark
+SLAM.
 """
 
 from __future__ import annotations
@@ -30,7 +35,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["GraphSlamObserver", "LiveView", "read_recording"]
+__all__ = [
+    "GraphSlamObserver",
+    "LandmarkSlamObserver",
+    "LiveView",
+    "MappingObserver",
+    "read_recording",
+]
 
 _HINT = "the live view needs rerun: pip install 'probmap[viz]'"
 
@@ -272,6 +283,181 @@ class GraphSlamObserver:
         if len(run.closures):
             p = run.node_poses  # closures are (node, anchor) pairs
             v.segments("world/closures", p[run.closures[:, 0], :2], p[run.closures[:, 1], :2])
+
+
+class MappingObserver:
+    """Streams ``probmap map`` (:func:`probmap.pipelines.map_log`) to a :class:`LiveView`.
+
+    Called as ``observer(done, grid, trajectory, ranges, angles, max_range)`` after every few
+    scans: it logs the newest scan's endpoints (``world/scan``) at every call and, at most once
+    per ``interval`` seconds of wall time, the growing map (``world/map``) and the trajectory
+    (``world/trajectory``); :meth:`finish` logs the final map and trajectory.
+
+    Parameters
+    ----------
+    view : LiveView
+    interval : float
+        Least wall time (seconds) between updates of the map and trajectory (0: at every
+        call). The map is an image of the whole grid, so it is the costly item.
+    """
+
+    def __init__(self, view: LiveView, *, interval: float = 1.0) -> None:
+        if not interval >= 0:
+            raise ValueError(f"interval must be >= 0 s, got {interval}")
+        self.view = view
+        self.interval = float(interval)
+        self._last = -math.inf
+
+    def __call__(
+        self, done: int, grid: Any, trajectory: NDArray, ranges: NDArray, angles: NDArray,
+        max_range: float,
+    ) -> None:  # fmt: skip
+        v = self.view
+        v.step(done)
+        pose = np.asarray(trajectory[-1], dtype=np.float64)
+        r = np.asarray(ranges, dtype=np.float64)
+        v.points("world/scan", _scan_points(pose, r, np.asarray(angles, np.float64), max_range))
+        now = time.perf_counter()
+        if now - self._last < self.interval:
+            return
+        self._last = now
+        v.grid(grid)
+        v.path("world/trajectory", np.asarray(trajectory)[:, :2])
+
+    def finish(self, result: Any) -> None:
+        """The final map and trajectory of a :class:`~probmap.pipelines.MappingResult`."""
+        v = self.view
+        v.step(int(result.stats.scans))
+        v.grid(result.grid)
+        if result.trajectory is not None and len(result.trajectory):
+            v.path("world/trajectory", np.asarray(result.trajectory)[:, :2])
+
+
+def _landmark_estimate(estimator: Any) -> tuple[NDArray, NDArray]:
+    """Means (n, 2) and covariances (n, 2, 2) of the mapped landmarks, read from a copy:
+    ``landmarks()`` may change an estimator (SEIF stores the mean it recovers), and watching
+    must not change the run."""
+    import copy
+
+    _, xy, cov = copy.deepcopy(estimator).landmarks()
+    return np.asarray(xy, np.float64).reshape(-1, 2), np.asarray(cov, np.float64).reshape(-1, 2, 2)
+
+
+class LandmarkSlamObserver:
+    """Streams landmark SLAM (:func:`probmap.pipelines.landmark_slam.run_landmark_slam`) to a
+    :class:`LiveView`.
+
+    Called as ``observer(index, step, estimator)`` after every step. Every ``every`` steps it
+    logs the robot (``world/robot``, its pose as a point and a heading segment
+    ``world/robot/heading``) and the step's measurements as rays from the robot to where they
+    put their landmarks (``world/measurements``; none logged for a step without any); at most
+    once per ``interval`` seconds of wall time also the trajectory (``world/trajectory``), the
+    reference so far (``world/reference``: ground truth of the records, when they carry it) and
+    the map: landmark means (``world/landmarks``) and their 2-sigma ellipses
+    (``world/landmarks/ellipses``; EKF and SEIF marginals, FastSLAM's heaviest particle).
+    A batch smoother (GraphSLAM, which has ``smooth()``) has no estimate before its solve: it
+    shows the measurements at the dead-reckoned start only through :meth:`finish`, which logs
+    the final solve like every estimator's final state.
+
+    Parameters
+    ----------
+    view : LiveView
+    measurement_model : object
+        The dataset's range-bearing model (``inverse(pose, z) -> (landmark, ...)``).
+    every : int
+        Steps between updates of the robot and measurements.
+    interval : float
+        Least wall time (seconds) between updates of the trajectory and map (0: at every
+        ``every``-th step).
+    """
+
+    def __init__(
+        self, view: LiveView, measurement_model: Any, *, every: int = 5, interval: float = 1.0
+    ) -> None:
+        if every < 1:
+            raise ValueError(f"every must be >= 1, got {every}")
+        if not interval >= 0:
+            raise ValueError(f"interval must be >= 0 s, got {interval}")
+        self.view = view
+        self.model = measurement_model
+        self.every = int(every)
+        self.interval = float(interval)
+        self._last = -math.inf
+        self._poses: list[NDArray] = []
+        self._truth: list[NDArray] = []
+
+    def _robot(self, pose: NDArray) -> None:
+        v = self.view
+        v.points("world/robot", pose[:2], color=(30, 100, 220), radius=0.15)
+        tip = pose[:2] + 0.5 * np.array([math.cos(pose[2]), math.sin(pose[2])])
+        v.segments("world/robot/heading", pose[:2], tip, color=(30, 100, 220))
+
+    def __call__(self, index: int, step: Any, estimator: Any) -> None:
+        if callable(getattr(estimator, "smooth", None)):
+            return  # a batch smoother: nothing to show before the solve (see finish)
+        pose = np.asarray(estimator.pose, dtype=np.float64).copy()
+        self._poses.append(pose)
+        if step.gt_pose is not None:
+            self._truth.append(np.asarray(step.gt_pose, dtype=np.float64)[:2])
+        if index % self.every:
+            return
+        v = self.view
+        v.step(index)
+        self._robot(pose)
+        z = np.asarray(step.z, dtype=np.float64).reshape(-1, 2)
+        if z.shape[0]:
+            ends = np.array([self.model.inverse(pose, zi)[0] for zi in z])
+            v.segments("world/measurements", np.repeat(pose[None, :2], len(ends), 0), ends)
+        now = time.perf_counter()
+        if now - self._last < self.interval:
+            return
+        self._last = now
+        v.path("world/trajectory", np.asarray(self._poses)[:, :2])
+        if self._truth:
+            v.path("world/reference", np.asarray(self._truth), color=(120, 120, 120))
+        xy, cov = _landmark_estimate(estimator)
+        if len(xy):
+            v.points("world/landmarks", xy, color=(240, 140, 0), radius=0.08)
+            v.ellipses("world/landmarks/ellipses", xy, cov)
+
+    def finish(self, result: Any, dataset: Any = None, metrics: dict | None = None) -> None:
+        """The final state of a run (a :class:`~probmap.pipelines.landmark_slam.SlamResult`):
+        the trajectory (smoothed for GraphSLAM), the robot, the landmarks with their ellipses
+        and the reference: the ground-truth path, the true landmarks
+        (``world/landmark_truth``) and GPS fixes (``world/gps``, mapped into the estimate's
+        frame by the inverse of the alignment in ``metrics["gps"]``) when there are any."""
+        v = self.view
+        traj = np.asarray(result.trajectory, dtype=np.float64)
+        v.step(len(traj))
+        if len(traj):
+            v.path("world/trajectory", traj[:, 1:3])
+            self._robot(traj[-1, 1:4])
+        if len(result.landmark_xy):
+            v.points("world/landmarks", result.landmark_xy, color=(240, 140, 0), radius=0.08)
+            v.ellipses("world/landmarks/ellipses", result.landmark_xy, result.landmark_cov)
+        ref = result.gt_poses
+        if ref is None and dataset is not None and len(traj):
+            gt = getattr(dataset, "gt_trajectory", None)
+            if gt is not None and len(gt) >= 2:
+                inside = (gt[:, 0] >= traj[0, 0]) & (gt[:, 0] <= traj[-1, 0])
+                ref = np.asarray(gt)[inside, 1:3]
+        if ref is not None:
+            ok = np.all(np.isfinite(ref), axis=1)
+            if ok.sum() >= 2:
+                v.path("world/reference", np.asarray(ref)[ok, :2], color=(120, 120, 120))
+        truth = getattr(dataset, "landmark_truth", None)
+        if truth:
+            v.points("world/landmark_truth", np.array(list(truth.values())), color=(0, 0, 0))
+        gps = getattr(dataset, "gps", None)
+        align = ((metrics or {}).get("gps") or {}).get("alignment")
+        if gps is not None and align is not None and len(traj):
+            g = np.asarray(gps, dtype=np.float64)
+            g = g[(g[:, 0] >= traj[0, 0]) & (g[:, 0] <= traj[-1, 0]), 1:3]
+            tx, ty, phi = (float(x) for x in np.asarray(align, dtype=np.float64).reshape(3))
+            c, s = math.cos(phi), math.sin(phi)
+            # estimate -> GPS: g = rot x + t, so x = rot^T (g - t)
+            rot = np.array([[c, -s], [s, c]])
+            v.points("world/gps", (g - [tx, ty]) @ rot, color=(120, 120, 120), radius=0.3)
 
 
 def read_recording(path: str | os.PathLike[str]) -> dict[str, int]:

@@ -188,3 +188,68 @@ def test_optimize_bad_config(square_graph, tmp_path, text, words):
     res = run("optimize", square_graph, "-o", tmp_path / "out.g2o", "--config", bad)
     one_line_error(res, *words)
     assert not list(tmp_path.glob("out*"))
+
+
+# ----------------------------------------------------------------------------- fit-sensor-model
+@pytest.fixture(scope="module")
+def short_log(tmp_path_factory):
+    """The first 40 scans of the simulated floor-plan tour as a CARMEN log."""
+    from probmap.sim.floorplan import simulate_laser_world
+
+    w = simulate_laser_world(seed=1, size=(12.0, 8.0), step=0.2, range_noise=0.01)
+    lines = [f"PARAM robot_front_laser_max {w.max_range}"]
+    for i, (p, r) in enumerate(zip(w.poses[:40], w.ranges[:40], strict=True)):
+        rs = " ".join(f"{v:.3f}" for v in r)
+        pose = f"{p[0]:.6f} {p[1]:.6f} {p[2]:.6f}"
+        lines.append(f"FLASER {len(r)} {rs} {pose} {pose} {i * 0.2:.3f} sim {i * 0.2:.3f}")
+    path = tmp_path_factory.mktemp("log") / "short.clf"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _fit(path):
+    doc = yaml.safe_load(path.read_text())
+    assert doc["probmap_version"] == importlib.metadata.version("probmap")
+    assert isinstance(doc["command"], str) and doc["command"]
+    return doc
+
+
+def test_fit_sensor_model_config(short_log, tmp_path):
+    from probmap.pipelines.fit import FitConfig
+
+    log = short_log
+    ok("fit-sensor-model", log, "-o", tmp_path / "default.yaml", "-r", "0.1")
+    ok("fit-sensor-model", log, "-o", tmp_path / "opt.yaml", "-r", "0.1", "--every", "3")
+    cfg_file = tmp_path / "c.yaml"
+    cfg_file.write_text("resolution: 0.1\nevery: 3\n")
+    ok("fit-sensor-model", log, "-o", tmp_path / "file.yaml", "--config", cfg_file)
+    default, by_opt, by_file = (_fit(tmp_path / f"{n}.yaml") for n in ("default", "opt", "file"))
+    assert by_opt["beam_model"] != default["beam_model"]  # every 3rd scan: another fit
+    assert by_file["beam_model"] == by_opt["beam_model"]
+    assert load_config(FitConfig, yaml.safe_dump(by_file["configuration"])) == FitConfig(
+        resolution=0.1, every=3
+    )
+    # an option overrides the file
+    ok("fit-sensor-model", log, "-o", tmp_path / "over.yaml", "--config", cfg_file, "--every", "1")
+    over = _fit(tmp_path / "over.yaml")
+    assert over["beam_model"] == default["beam_model"]
+    assert load_config(FitConfig, yaml.safe_dump(over["configuration"])) == FitConfig(
+        resolution=0.1, every=1
+    )
+    # the recorded configuration reproduces the run
+    again = tmp_path / "again.config.yaml"
+    again.write_text(yaml.safe_dump(by_file["configuration"]))
+    ok("fit-sensor-model", log, "-o", tmp_path / "again.yaml", "--config", again)
+    assert _fit(tmp_path / "again.yaml")["beam_model"] == by_file["beam_model"]
+
+
+def test_fit_sensor_model_bad_config(short_log, tmp_path):
+    log = short_log
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("evry: 3\n")
+    res = run("fit-sensor-model", log, "-o", tmp_path / "out.yaml", "--config", bad)
+    one_line_error(res, "bad.yaml", "evry", "every?")
+    bad.write_text("poses: laser\n")
+    res = run("fit-sensor-model", log, "-o", tmp_path / "out.yaml", "--config", bad)
+    one_line_error(res, "bad.yaml", "poses", "'laser'")
+    assert not list(tmp_path.glob("out*"))

@@ -112,15 +112,27 @@ def fit_sensor_model_command(
         help="Write the fitted parameters to this YAML file; an existing folder (or a name "
         "ending in /) gets FOLDER/beam_model.yaml. Missing folders are created.",
     ),
-    resolution: float = typer.Option(
-        0.05, "--resolution", "-r", help="Cell size (m) of the map the ranges are cast in."
+    resolution: float | None = typer.Option(
+        None,
+        "--resolution",
+        "-r",
+        help="Cell size (m) of the map the ranges are cast in [default: 0.05].",
     ),
-    every: int = typer.Option(1, "--every", help="Use every N-th scan."),
+    every: int | None = typer.Option(None, "--every", help="Use every N-th scan [default: 1]."),
     max_range: float | None = typer.Option(
-        None, "--max-range", help="Sensor max range in metres (default: from the log)."
+        None, "--max-range", help="Sensor max range in metres [default: from the log]."
     ),
-    poses: str = typer.Option(
-        "corrected", "--poses", help="corrected: the scans' laser poses; odometry: odometry."
+    poses: str | None = typer.Option(
+        None,
+        "--poses",
+        help="corrected: the scans' laser poses; odometry: odometry [default: corrected].",
+    ),
+    config: Path | None = typer.Option(
+        None,
+        "--config",
+        help="A YAML file of FitConfig fields (resolution, every, max_range, poses, "
+        "max_iterations, tol); the options given here override it. The output records the "
+        "settings used under 'configuration'.",
     ),
     skip_bad_lines: bool = skip_bad_lines_option(),
     scan_topic: str | None = scan_topic_option(),
@@ -128,40 +140,47 @@ def fit_sensor_model_command(
     fixed_frame: str | None = fixed_frame_option(),
     laser_frame: str | None = laser_frame_option(),
 ) -> None:
-    """Fit the beam model's parameters to a log by EM (Probabilistic Robotics Table 6.2)."""
+    """Fit the beam model's parameters to a log by EM (Probabilistic Robotics Table 6.2).
+
+    The output YAML holds the parameters under 'beam_model' and what produced them: the
+    probmap version, the command line and the settings (a loadable FitConfig) under
+    'configuration'."""
     with cli_errors():
         import dataclasses
+        import warnings
 
         import yaml
 
         from probmap._atomic import atomic_outputs, atomic_write
+        from probmap.cli._provenance import command_line
+        from probmap.cli.common import Stopwatch, resolve_config
+        from probmap.config import dump_config, package_version
+        from probmap.datasets.scans import open_scans
+        from probmap.errors import BadLinesWarning
         from probmap.pipelines import check_output_prefix
-        from probmap.pipelines.fit import fit_log
+        from probmap.pipelines.fit import FitConfig, fit_scans
 
+        watch = Stopwatch()
         log = laser_input(log)
         target = None if output is None else check_output_prefix(output, "beam_model.yaml")
-        import warnings
-
-        from probmap.errors import BadLinesWarning
-
-        reports: list = []
-        with warnings.catch_warnings():
+        overrides = {"resolution": resolution, "every": every, "max_range": max_range}
+        cfg = resolve_config(FitConfig, config, {**overrides, "poses": poses})
+        with watch("read"), warnings.catch_warnings():
             # the summary reports skipped lines; no Python warning text on the terminal
             warnings.simplefilter("ignore", BadLinesWarning)
-            fit = fit_log(
+            batch = open_scans(
                 log,
-                resolution=resolution,
-                every=every,
-                max_range=max_range,
-                poses=poses,
+                poses=cfg.poses,
+                max_range=cfg.max_range,
                 skip_bad_lines=skip_bad_lines,
-                readings=reports.append,
                 bag_options=bag_options_of(scan_topic, odom_topic, fixed_frame, laser_frame),
             )
+        with watch("compute"):
+            fit = fit_scans(batch, cfg)
         params = dataclasses.asdict(fit.params)
         rows = [(k, f"{v:.6g}") for k, v in params.items()]
         rows += [
-            *input_rows(reports[0] if reports else None),
+            *input_rows(batch.readings, batch.skipped_lines),
             ("readings fitted", f"{fit.readings:,}"),
             (
                 "mean log-likelihood",
@@ -170,9 +189,16 @@ def fit_sensor_model_command(
             ),
         ]
         if target is not None:
-            doc = {"beam_model": {k: float(v) for k, v in params.items()}}
-            with atomic_outputs(), atomic_write(target, "w") as fh:
+            doc = {
+                "beam_model": {k: float(v) for k, v in params.items()},
+                "probmap_version": package_version(),
+                "command": command_line(),
+                "configuration": yaml.safe_load(dump_config(cfg)),
+            }
+            with watch("write"), atomic_outputs(), atomic_write(target, "w") as fh:
                 yaml.safe_dump(doc, fh, sort_keys=False)
+        rows.append(watch.row())
+        if target is not None:
             rows.append(("wrote", str(target)))
         print_summary(f"probmap fit-sensor-model {log.name}", rows)
 

@@ -42,34 +42,34 @@ def run_map_method(
 
     Raises the library's errors (call it inside :func:`probmap.cli.common.cli_errors`).
     """
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
+    from probmap.cli.common import Stopwatch, progress_bar
     from probmap.mapping.map_mapping import MapMappingConfig, SweepRecord
     from probmap.pipelines import check_output_prefix, map_log_map, write_map
 
+    watch = Stopwatch()
     log = laser_input(log)
     check_output_prefix(output)
     mcfg = MapMappingConfig(resolution=config.resolution, p0=p0, max_sweeps=max_sweeps, init=init)
-    with Progress(
-        TextColumn("[bold]MAP {task.description}"),
-        BarColumn(),
-        TextColumn("sweep {task.completed:.0f}/{task.total:.0f}"),
-        TextColumn("{task.fields[status]}"),
-        TimeElapsedColumn(),
-        transient=True,
-    ) as bar:
-        task = bar.add_task(log.name, total=max_sweeps, status="indexing beams")
+    with progress_bar(unit="sweeps") as bar:
+        task = bar.add_task(f"MAP {log.name}: indexing beams", total=max_sweeps)
 
         def tick(rec: SweepRecord) -> None:
             bar.update(
                 task,
                 completed=rec.sweep,
-                status=f"objective {rec.objective:,.1f}, {rec.flips:,} flips",
+                description=f"MAP {log.name}: objective {rec.objective:,.1f}, {rec.flips:,} flips",
             )
 
         result = map_log_map(log, config, tick, map_config=mcfg, bag_options=bag_options)
     result = write_map(output, result, config)
     ex = result.extra
+    # the pipeline times its own phases; the total is the whole command's
+    watch.phases.update(
+        read=result.parse_seconds,
+        index=float(ex["index_seconds"]),
+        sweeps=float(ex["sweep_seconds"]),
+        write=result.write_seconds,
+    )
     spec = result.grid.spec
     sweeps = int(ex["sweeps"])
     rows = [
@@ -87,12 +87,7 @@ def run_map_method(
             f"{ex['objective_0']:,.1f} (start) -> {ex['objective']:,.1f} after {sweeps} sweeps"
             + (" (converged)" if ex["converged"] else " (sweep limit reached)"),
         ),
-        (
-            "time",
-            f"{result.parse_seconds + result.map_seconds + result.write_seconds:.2f} s (parse "
-            f"{result.parse_seconds:.2f}, index {ex['index_seconds']:.2f}, sweeps "
-            f"{ex['sweep_seconds']:.2f}, write {result.write_seconds:.2f})",
-        ),
+        watch.row(),
     ]
     for f in result.files:
         rows.append(("wrote", str(f)))

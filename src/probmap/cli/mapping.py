@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import typer
 
 from probmap.cli.common import (
+    Stopwatch,
     bag_options_of,
     cli_errors,
     fixed_frame_option,
@@ -94,21 +98,31 @@ def map_command(
     allow_partial: bool = typer.Option(
         False, "--allow-partial", help="Dask: write the map of the readable logs when some fail."
     ),
+    viz: bool = typer.Option(
+        False, "--viz", help="Watch the map grow in the rerun viewer (extra 'viz')."
+    ),
+    viz_save: Path | None = typer.Option(
+        None,
+        "--viz-save",
+        help="Record the live view into FILE.rrd (open it later with 'rerun FILE.rrd').",
+    ),
+    save_partial: bool = typer.Option(
+        True,
+        "--save-partial/--no-save-partial",
+        help="On Ctrl-C, stop and write the map of the scans so far (exit 130); a second "
+        "Ctrl-C aborts without writing.",
+    ),
 ) -> None:
     """Build an occupancy grid map from a laser log with known poses."""
+    watch = Stopwatch()
     with cli_errors():
         import warnings
 
-        from rich.progress import Progress
-
-        from probmap._atomic import atomic_outputs
         from probmap.datasets.carmen import BadLinesWarning
         from probmap.pipelines import (
             MappingConfig,
             check_output_folder,
             check_output_prefix,
-            map_log,
-            write_map,
         )
 
         # registry names become their files; a missing file is an error (--allow-partial: the
@@ -138,7 +152,13 @@ def map_command(
                 "skip_bad_lines": True if skip_bad_lines else None,
             },
         )
-        if workers is not None or scheduler is not None or len(logs) > 1 or chunks > 1:
+        local = workers is None and scheduler is None and len(logs) == 1 and chunks == 1
+        if (viz or viz_save is not None) and not (local and method == "log-odds"):
+            raise ValueError(
+                "--viz and --viz-save watch the log-odds method on one log (no --method map, "
+                "--workers, --scheduler, --chunks or several logs)"
+            )
+        if not local:
             several = len(logs) > 1 or chunks > 1
             if method not in ("log-odds", "map"):
                 raise ValueError(f"--method must be 'log-odds' or 'map', got {method!r}")
@@ -154,53 +174,133 @@ def map_command(
             if method == "map":
                 from probmap.cli.distributed import run_map_method_distributed
 
-                run_map_method_distributed(
-                    log, prefix, cfg, workers=workers, scheduler=scheduler,
-                    bag_options=bag_options, to_bag=to_bag,
-                )  # fmt: skip
+                with _aborted_on_ctrl_c():
+                    run_map_method_distributed(
+                        log, prefix, cfg, workers=workers, scheduler=scheduler,
+                        bag_options=bag_options, to_bag=to_bag,
+                    )  # fmt: skip
                 return
             from probmap.cli.distributed import run_map_distributed
 
-            run_map_distributed(
-                logs,
-                prefix,
-                cfg,
-                workers=workers,
-                scheduler=scheduler,
-                chunks=chunks,
-                allow_partial=allow_partial,
-                bag_options=bag_options,
-                to_bag=to_bag,
-            )
+            with _aborted_on_ctrl_c():
+                run_map_distributed(
+                    logs,
+                    prefix,
+                    cfg,
+                    workers=workers,
+                    scheduler=scheduler,
+                    chunks=chunks,
+                    allow_partial=allow_partial,
+                    bag_options=bag_options,
+                    to_bag=to_bag,
+                )
             return
         if method not in ("log-odds", "map"):
             raise ValueError(f"--method must be 'log-odds' or 'map', got {method!r}")
         if method == "map":
             from probmap.cli.map_mapping import run_map_method
 
-            with warnings.catch_warnings():
+            with warnings.catch_warnings(), _aborted_on_ctrl_c():
                 warnings.simplefilter("ignore", BadLinesWarning)
                 run_map_method(log, prefix, cfg, bag_options=bag_options)
             return
-        with Progress(transient=True) as bar, warnings.catch_warnings():
+        _map_one(
+            log, prefix, cfg, bag_options, to_bag=to_bag, watch=watch, viz=viz,
+            viz_save=viz_save, save_partial=save_partial,
+        )  # fmt: skip
+
+
+@contextmanager
+def _aborted_on_ctrl_c() -> Iterator[None]:
+    """Ctrl-C in a run that cannot stop part-way (MAP mapping, a cluster): one line, nothing
+    written (the outputs are all-or-nothing), exit code 130."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        typer.echo("interrupted: nothing written", err=True)
+        raise typer.Exit(130) from None
+
+
+def _map_one(
+    log: Path,
+    prefix: Path,
+    cfg: Any,
+    bag_options: dict[str, Any],
+    *,
+    to_bag: Path | None,
+    watch: Stopwatch,
+    viz: bool,
+    viz_save: Path | None,
+    save_partial: bool,
+) -> None:
+    """``probmap map`` of one log with the log-odds filter: progress bars, the live view,
+    Ctrl-C (the map of the scans so far with ``save_partial``), the summary."""
+    import warnings
+
+    from probmap._atomic import atomic_outputs
+    from probmap.cli.common import progress_bar
+    from probmap.cli.gridslam import _stop_on_ctrl_c
+    from probmap.cli.slam import interrupted_exit, open_view
+    from probmap.datasets.carmen import BadLinesWarning
+    from probmap.pipelines import map_log, write_map
+
+    view = open_view(f"probmap map {log.name}", viz, viz_save)
+    observer = None
+    if view is not None:
+        from probmap.viz.live import MappingObserver
+
+        observer = MappingObserver(view)
+    try:
+        with (
+            progress_bar(unit="scans") as bar,
+            warnings.catch_warnings(),
+            _stop_on_ctrl_c(save_partial) as stop,
+        ):
             # the summary table reports skipped lines; no Python warning text on the terminal
             warnings.simplefilter("ignore", BadLinesWarning)
-            task = bar.add_task(f"mapping {log.name}", total=None)
+            task = bar.add_task(f"reading {log.name}", total=1)
 
             def tick(done: int, total: int) -> None:
-                bar.update(task, completed=done, total=total)
+                bar.update(task, description=f"mapping {log.name}", completed=done, total=total)
 
-            result = map_log(log, cfg, progress=tick, bag_options=bag_options)
-        with atomic_outputs() as outputs:  # the map files and the bag: all or none
-            result = write_map(prefix, result, cfg)
-            rows = mapping_rows(result)
-            if to_bag is not None:
-                from probmap.datasets.rosbag import RosBag, write_map_to_bag
+            result = map_log(
+                log, cfg, progress=tick, bag_options=bag_options, observer=observer, stop=stop
+            )
+        watch.phases["read"] = result.parse_seconds
+        watch.phases["compute"] = result.map_seconds
+        if observer is not None:
+            observer.finish(result)
+        with watch("write"), progress_bar(unit="maps") as bar:
+            bar.add_task(f"writing {prefix.name}.*", total=1)
+            with atomic_outputs() as outputs:  # the map files and the bag: all or none
+                result = write_map(prefix, result, cfg)
+                files = [str(f) for f in result.files]
+                if to_bag is not None:
+                    from probmap.datasets.rosbag import RosBag, write_map_to_bag
 
-                frame = RosBag(log, **bag_options).resolve_frames()[0]
-                outputs.folder(to_bag.parent if str(to_bag.parent) else Path("."))
-                rows.append(("wrote", str(write_map_to_bag(to_bag, result.grid, frame_id=frame))))
-        print_summary(f"probmap map {log.name}", rows)
+                    frame = RosBag(log, **bag_options).resolve_frames()[0]
+                    outputs.folder(to_bag.parent if str(to_bag.parent) else Path("."))
+                    files.append(str(write_map_to_bag(to_bag, result.grid, frame_id=frame)))
+    except KeyboardInterrupt:
+        if view is not None:
+            view.close(keep=False)
+        interrupted_exit(0, 0, "scans", wrote=False)
+        raise  # not reached
+    except BaseException:
+        if view is not None:
+            view.close(keep=False)
+        raise
+    if view is not None:
+        view.close()
+    rows = [r for r in mapping_rows(result) if r[0] not in ("time", "wrote")]
+    rows += [watch.row(), *(("wrote", f) for f in files)]
+    if viz_save is not None:
+        rows.append(("recorded", f"{viz_save} (rerun {viz_save})"))
+    if result.interrupted:
+        rows.insert(0, ("interrupted", f"at scan {result.stats.scans:,} of {result.scans_total:,}"))
+    print_summary(f"probmap map {log.name}", rows)
+    if result.interrupted:
+        interrupted_exit(result.stats.scans, result.scans_total, "scans", wrote=True)
 
 
 def demo_command(
@@ -218,13 +318,22 @@ def demo_command(
     semantic: bool = typer.Option(
         False, "--semantic", help="Map a labelled simulated world into a semantic grid instead."
     ),
+    config: Path | None = typer.Option(
+        None,
+        "--config",
+        help="A YAML file of MappingConfig fields (resolution, inverse sensor model, prior, "
+        "clamp) for the mapping demo; recorded as map.config.yaml.",
+    ),
 ) -> None:
     """Map a simulated floor plan (no download) and report its accuracy against the truth."""
+    watch = Stopwatch()
     with cli_errors():
         from probmap.pipelines import check_output_folder
 
         if localize and semantic:
             raise ValueError("choose one of --localize and --semantic")
+        if config is not None and (localize or semantic):
+            raise ValueError("--config sets the mapping demo (not --localize or --semantic)")
         check_output_folder(output)
         if semantic:
             from probmap.cli.semantic import print_semantic_demo
@@ -238,13 +347,19 @@ def demo_command(
             summary = run_localize_demo(output)
             print_summary("probmap demo --localize", [(k, _fmt(v)) for k, v in summary.items()])
             return
-        from probmap.cli.common import note_first_compile
-        from probmap.pipelines import check_output_prefix, run_mapping_demo
+        from probmap.cli.common import note_first_compile, progress_bar
+        from probmap.pipelines import MappingConfig, check_output_prefix, run_mapping_demo
 
         prefix = check_output_prefix(output / "map")
+        cfg = None if config is None else resolve_config(MappingConfig, config)
         note_first_compile("probmap.grid._kernels")
-        demo = run_mapping_demo(prefix, seed=seed)
-        rows = mapping_rows(demo.mapping)
+        with progress_bar(unit="runs") as bar:
+            bar.add_task("simulating, mapping and writing the demo", total=1)
+            demo = run_mapping_demo(prefix, seed=seed, config=cfg)
+        m = demo.mapping
+        # the pipeline times its phases; the stopwatch's total covers the whole command
+        watch.phases.update(simulate=m.parse_seconds, compute=m.map_seconds, write=m.write_seconds)
+        rows = [r for r in mapping_rows(m) if r[0] not in ("time", "wrote")]
         rows.insert(
             0,
             (
@@ -253,6 +368,7 @@ def demo_command(
                 "classified correctly against the ground truth",
             ),
         )
+        rows += [watch.row(), *(("wrote", str(f)) for f in m.files)]
         print_summary("probmap demo: simulated floor plan", rows)
 
 

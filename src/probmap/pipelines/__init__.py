@@ -321,12 +321,19 @@ class DemoResult:
 
 
 def run_mapping_demo(
-    prefix: str | os.PathLike[str] | None = None, *, seed: int = 0, resolution: float = 0.05
+    prefix: str | os.PathLike[str] | None = None,
+    *,
+    seed: int = 0,
+    resolution: float = 0.05,
+    config: MappingConfig | None = None,
 ) -> DemoResult:
     """Map the simulated floor plan (range noise, dropped beams) and score it against the truth.
 
     Accuracy is the fraction of observed cells whose trinary class at p = 0.5 matches the true
-    map (see :func:`probmap.grid.simworld.map_accuracy`).
+    map (see :func:`probmap.grid.simworld.map_accuracy`). ``config`` (a :class:`MappingConfig`:
+    resolution, inverse sensor model, prior, clamp) replaces ``resolution`` and is recorded as
+    ``PREFIX.config.yaml``; its log-reading fields (``max_range``, ``poses``,
+    ``skip_bad_lines``) do not apply to the simulation.
     """
     from probmap.metrics.map import map_accuracy
     from probmap.sim.floorplan import simulate_laser_world
@@ -334,7 +341,7 @@ def run_mapping_demo(
     t0 = time.perf_counter()
     world = simulate_laser_world(seed=seed, resolution=0.05, range_noise=0.02, dropout=0.01)
     t1 = time.perf_counter()
-    grid = MappingConfig(resolution=resolution).make_grid()
+    grid = (config if config is not None else MappingConfig(resolution=resolution)).make_grid()
     stats = grid.integrate_scans(world.poses, world.ranges, world.angles, max_range=world.max_range)
     t2 = time.perf_counter()
     acc, n = map_accuracy(grid.classify(0.5, 0.5), grid.spec, world.truth, world.spec)
@@ -343,7 +350,7 @@ def run_mapping_demo(
         source="probmap demo: simulated floor plan",
     )  # fmt: skip
     if prefix is not None:
-        result = write_map(prefix, result)
+        result = write_map(prefix, result, config)
     return DemoResult(result, acc, n, len(world.poses))
 
 

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import time
 from pathlib import Path
 from typing import Any
@@ -96,7 +97,8 @@ class LiveView:
         self.file = None if save is None else Path(save)
         if self.file is not None and self.file.suffix != ".rrd":
             raise ValueError(f"{self.file}: a recording is saved as FILE.rrd")
-        self._rec: Any = rr.RecordingStream(name)
+        # rerun's application ids take letters, digits, spaces, "-" and "_" (else it warns)
+        self._rec: Any = rr.RecordingStream(re.sub(r"[^A-Za-z0-9 _-]+", "-", name))
         sinks = []
         self._part: Path | None = None
         if self.file is not None:

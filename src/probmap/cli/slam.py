@@ -428,6 +428,17 @@ def fastslam_command(
         None, "--version", help="FastSLAM 1 or 2 (Tables 13.1, 13.3) [default: 2]."
     ),
     seed: int | None = typer.Option(None, "--seed", help="Random seed [default: 0]."),
+    unknown: bool = typer.Option(
+        False,
+        "--unknown",
+        help="Ignore the dataset's landmark ids: per-particle maximum-likelihood association "
+        "(Table 13.2; Victoria Park has no ids and always runs so).",
+    ),
+    p0: float | None = typer.Option(
+        None,
+        "--p0",
+        help="New-landmark likelihood p0 for unknown ids (1/(m rad)) [default: 0.001].",
+    ),
     config: Path | None = typer.Option(
         None,
         "--config",
@@ -441,20 +452,31 @@ def fastslam_command(
     viz_save: Path | None = viz_save_option(),
     save_partial: bool = save_partial_option(),
 ) -> None:
-    """FastSLAM 1.0 / 2.0 with known landmark ids (Probabilistic Robotics ch. 13): writes
-    trajectory.csv (weighted mean pose), landmarks.csv (heaviest particle), metrics.json and
-    slam.png (and trajectory.tum with --tum) into OUTPUT, like 'probmap slam ekf'."""
+    """FastSLAM 1.0 / 2.0 (Probabilistic Robotics ch. 13), known or unknown landmark ids:
+    writes trajectory.csv (weighted mean pose), landmarks.csv (heaviest particle), metrics.json
+    and slam.png (and trajectory.tum with --tum) into OUTPUT, like 'probmap slam ekf'."""
     watch = Stopwatch()
     with cli_errors():
         from probmap.cli.common import resolve_config
         from probmap.pipelines import check_output_folder
         from probmap.slam.fastslam import FastSLAM, FastSLAMConfig
 
-        overrides = {"n_particles": particles, "version": version, "seed": seed}
+        overrides = {
+            "n_particles": particles,
+            "version": version,
+            "seed": seed,
+            "new_landmark_likelihood": p0,
+        }
         cfg = resolve_config(FastSLAMConfig, config, overrides)
         check_output_folder(output)
         with watch("read"):
-            ds = open_landmark_dataset(dataset, data_dir, robot, False, end_time)
+            ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
+        if config is None and type(ds).__name__ == "VictoriaPark":
+            import dataclasses
+            import math
+
+            # trees are expected within 25 m ahead, as the EKF's miss counting assumes
+            cfg = dataclasses.replace(cfg, visibility_range=25.0, visibility_fov=math.pi)
         slam = FastSLAM(ds.motion_model, ds.measurement_model, ds.initial_pose, cfg)
         title = f"FastSLAM {cfg.version}.0 ({cfg.n_particles} particles)"
         run_and_report(

@@ -27,8 +27,12 @@ copied : (1,) int64
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
+
+_TWO_PI = 2.0 * math.pi
 
 
 @njit(cache=True)
@@ -266,3 +270,109 @@ def tree_grow(child, refc, free, top, roots):  # pragma: no cover - compiled
         child[y, 1] = 0
         refc[y] = 1
         roots[m] = y
+
+
+@njit(cache=True)
+def _wrap(a):  # pragma: no cover - compiled
+    return a - _TWO_PI * math.floor((a + math.pi) / _TWO_PI)
+
+
+@njit(cache=True)
+def associate_ml(
+    poses, offset, mean, cov, found, z, R, Rt, use_rt, log_p0, vis_range, vis_half_fov, cols,
+    unseen,
+):  # pragma: no cover - compiled  # fmt: skip
+    """Maximum-likelihood association per particle (Table 13.2 lines 5-15).
+
+    Particle ``m`` at ``poses[m] (3,)`` (sensor at ``offset (3,)`` in the robot frame) holds
+    landmark ``n`` where ``found[m, n]``, with mean ``mean[m, n] (2,)`` and covariance
+    ``cov[m, n] (2, 2)``. Observation ``z[i] = (range m, bearing rad)`` goes to the landmark
+    of largest ``log N(z_i; h(x, mu), H_m Sigma H_m' + R [+ H_x Rt H_x'])`` not taken by an
+    earlier observation of the step: ``cols[i, m]`` is its column, or ``-1`` (a new landmark)
+    when that log-likelihood is below ``log_p0``. ``unseen[m, n]``: held, not matched, and
+    predicted within ``vis_range`` and ``vis_half_fov`` of the sensor heading.
+    """
+    n_part, n_lm = found.shape
+    k = z.shape[0]
+    zr = np.empty(n_lm)
+    zb = np.empty(n_lm)
+    i00 = np.empty(n_lm)
+    i01 = np.empty(n_lm)
+    i11 = np.empty(n_lm)
+    norm = np.empty(n_lm)
+    free = np.empty(n_lm, dtype=np.bool_)
+    log2pi = math.log(_TWO_PI)
+    for m in range(n_part):
+        th = poses[m, 2]
+        c = math.cos(th)
+        s = math.sin(th)
+        sx = poses[m, 0] + c * offset[0] - s * offset[1]
+        sy = poses[m, 1] + s * offset[0] + c * offset[1]
+        dsx = -s * offset[0] - c * offset[1]
+        dsy = c * offset[0] - s * offset[1]
+        heading = th + offset[2]
+        for n in range(n_lm):
+            free[n] = found[m, n]
+            if not found[m, n]:
+                continue
+            dx = mean[m, n, 0] - sx
+            dy = mean[m, n, 1] - sy
+            q = max(dx * dx + dy * dy, 1e-18)
+            r = math.sqrt(q)
+            zr[n] = r
+            zb[n] = _wrap(math.atan2(dy, dx) - heading)
+            h00 = dx / r
+            h01 = dy / r
+            h10 = -dy / q
+            h11 = dx / q
+            # S = H_m Sigma H_m' + R
+            a00 = cov[m, n, 0, 0] * h00 + cov[m, n, 0, 1] * h01
+            a01 = cov[m, n, 0, 0] * h10 + cov[m, n, 0, 1] * h11
+            a10 = cov[m, n, 1, 0] * h00 + cov[m, n, 1, 1] * h01
+            a11 = cov[m, n, 1, 0] * h10 + cov[m, n, 1, 1] * h11
+            s00 = h00 * a00 + h01 * a10 + R[0, 0]
+            s01 = h00 * a01 + h01 * a11 + R[0, 1]
+            s10 = h10 * a00 + h11 * a10 + R[1, 0]
+            s11 = h10 * a01 + h11 * a11 + R[1, 1]
+            if use_rt:
+                # H_x = [-H_m, -H_m ds - (0, 1)']
+                x0 = -h00
+                x1 = -h01
+                x2 = -(h00 * dsx + h01 * dsy)
+                y0 = -h10
+                y1 = -h11
+                y2 = -(h10 * dsx + h11 * dsy) - 1.0
+                b0 = Rt[0, 0] * x0 + Rt[0, 1] * x1 + Rt[0, 2] * x2
+                b1 = Rt[1, 0] * x0 + Rt[1, 1] * x1 + Rt[1, 2] * x2
+                b2 = Rt[2, 0] * x0 + Rt[2, 1] * x1 + Rt[2, 2] * x2
+                e0 = Rt[0, 0] * y0 + Rt[0, 1] * y1 + Rt[0, 2] * y2
+                e1 = Rt[1, 0] * y0 + Rt[1, 1] * y1 + Rt[1, 2] * y2
+                e2 = Rt[2, 0] * y0 + Rt[2, 1] * y1 + Rt[2, 2] * y2
+                s00 += x0 * b0 + x1 * b1 + x2 * b2
+                s01 += x0 * e0 + x1 * e1 + x2 * e2
+                s10 += y0 * b0 + y1 * b1 + y2 * b2
+                s11 += y0 * e0 + y1 * e1 + y2 * e2
+            det = s00 * s11 - s01 * s10
+            i00[n] = s11 / det
+            i01[n] = -0.5 * (s01 + s10) / det
+            i11[n] = s00 / det
+            norm[n] = -0.5 * math.log(det) - log2pi
+        for i in range(k):
+            best = -1
+            best_ll = -np.inf
+            for n in range(n_lm):
+                if not free[n]:
+                    continue
+                e0 = z[i, 0] - zr[n]
+                e1 = _wrap(z[i, 1] - zb[n])
+                ll = norm[n] - 0.5 * (i00[n] * e0 * e0 + 2.0 * i01[n] * e0 * e1 + i11[n] * e1 * e1)
+                if ll > best_ll:
+                    best_ll = ll
+                    best = n
+            if best >= 0 and best_ll >= log_p0:
+                cols[i, m] = best
+                free[best] = False
+            else:
+                cols[i, m] = -1
+        for n in range(n_lm):
+            unseen[m, n] = free[n] and zr[n] <= vis_range and abs(zb[n]) <= vis_half_fov

@@ -523,35 +523,15 @@ class FastSLAM:
         v2 = self.config.version == 2 and bool(self._Rt.any())
         poses = self._predicted if v2 else self.particles
         if n:
-            zh, H_x, H_m = _batch_measurement(
-                self.measurement_model, np.repeat(poses, n, axis=0), mean.reshape(-1, 2)
-            )
-            S = self._R + np.einsum("nij,njk,nlk->nil", H_m, cov.reshape(-1, 2, 2), H_m)
-            if v2:  # the likelihood under the proposal's prior, as 2.0's weight (line 16)
-                S += np.einsum("nij,jk,nlk->nil", H_x, self._Rt, H_x)
-            det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
-            inv = np.empty_like(S)
-            inv[:, 0, 0], inv[:, 1, 1] = S[:, 1, 1] / det, S[:, 0, 0] / det
-            inv[:, 0, 1], inv[:, 1, 0] = -S[:, 0, 1] / det, -S[:, 1, 0] / det
-            norm = (-0.5 * np.log(det) - math.log(2.0 * math.pi)).reshape(m, n)
-            zh = zh.reshape(m, n, 2)
-            inv = inv.reshape(m, n, 2, 2)
-            free = found.copy()
-            rows = np.arange(m)
-            for i, zk in enumerate(zs):
-                e = zk - zh
-                e[..., 1] = wrap_angle(e[..., 1])
-                ll = norm - 0.5 * np.einsum("mni,mnij,mnj->mn", e, inv, e)
-                ll[~free] = -np.inf
-                best = np.argmax(ll, axis=1)
-                hit = ll[rows, best] >= self._log_p0
-                cols[i, hit] = best[hit]
-                free[rows[hit], best[hit]] = False
-                new[i] = ~hit
-            visible = (zh[..., 0] <= self.config.visibility_range) & (
-                np.abs(zh[..., 1]) <= 0.5 * self.config.visibility_fov
-            )
-            unseen = free & visible
+            from probmap.slam._fastslam_kernels import associate_ml
+
+            model = self.measurement_model
+            offset = np.asarray(getattr(model, "sensor_offset", (0.0, 0.0, 0.0)), np.float64)
+            associate_ml(np.ascontiguousarray(poses), offset, mean, cov, found,
+                         np.ascontiguousarray(zs), self._R, self._Rt, v2, self._log_p0,
+                         float(self.config.visibility_range),
+                         0.5 * float(self.config.visibility_fov), cols, unseen)  # fmt: skip
+            new = cols < 0
         else:
             new[:] = True
         for i in range(k):  # new landmarks take each particle's next free column

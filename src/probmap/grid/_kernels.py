@@ -44,6 +44,44 @@ def _walk_update(
     return count
 
 
+@njit(cache=True, inline="always")
+def classify_beam(
+    r, a, px, py, ox, oy, inv, max_range, clear_range, thickness, counts
+):  # pragma: no cover - compiled
+    """Classify one beam of range ``r`` (m) at world angle ``a`` (rad) from the sensor at
+    ``(px, py)`` and give the grid points (cell units, origin ``(ox, oy)``, ``inv`` = 1 / res)
+    that scan integration walks to.
+
+    Returns ``(kind, ex, ey, tx, ty)``: kind 0 is a dropped reading (not positive, not finite,
+    or at max range with no clearing), 1 a hit at ``(ex, ey)`` whose obstacle reaches
+    ``(tx, ty)`` (``thickness`` metres further; the hit point itself when ``thickness`` is 0),
+    2 a max-range reading cleared to ``(ex, ey)`` at ``clear_range``. Adds 1 to ``counts[0]``
+    (hits), ``counts[1]`` (max-range readings) or ``counts[2]`` (dropped readings). The one
+    beam rule of :func:`integrate_scans`, :func:`count_scans` and
+    :func:`probmap.grid._semantic_kernels.integrate_labelled_scans`.
+    """
+    if not (r > 0.0) or not math.isfinite(r):
+        counts[2] += 1
+        return 0, 0.0, 0.0, 0.0, 0.0
+    c = math.cos(a)
+    sn = math.sin(a)
+    if r >= max_range:
+        counts[1] += 1
+        if clear_range > 0.0:
+            ex = (px + clear_range * c - ox) * inv
+            ey = (py + clear_range * sn - oy) * inv
+            return 2, ex, ey, ex, ey
+        return 0, 0.0, 0.0, 0.0, 0.0
+    counts[0] += 1
+    ex = (px + r * c - ox) * inv
+    ey = (py + r * sn - oy) * inv
+    if thickness > 0.0:
+        tx = (px + (r + thickness) * c - ox) * inv
+        ty = (py + (r + thickness) * sn - oy) * inv
+        return 1, ex, ey, tx, ty
+    return 1, ex, ey, ex, ey
+
+
 @njit(cache=True)
 def integrate_scans(
     lo,
@@ -220,38 +258,16 @@ def _integrate_body(
         arow = 0 if angles_shared else s
         # pass 1: classify beams and apply hits (endpoint cell and obstacle thickness)
         for b in range(n_beams):
-            r = ranges[s, b]
-            if not (r > 0.0) or not math.isfinite(r):
-                kind[b] = 0
-                counts[2] += 1
-                continue
-            a = th + angles[arow, b]
-            c = math.cos(a)
-            sn = math.sin(a)
-            if r >= max_range:
-                kind[b] = 2
-                counts[1] += 1
-                if clear_range > 0.0:
-                    end[b, 0] = (px + clear_range * c - ox) * inv
-                    end[b, 1] = (py + clear_range * sn - oy) * inv
-                else:
-                    kind[b] = 0
-                continue
-            kind[b] = 1
-            counts[0] += 1
-            ex = (px + r * c - ox) * inv
-            ey = (py + r * sn - oy) * inv
+            k, ex, ey, tx, ty = classify_beam(
+                ranges[s, b], th + angles[arow, b], px, py, ox, oy, inv, max_range,
+                clear_range, thickness, counts,
+            )  # fmt: skip
+            kind[b] = k
             end[b, 0] = ex
             end[b, 1] = ey
-            if thickness > 0.0:
-                tx = (px + (r + thickness) * c - ox) * inv
-                ty = (py + (r + thickness) * sn - oy) * inv
+            if k == 1:
                 counts[3] += _walk_update(
                     lo_hit, stamp, sid, ex, ey, tx, ty, True, d_hit, lmin, lmax
-                )
-            else:
-                counts[3] += _walk_update(
-                    lo_hit, stamp, sid, ex, ey, ex, ey, True, d_hit, lmin, lmax
                 )
         # pass 2: free space along every beam up to (not including) its last cell
         for b in range(n_beams):

@@ -14,6 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
+from probmap.grid._kernels import classify_beam
 from probmap.grid._traverse import walk_next, walk_start
 
 
@@ -119,35 +120,15 @@ def integrate_labelled_scans(
         n_cells = 0
         # pass 1: classify beams, gather the endpoint evidence per cell
         for b in range(n_beams):
-            r = ranges[s, b]
-            if not (r > 0.0) or not math.isfinite(r):
-                kind[b] = 0
-                counts[2] += 1
-                continue
-            a = th + angles[arow, b]
-            c = math.cos(a)
-            sn = math.sin(a)
-            if r >= max_range:
-                kind[b] = 2
-                counts[1] += 1
-                if clear_range > 0.0:
-                    end[b, 0] = (px + clear_range * c - ox) * inv
-                    end[b, 1] = (py + clear_range * sn - oy) * inv
-                else:
-                    kind[b] = 0
-                continue
-            kind[b] = 1
-            counts[0] += 1
-            ex = (px + r * c - ox) * inv
-            ey = (py + r * sn - oy) * inv
+            kb, ex, ey, tx, ty = classify_beam(
+                ranges[s, b], th + angles[arow, b], px, py, ox, oy, inv, max_range,
+                clear_range, thickness, counts,
+            )  # fmt: skip
+            kind[b] = kb
             end[b, 0] = ex
             end[b, 1] = ey
-            if thickness > 0.0:
-                tx = (px + (r + thickness) * c - ox) * inv
-                ty = (py + (r + thickness) * sn - oy) * inv
-            else:
-                tx = ex
-                ty = ey
+            if kb != 1:
+                continue
             q = qrow[s, b]
             ix, iy, lx, ly, sx, sy, tmx, tmy, tdx, tdy, n = walk_start(ex, ey, tx, ty, True)
             for _ in range(n):

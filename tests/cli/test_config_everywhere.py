@@ -253,3 +253,36 @@ def test_fit_sensor_model_bad_config(short_log, tmp_path):
     res = run("fit-sensor-model", log, "-o", tmp_path / "out.yaml", "--config", bad)
     one_line_error(res, "bad.yaml", "poses", "'laser'")
     assert not list(tmp_path.glob("out*"))
+
+
+# ----------------------------------------------------------------------------- match
+def _matched(res):
+    lines = [line for line in res.output.splitlines() if line.strip().startswith("matched")]
+    assert len(lines) == 1, res.output
+    return lines[0].split()[1:]
+
+
+def test_match_config(short_log, tmp_path):
+    """match writes no file: the file's fields act as the options do, options win."""
+    ok("map", short_log, "-o", tmp_path / "m", "-r", "0.05")
+    args = ("match", tmp_path / "m.npz", short_log, "--scan", "20", "--x", "1.0", "--theta", "0.1")
+    default = _matched(ok(*args))
+    by_opt = _matched(ok(*args, "--sigma", "0.2", "--angular-window", "0.02"))
+    cfg_file = tmp_path / "c.yaml"
+    cfg_file.write_text("sigma: 0.2\nangular_window: 0.02\n")
+    res = ok(*args, "--config", cfg_file)
+    assert "sigma 0.2 m, window 0.3 m / 0.02 rad" in res.output  # the command's 0.3 m kept
+    assert _matched(res) == by_opt != default
+    res = ok(*args, "--config", cfg_file, "--sigma", "0.05", "--angular-window", "0.2")
+    assert _matched(res) == default
+
+
+def test_match_bad_config(short_log, tmp_path):
+    ok("map", short_log, "-o", tmp_path / "m", "-r", "0.1")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("window: 0.2\n")
+    res = run("match", tmp_path / "m.npz", short_log, "--config", bad)
+    one_line_error(res, "bad.yaml", "window", "MatcherConfig")
+    bad.write_text("sigma: -1\n")
+    res = run("match", tmp_path / "m.npz", short_log, "--config", bad)
+    one_line_error(res, "bad.yaml", "sigma")

@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-__all__ = ["command_line", "write_run_config"]
+__all__ = ["command_line", "config_over", "write_run_config"]
 
 
 def command_line(argv: list[str] | None = None) -> str:
@@ -38,3 +38,24 @@ def write_run_config(path: str | os.PathLike[str], cfg: Any) -> Path:
     with atomic_write(path, "w", encoding="utf-8") as f:
         f.write(text)
     return Path(path)
+
+
+def config_over(base: Any, path: Any = None, overrides: dict[str, Any] | None = None) -> Any:
+    """The configuration a command runs with when its defaults are not its class's:
+    the fields the YAML file ``path`` gives (checked by :func:`probmap.config.load_config`,
+    whose errors name the file and the field) over the command's own ``base``, then the
+    ``overrides`` whose value is not None (the options the user gave) on top."""
+    import dataclasses
+
+    import yaml
+
+    from probmap.config import CLASS_KEY, VERSION_KEY, load_config
+
+    cfg = base
+    if path is not None:
+        loaded = load_config(type(base), path)
+        data = yaml.safe_load(Path(path).read_text(encoding="utf-8")) or {}
+        given = [k for k in data if k not in (VERSION_KEY, CLASS_KEY)]
+        cfg = dataclasses.replace(base, **{k: getattr(loaded, k) for k in given})
+    given_options = {k: v for k, v in (overrides or {}).items() if v is not None}
+    return dataclasses.replace(cfg, **given_options) if given_options else cfg

@@ -413,10 +413,21 @@ def match_command(
     x: float | None = typer.Option(None, "--x", help="Initial x (m); default the log's pose."),
     y: float | None = typer.Option(None, "--y", help="Initial y (m)."),
     theta: float | None = typer.Option(None, "--theta", help="Initial heading (rad)."),
-    sigma: float = typer.Option(0.05, "--sigma", help="Match field width (m)."),
-    window: float = typer.Option(0.3, "--window", help="Search half-width in x and y (m)."),
-    angular_window: float = typer.Option(
-        0.2, "--angular-window", help="Search half-width in heading (rad)."
+    sigma: float | None = typer.Option(
+        None, "--sigma", help="Match field width (m) [default: 0.05]."
+    ),
+    window: float | None = typer.Option(
+        None, "--window", help="Search half-width in x and y (m) [default: 0.3]."
+    ),
+    angular_window: float | None = typer.Option(
+        None, "--angular-window", help="Search half-width in heading (rad) [default: 0.2]."
+    ),
+    config: Path | None = typer.Option(
+        None,
+        "--config",
+        help="A YAML file of MatcherConfig fields (sigma, linear_window, linear_step, "
+        "angular_window, angular_step, iterations, usable_range, beam_skip) over the defaults "
+        "above; the options given here override it.",
     ),
     skip_bad_lines: bool = skip_bad_lines_option(),
     scan_topic: str | None = scan_topic_option(),
@@ -429,54 +440,65 @@ def match_command(
     with cli_errors():
         import numpy as np
 
+        from probmap.cli._provenance import config_over
+        from probmap.cli.common import Stopwatch
         from probmap.datasets.scans import open_scans
         from probmap.slam.scan_matching import MatcherConfig, MatchField, match_scan, scan_points
 
+        watch = Stopwatch()
         if not map_file.exists():
             raise FileNotFoundError(f"{map_file}: no such file")
         log = laser_input(log)
+        # the command's own search window is wider than MatcherConfig's (one scan, no motion)
+        base = MatcherConfig(sigma=0.05, linear_window=0.3, angular_window=0.2)
+        options = {"sigma": sigma, "linear_window": window, "angular_window": angular_window}
+        cfg = config_over(base, config, options)
         suffix = map_file.suffix.lower()
-        if suffix == ".npz":
-            from probmap.grid.io import load_npz
-
-            field = MatchField.from_grid(load_npz(map_file), sigma)
-        elif suffix in (".yaml", ".yml"):
-            from probmap.grid.io import read_map_server
-
-            m = read_map_server(map_file)
-            occ = np.nan_to_num(m.probability, nan=0.0) > m.occupied_thresh
-            field = MatchField.from_occupied(occ, m.spec, sigma)
-        else:
+        if suffix not in (".npz", ".yaml", ".yml"):
             raise ValueError(f"{map_file}: expected a .npz or map_server .yaml map")
         import warnings
 
         from probmap.datasets.validate import require_usable, validate_ranges
         from probmap.errors import BadLinesWarning
 
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", BadLinesWarning)  # counted in the summary
-            batch = open_scans(
-                log,
-                poses="corrected",
-                skip_bad_lines=skip_bad_lines,
-                bag_options=bag_options_of(scan_topic, odom_topic, fixed_frame, laser_frame),
+        with watch("read"):
+            if suffix == ".npz":
+                from probmap.grid.io import load_npz
+
+                grid = load_npz(map_file)
+            else:
+                from probmap.grid.io import read_map_server
+
+                m = read_map_server(map_file)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", BadLinesWarning)  # counted in the summary
+                batch = open_scans(
+                    log,
+                    poses="corrected",
+                    skip_bad_lines=skip_bad_lines,
+                    bag_options=bag_options_of(scan_topic, odom_topic, fixed_frame, laser_frame),
+                )
+        with watch("compute"):
+            if suffix == ".npz":
+                field = MatchField.from_grid(grid, cfg.sigma)
+            else:
+                occ = np.nan_to_num(m.probability, nan=0.0) > m.occupied_thresh
+                field = MatchField.from_occupied(occ, m.spec, cfg.sigma)
+            n = len(batch.times)
+            if not 0 <= scan < n:
+                raise ValueError(f"--scan must lie in 0..{n - 1} for {log}, got {scan}")
+            _, one = validate_ranges(
+                batch.ranges[scan : scan + 1], batch.max_range, beams=batch.beams[scan : scan + 1]
             )
-        n = len(batch.times)
-        if not 0 <= scan < n:
-            raise ValueError(f"--scan must lie in 0..{n - 1} for {log}, got {scan}")
-        _, one = validate_ranges(
-            batch.ranges[scan : scan + 1], batch.max_range, beams=batch.beams[scan : scan + 1]
-        )
-        require_usable(one, f"{log}, scan {scan}", batch.max_range)
-        angles = np.asarray(batch.angles)
-        angles = angles if angles.ndim == 1 else angles[scan]
-        guess = np.asarray(batch.laser_poses[scan], dtype=np.float64).copy()
-        for i, v in enumerate((x, y, theta)):
-            if v is not None:
-                guess[i] = v
-        cfg = MatcherConfig(sigma=sigma, linear_window=window, angular_window=angular_window)
-        pts = scan_points(batch.ranges[scan], angles, float(batch.max_range), cfg.usable_range)
-        res = match_scan(field, pts, guess, cfg)
+            require_usable(one, f"{log}, scan {scan}", batch.max_range)
+            angles = np.asarray(batch.angles)
+            angles = angles if angles.ndim == 1 else angles[scan]
+            guess = np.asarray(batch.laser_poses[scan], dtype=np.float64).copy()
+            for i, v in enumerate((x, y, theta)):
+                if v is not None:
+                    guess[i] = v
+            pts = scan_points(batch.ranges[scan], angles, float(batch.max_range), cfg.usable_range)
+            res = match_scan(field, pts, guess, cfg)
         sd = np.sqrt(np.diag(res.covariance))
         print_summary(
             f"scan {scan} of {log.name} on {map_file.name}",
@@ -489,6 +511,12 @@ def match_command(
                 ("std dev", f"x={sd[0]:.4f} m y={sd[1]:.4f} m theta={sd[2]:.5f} rad"),
                 ("score", f"{res.score:.3f} ({res.points} endpoints)"),
                 *input_rows(batch.readings, batch.skipped_lines),
+                (
+                    "matcher",
+                    f"sigma {cfg.sigma:g} m, window {cfg.linear_window:g} m / "
+                    f"{cfg.angular_window:g} rad",
+                ),
+                watch.row(),
             ],
         )
 

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap._typing import FloatArray
 from probmap.errors import GridBoundsError  # re-exported: its old home
 from probmap.grid.logodds import logit, prob
 from probmap.grid.spec import GridSpec
@@ -91,6 +92,19 @@ class ScanStats:
     max_range: int
     dropped: int
     cell_updates: int
+
+    @classmethod
+    def from_counts(cls, scans: int, beams: int, counts: NDArray[np.int64]) -> ScanStats:
+        """The stats of ``scans`` scans of ``beams`` beams in all from a kernel's ``counts``
+        (int64[4]: hits, max-range readings, dropped readings, cell updates)."""
+        return cls(
+            scans=int(scans),
+            beams=int(beams),
+            hits=int(counts[0]),
+            max_range=int(counts[1]),
+            dropped=int(counts[2]),
+            cell_updates=int(counts[3]),
+        )
 
     def __add__(self, other: ScanStats) -> ScanStats:
         return ScanStats(
@@ -174,6 +188,114 @@ _EPOCH = 254  # scans per kernel call: their ids must fit the one-byte stamp (2.
 _one_scan_kernel: Any = None  # _kernels.integrate_one_scan, imported on first use (numba is heavy)
 
 
+def grid_resolution(spec: GridSpec | None, resolution: float) -> float:
+    """The cell side (metres) of a grid built with ``resolution`` and an optional ``spec``.
+
+    The spec's resolution wins; a ``resolution`` other than the default 0.05 that disagrees
+    with it, and a side that is not a positive number, raise :class:`ValueError`. The one rule
+    of :class:`OccupancyGrid` and :class:`~probmap.grid.semantic.SemanticGrid`.
+    """
+    if spec is not None and not math.isclose(spec.resolution, resolution) and resolution != 0.05:
+        raise ValueError(
+            f"resolution {resolution} disagrees with spec.resolution {spec.resolution}"
+        )
+    res = spec.resolution if spec is not None else float(resolution)
+    if not (math.isfinite(res) and res > 0):
+        raise ValueError(f"resolution must be a positive number of metres, got {resolution}")
+    return res
+
+
+def check_one_scan(pose: ArrayLike, ranges: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """``pose`` as float64 (3,) and ``ranges`` as float64 (B,), or :class:`ValueError`."""
+    p = np.asarray(pose, dtype=np.float64)
+    if p.shape != (3,):
+        raise ValueError(f"pose must have shape (3,) = (x, y, theta), got {p.shape}")
+    r = np.asarray(ranges, dtype=np.float64)
+    if r.ndim != 1:
+        raise ValueError(f"ranges must be 1-D, got shape {r.shape}")
+    return p, r
+
+
+def check_poses(poses: ArrayLike) -> FloatArray:
+    """Sensor poses as contiguous float64 (S, 3), all finite, or :class:`ValueError` naming the
+    first bad pose."""
+    P = np.ascontiguousarray(poses, dtype=np.float64)
+    if P.ndim != 2 or P.shape[1] != 3:
+        raise ValueError(f"poses must have shape (S, 3), got {P.shape}")
+    if not np.isfinite(P).all():
+        bad = int(np.nonzero(~np.isfinite(P).all(axis=1))[0][0])
+        raise ValueError(f"poses must be finite numbers; pose {bad} is {P[bad].tolist()}")
+    return P
+
+
+def check_angles_and_max_range(
+    angles: ArrayLike, ranges: FloatArray, max_range: float
+) -> tuple[FloatArray, bool, float]:
+    """Beam angles for ``ranges (S, B)`` and the maximum range, checked.
+
+    Returns ``(A, shared, max_range)``: ``A`` contiguous float64 (1, B) when ``angles`` (B,)
+    is shared by all scans (``shared`` true), else (S, B); ``max_range`` as a float > 0.
+    """
+    A = np.asarray(angles, dtype=np.float64)
+    shared = A.ndim == 1
+    if shared:
+        A = A[None, :]
+    S, B = ranges.shape
+    if A.ndim != 2 or A.shape[-1] != B or (not shared and A.shape[0] != S):
+        raise ValueError(f"angles shape {np.shape(angles)} does not match ranges {ranges.shape}")
+    if not np.isfinite(A).all():
+        raise ValueError("angles must be finite")
+    max_range = float(max_range)
+    if not max_range > 0.0:
+        raise ValueError(f"max_range must be > 0 m, got {max_range}")
+    return np.ascontiguousarray(A), shared, max_range
+
+
+class _ScanGrid:
+    """What :class:`OccupancyGrid` and :class:`~probmap.grid.semantic.SemanticGrid` share: the
+    geometry, the per-cell stamp of the last scan that changed a cell (0: never), the scan
+    count, and growth to fit a batch of scans before it is integrated."""
+
+    _spec: GridSpec
+    _stamp: NDArray[Any]
+    _scans: int
+    model: Any
+
+    @property
+    def spec(self) -> GridSpec:
+        """Current geometry (changes when the grid grows)."""
+        return self._spec
+
+    @property
+    def observed(self) -> NDArray[np.bool_]:
+        """Cells updated by at least one scan, shape (H, W)."""
+        return self._stamp != 0
+
+    @property
+    def scans_integrated(self) -> int:
+        """Number of scans integrated so far."""
+        return self._scans
+
+    def _ensure_bounds(self, box: NDArray[np.float64]) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _fit_scans(
+        self,
+        P: FloatArray,
+        R: FloatArray,
+        A: FloatArray,
+        shared: bool,
+        max_range: float,
+        clear_range: float,
+    ) -> None:
+        """Grow the grid (or raise) so that every cell the scans can touch lies in it."""
+        from probmap.grid import _kernels
+
+        box = np.empty(4)
+        _kernels.scan_bounds(P, R, A, shared, max_range, clear_range, self.model.thickness, box)
+        self._ensure_bounds(box)
+
+
 def _load_one_scan_kernel() -> Any:
     """:func:`probmap.grid._kernels.integrate_one_scan`, imported the first time it is needed."""
     global _one_scan_kernel
@@ -183,7 +305,7 @@ def _load_one_scan_kernel() -> Any:
     return integrate_one_scan
 
 
-class OccupancyGrid:
+class OccupancyGrid(_ScanGrid):
     """A 2-D occupancy grid holding float32 log odds, updated by the binary Bayes filter.
 
     Parameters
@@ -241,17 +363,7 @@ class OccupancyGrid:
     ) -> None:
         if not (math.isfinite(max_extent) and max_extent > 0):
             raise ValueError(f"max_extent must be a positive number of metres, got {max_extent}")
-        if (
-            spec is not None
-            and not math.isclose(spec.resolution, resolution)
-            and resolution != 0.05
-        ):
-            raise ValueError(
-                f"resolution {resolution} disagrees with spec.resolution {spec.resolution}"
-            )
-        res = spec.resolution if spec is not None else float(resolution)
-        if not (math.isfinite(res) and res > 0):
-            raise ValueError(f"resolution must be a positive number of metres, got {resolution}")
+        res = grid_resolution(spec, resolution)
         if not 0.0 < p0 < 1.0:
             raise ValueError(f"p0 must lie in (0, 1), got {p0}")
         if not 0.0 < clamp[0] <= p0 <= clamp[1] < 1.0:
@@ -282,24 +394,9 @@ class OccupancyGrid:
 
     # ------------------------------------------------------------------ state
     @property
-    def spec(self) -> GridSpec:
-        """Current geometry (changes when the grid grows)."""
-        return self._spec
-
-    @property
     def log_odds(self) -> NDArray[np.float32]:
         """Log odds, shape (H, W), float32, indexed ``[iy, ix]`` (row 0 at the smallest y)."""
         return self._lo
-
-    @property
-    def observed(self) -> NDArray[np.bool_]:
-        """Cells updated by at least one scan, shape (H, W)."""
-        return self._stamp != 0
-
-    @property
-    def scans_integrated(self) -> int:
-        """Number of scans integrated so far."""
-        return self._scans
 
     def probability(self) -> NDArray[np.float64]:
         """Posterior occupancy ``p = 1 - 1/(1 + exp(l))`` per cell, shape (H, W)."""
@@ -455,12 +552,7 @@ class OccupancyGrid:
         >>> g.integrate_scan([0, 0, 0], [1.2, np.nan], [0.0, 0.1], max_range=5).dropped
         1
         """
-        p = np.asarray(pose, dtype=np.float64)
-        if p.shape != (3,):
-            raise ValueError(f"pose must have shape (3,) = (x, y, theta), got {p.shape}")
-        r = np.asarray(ranges, dtype=np.float64)
-        if r.ndim != 1:
-            raise ValueError(f"ranges must be 1-D, got shape {r.shape}")
+        p, r = check_one_scan(pose, ranges)
         # Fast path: one compiled call validates, checks the bounds and integrates. Anything it
         # declines (bad input, a scan that leaves the grid, the end of a stamp epoch, unusual
         # arguments) goes through integrate_scans, which raises the usual errors or grows the grid.
@@ -544,38 +636,17 @@ class OccupancyGrid:
         """
         from probmap.grid import _kernels
 
-        P = np.ascontiguousarray(poses, dtype=np.float64)
-        if P.ndim != 2 or P.shape[1] != 3:
-            raise ValueError(f"poses must have shape (S, 3), got {P.shape}")
-        if not np.isfinite(P).all():
-            bad = int(np.nonzero(~np.isfinite(P).all(axis=1))[0][0])
-            raise ValueError(f"poses must be finite numbers; pose {bad} is {P[bad].tolist()}")
+        P = check_poses(poses)
         R = np.ascontiguousarray(ranges, dtype=np.float64)
         if R.ndim != 2 or R.shape[0] != P.shape[0]:
             raise ValueError(
                 f"ranges must have shape (S, B) with S = {P.shape[0]} poses, got {R.shape}"
             )
-        A = np.asarray(angles, dtype=np.float64)
-        if A.ndim == 1:
-            shared = True
-            A = A[None, :]
-        else:
-            shared = False
-        if A.shape[-1] != R.shape[1] or (not shared and A.shape[0] != R.shape[0]):
-            raise ValueError(f"angles shape {np.shape(angles)} does not match ranges {R.shape}")
-        if not np.isfinite(A).all():
-            raise ValueError("angles must be finite")
-        A = np.ascontiguousarray(A)
-        max_range = float(max_range)
-        if not max_range > 0.0:
-            raise ValueError(f"max_range must be > 0 m, got {max_range}")
-        clear = self.model.max_clear_range
-        clear_range = effective_clear_range(clear, max_range)
+        A, shared, max_range = check_angles_and_max_range(angles, R, max_range)
+        clear_range = effective_clear_range(self.model.max_clear_range, max_range)
         if P.shape[0] == 0:
             return ScanStats(0, 0, 0, 0, 0, 0)
-        box = np.empty(4)
-        _kernels.scan_bounds(P, R, A, shared, max_range, clear_range, self.model.thickness, box)
-        self._ensure_bounds(box)
+        self._fit_scans(P, R, A, shared, max_range, clear_range)
         counts = np.zeros(4, dtype=np.int64)
         ox, oy = self._spec.origin
         for s0 in range(0, P.shape[0], _EPOCH):
@@ -601,11 +672,4 @@ class OccupancyGrid:
                 counts,
             )
         self._scans += P.shape[0]
-        return ScanStats(
-            scans=int(P.shape[0]),
-            beams=int(R.size),
-            hits=int(counts[0]),
-            max_range=int(counts[1]),
-            dropped=int(counts[2]),
-            cell_updates=int(counts[3]),
-        )
+        return ScanStats.from_counts(P.shape[0], R.size, counts)

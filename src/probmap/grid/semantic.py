@@ -31,7 +31,12 @@ from probmap.grid.logodds import logit
 from probmap.grid.occupancy import (
     OccupancyGrid,
     ScanStats,
+    _ScanGrid,
+    check_angles_and_max_range,
+    check_one_scan,
+    check_poses,
     effective_clear_range,
+    grid_resolution,
     plan_growth,
     regrid,
 )
@@ -351,7 +356,7 @@ def _small(v: NDArray[np.float64]) -> Any:
     return np.ascontiguousarray(v, dtype=np.float64)
 
 
-class SemanticGrid:
+class SemanticGrid(_ScanGrid):
     """A 2-D multi-class occupancy grid: per cell, float32 log odds of K classes against class 0.
 
     Parameters
@@ -417,17 +422,7 @@ class SemanticGrid:
     ) -> None:
         self.classes = _check_classes(classes)
         K = len(self.classes) - 1
-        if (
-            spec is not None
-            and not math.isclose(spec.resolution, resolution)
-            and resolution != 0.05
-        ):
-            raise ValueError(
-                f"resolution {resolution} disagrees with spec.resolution {spec.resolution}"
-            )
-        res = spec.resolution if spec is not None else float(resolution)
-        if not (math.isfinite(res) and res > 0):
-            raise ValueError(f"resolution must be a positive number of metres, got {resolution}")
+        res = grid_resolution(spec, resolution)
         if fixed and spec is None:
             raise ValueError("a fixed-bounds grid needs a spec (GridSpec) giving its bounds")
         if prior is None:
@@ -485,24 +480,9 @@ class SemanticGrid:
         return len(self.classes) - 1
 
     @property
-    def spec(self) -> GridSpec:
-        """Current geometry (changes when the grid grows)."""
-        return self._spec
-
-    @property
     def log_odds(self) -> NDArray[np.float32]:
         """Log odds ``log p(k)/p(0)``, shape (H, W, K), float32, indexed ``[iy, ix, k - 1]``."""
         return self._lo
-
-    @property
-    def observed(self) -> NDArray[np.bool_]:
-        """Cells updated by at least one scan, shape (H, W)."""
-        return self._stamp != 0
-
-    @property
-    def scans_integrated(self) -> int:
-        """Number of scans integrated so far."""
-        return self._scans
 
     def probabilities(self) -> NDArray[np.float64]:
         """Posterior class probabilities per cell, shape (H, W, K + 1), summing to 1."""
@@ -608,12 +588,7 @@ class SemanticGrid:
         Parameters as :meth:`integrate_scans` for a single scan: ``ranges`` (B,), ``labels``
         (B,) or ``probabilities`` (B, K).
         """
-        p = np.asarray(pose, dtype=np.float64)
-        if p.shape != (3,):
-            raise ValueError(f"pose must have shape (3,) = (x, y, theta), got {p.shape}")
-        r = np.asarray(ranges, dtype=np.float64)
-        if r.ndim != 1:
-            raise ValueError(f"ranges must be 1-D, got shape {r.shape}")
+        p, r = check_one_scan(pose, ranges)
         return self.integrate_scans(
             p[None, :],
             r[None, :],
@@ -666,15 +641,10 @@ class SemanticGrid:
             Labels out of range, probability vectors with negatives or not summing to 1, or
             per-scan arrays whose lengths disagree: the message names the scan (and beam).
         """
-        from probmap.grid import _kernels, _semantic_kernels
+        from probmap.grid import _semantic_kernels
 
         K = self.n_classes
-        P = np.ascontiguousarray(poses, dtype=np.float64)
-        if P.ndim != 2 or P.shape[1] != 3:
-            raise ValueError(f"poses must have shape (S, 3), got {P.shape}")
-        if not np.isfinite(P).all():
-            bad = int(np.nonzero(~np.isfinite(P).all(axis=1))[0][0])
-            raise ValueError(f"poses must be finite numbers; pose {bad} is {P[bad].tolist()}")
+        P = check_poses(poses)
         S = P.shape[0]
         if isinstance(ranges, np.ndarray) and ranges.dtype != object and ranges.ndim == 2:
             R = np.ascontiguousarray(ranges, dtype=np.float64)
@@ -692,29 +662,15 @@ class SemanticGrid:
             R = _per_scan("ranges", seq, S, B0, ()).astype(np.float64)
             R = np.ascontiguousarray(R)
         B = R.shape[1]
-        A = np.asarray(angles, dtype=np.float64)
-        shared = A.ndim == 1
-        if shared:
-            A = A[None, :]
-        if A.ndim != 2 or A.shape[-1] != B or (not shared and A.shape[0] != S):
-            raise ValueError(f"angles shape {np.shape(angles)} does not match ranges {R.shape}")
-        if not np.isfinite(A).all():
-            raise ValueError("angles must be finite")
-        A = np.ascontiguousarray(A)
-        max_range = float(max_range)
-        if not max_range > 0.0:
-            raise ValueError(f"max_range must be > 0 m, got {max_range}")
+        A, shared, max_range = check_angles_and_max_range(angles, R, max_range)
         hit = np.isfinite(R) & (R > 0.0) & (R < max_range)
         qrow, q_hit = self._endpoint_evidence(labels, probabilities, hit, S, B)
         d_hit = inverse_term(q_hit) - self.l_prior
         d_free = inverse_term(self.model.free_probabilities(K)) - self.l_prior
-        clear = self.model.max_clear_range
-        clear_range = effective_clear_range(clear, max_range)
+        clear_range = effective_clear_range(self.model.max_clear_range, max_range)
         if S == 0:
             return ScanStats(0, 0, 0, 0, 0, 0)
-        box = np.empty(4)
-        _kernels.scan_bounds(P, R, A, shared, max_range, clear_range, self.model.thickness, box)
-        self._ensure_bounds(box)
+        self._fit_scans(P, R, A, shared, max_range, clear_range)
         if self._scans + S >= np.iinfo(np.int32).max:  # pragma: no cover
             raise OverflowError("more than 2**31 scans in one grid")
         counts = np.zeros(4, dtype=np.int64)
@@ -744,14 +700,7 @@ class SemanticGrid:
             counts,
         )
         self._scans += S
-        return ScanStats(
-            scans=S,
-            beams=int(R.size),
-            hits=int(counts[0]),
-            max_range=int(counts[1]),
-            dropped=int(counts[2]),
-            cell_updates=int(counts[3]),
-        )
+        return ScanStats.from_counts(S, R.size, counts)
 
     def _endpoint_evidence(
         self,

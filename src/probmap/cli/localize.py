@@ -11,6 +11,7 @@ import typer
 from probmap._atomic import atomic_path
 from probmap.cli.common import (
     CliError,
+    Stopwatch,
     bag_options_of,
     cli_errors,
     fixed_frame_option,
@@ -138,6 +139,7 @@ def localize_command(
     filter's convergence on and the reference over the localized span) and config.yaml (the
     settings used, with the command line and the probmap version; and trajectory.tum with
     --tum) into OUTPUT. The map is a map_server map or a session of probmap slam grid."""
+    watch = Stopwatch()  # the whole command: its summary's time row
     with cli_errors():
         import dataclasses
         import warnings
@@ -148,7 +150,7 @@ def localize_command(
 
         from probmap._atomic import atomic_outputs
         from probmap.cli._provenance import write_run_config
-        from probmap.cli.common import Stopwatch, progress_bar, resolve_config
+        from probmap.cli.common import progress_bar, resolve_config
         from probmap.datasets.scans import open_scans
         from probmap.errors import BadLinesWarning
         from probmap.pipelines import check_output_folder
@@ -161,7 +163,6 @@ def localize_command(
             trajectory_errors,
         )
 
-        watch = Stopwatch()
         if map_option is not None:
             if second is not None:
                 raise CliError("--map names the map: give the log as the only argument")

@@ -111,6 +111,38 @@ def nearest_score(field, ox, oy, res, pts, x, y, th):  # pragma: no cover - comp
     return total
 
 
+@njit(cache=True, inline="always")
+def _cell_tables(
+    pts, c, s, x0, y0, nl, lin_step, ox, oy, res, h, w, cols, rows
+):  # pragma: no cover - compiled
+    """Per point ``i`` rotated by ``(c, s) = (cos, sin)`` of a heading: its cell column at every
+    x offset ``k`` of the search box (``cols[k, i]``) and its row at every y offset
+    (``rows[k, i]``), -1 outside the field. The same expressions as a direct evaluation
+    (:func:`nearest_score`), so table scores are identical to it."""
+    n = pts.shape[0]
+    m = 2 * nl + 1
+    for i in range(n):
+        rx = c * pts[i, 0] - s * pts[i, 1]
+        ry = s * pts[i, 0] + c * pts[i, 1]
+        for k in range(m):
+            ix = math.floor((x0 + (k - nl) * lin_step + rx - ox) / res)
+            iy = math.floor((y0 + (k - nl) * lin_step + ry - oy) / res)
+            cols[k, i] = ix if 0 <= ix < w else -1
+            rows[k, i] = iy if 0 <= iy < h else -1
+
+
+@njit(cache=True, inline="always")
+def _table_score(field, cx, ry):  # pragma: no cover - compiled
+    """Nearest-cell score of the points at cell columns ``cx`` and rows ``ry`` (-1: outside)."""
+    total = 0.0
+    for i in range(cx.shape[0]):
+        ix = cx[i]
+        iy = ry[i]
+        if ix >= 0 and iy >= 0:
+            total += field[iy, ix]
+    return total
+
+
 @njit(cache=True)
 def correlative_search(
     field, ox, oy, res, pts, x0, y0, th0, lin_window, lin_step, ang_window, ang_step, out
@@ -139,25 +171,11 @@ def correlative_search(
         th = th0 + ka * ang_step
         c = math.cos(th)
         s = math.sin(th)
-        for i in range(n):
-            rx = c * pts[i, 0] - s * pts[i, 1]
-            ry = s * pts[i, 0] + c * pts[i, 1]
-            for k in range(m):
-                # the same expressions as a direct evaluation, so scores are identical
-                ix = math.floor((x0 + (k - nl) * lin_step + rx - ox) / res)
-                iy = math.floor((y0 + (k - nl) * lin_step + ry - oy) / res)
-                cols[k, i] = ix if 0 <= ix < w else -1
-                rows[k, i] = iy if 0 <= iy < h else -1
+        _cell_tables(pts, c, s, x0, y0, nl, lin_step, ox, oy, res, h, w, cols, rows)
         for kx in range(m):
             cx = cols[kx]
             for ky in range(m):
-                ry_ = rows[ky]
-                total = 0.0
-                for i in range(n):
-                    ix = cx[i]
-                    iy = ry_[i]
-                    if ix >= 0 and iy >= 0:
-                        total += field[iy, ix]
+                total = _table_score(field, cx, rows[ky])
                 if total > best:  # strictly better: the first of equals wins
                     best = total
                     bx = x0 + (kx - nl) * lin_step
@@ -207,26 +225,13 @@ def correlative_moments(
         th = th0 + ka * ang_step
         c = math.cos(th)
         s = math.sin(th)
-        for i in range(n):
-            rx = c * pts[i, 0] - s * pts[i, 1]
-            ry = s * pts[i, 0] + c * pts[i, 1]
-            for k in range(m):
-                ix = math.floor((x0 + (k - nl) * lin_step + rx - ox) / res)
-                iy = math.floor((y0 + (k - nl) * lin_step + ry - oy) / res)
-                cols[k, i] = ix if 0 <= ix < w else -1
-                rows[k, i] = iy if 0 <= iy < h else -1
+        _cell_tables(pts, c, s, x0, y0, nl, lin_step, ox, oy, res, h, w, cols, rows)
         dt = ka * ang_step
         for kx in range(m):
             cx = cols[kx]
             dx = (kx - nl) * lin_step
             for ky in range(m):
-                ry_ = rows[ky]
-                total = 0.0
-                for i in range(n):
-                    ix = cx[i]
-                    iy = ry_[i]
-                    if ix >= 0 and iy >= 0:
-                        total += field[iy, ix]
+                total = _table_score(field, cx, rows[ky])
                 if total > best:
                     scale = math.exp((best - total) / temperature) if best >= 0.0 else 0.0
                     for j in range(10):

@@ -192,7 +192,8 @@ def map_log(
         ``observer(done, grid, trajectory, ranges, angles, max_range)`` after every
         ``observe_every`` scans: the grid so far, the sensor poses (done, 3) so far and the
         newest scan's ranges (B,) and angles (B,) (metres, radians). It must not change the
-        grid. Watching does not change the map.
+        grid. The chunks then end at its calls: the scans go in in the same order, but the
+        grid grows in other steps, so its origin may differ by rounding (1e-15 m).
     observe_every : int
         Scans between calls of ``observer`` (>= 1).
     stop : callable, optional
@@ -216,8 +217,7 @@ def map_log(
     n = len(batch.times)
     poses = np.asarray(batch.laser_poses)
     angles = np.asarray(batch.angles)
-    # chunks end at the observer's calls too (the scans are integrated in the same order, so
-    # the map is the same)
+    # chunks end at the observer's calls too (the scans are integrated in the same order)
     step = cfg.chunk if observer is None else min(cfg.chunk, observe_every)
     done = 0
     for start in range(0, n, step):

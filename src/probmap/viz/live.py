@@ -48,10 +48,13 @@ _HINT = "the live view needs rerun: pip install 'probmap[viz]'"
 
 
 def _rerun() -> Any:
+    from probmap.errors import MissingExtraError
+
     try:
         import rerun
     except ImportError as exc:
-        raise ImportError(_HINT) from exc
+        # an ImportError the CLI reports on one line (cli_errors), not a traceback
+        raise MissingExtraError(_HINT) from exc
     return rerun
 
 

@@ -41,6 +41,17 @@ def bilinear(field, ox, oy, res, px, py):  # pragma: no cover - compiled
     return val, dx, dy
 
 
+@njit(cache=True, inline="always")
+def _point_term(field, ox, oy, res, px, py, x, y, c, s):  # pragma: no cover - compiled
+    """Field value at the point ``(px, py)`` (sensor frame) seen from pose ``(x, y, theta)``
+    with ``(c, s) = (cos theta, sin theta)``, and its derivatives w.r.t. ``x``, ``y`` and
+    ``theta``: ``(M, dM/dx, dM/dy, dM/dtheta)``."""
+    qx = x + c * px - s * py
+    qy = y + s * px + c * py
+    val, gx, gy = bilinear(field, ox, oy, res, qx, qy)
+    return val, gx, gy, gx * (-s * px - c * py) + gy * (c * px - s * py)
+
+
 @njit(cache=True)
 def point_terms(field, ox, oy, res, pts, x, y, th, out):  # pragma: no cover - compiled
     """Per point: field value and its derivative w.r.t. the pose, ``out[i] = (M, dM/dx,
@@ -48,15 +59,11 @@ def point_terms(field, ox, oy, res, pts, x, y, th, out):  # pragma: no cover - c
     c = math.cos(th)
     s = math.sin(th)
     for i in range(pts.shape[0]):
-        px = pts[i, 0]
-        py = pts[i, 1]
-        qx = x + c * px - s * py
-        qy = y + s * px + c * py
-        val, gx, gy = bilinear(field, ox, oy, res, qx, qy)
+        val, gx, gy, gt = _point_term(field, ox, oy, res, pts[i, 0], pts[i, 1], x, y, c, s)
         out[i, 0] = val
         out[i, 1] = gx
         out[i, 2] = gy
-        out[i, 3] = gx * (-s * px - c * py) + gy * (c * px - s * py)
+        out[i, 3] = gt
 
 
 @njit(cache=True)
@@ -76,15 +83,11 @@ def gauss_newton_terms(field, ox, oy, res, pts, x, y, th, g, H):  # pragma: no c
     sq = 0.0
     J = np.empty(3)
     for i in range(pts.shape[0]):
-        px = pts[i, 0]
-        py = pts[i, 1]
-        qx = x + c * px - s * py
-        qy = y + s * px + c * py
-        val, gx, gy = bilinear(field, ox, oy, res, qx, qy)
+        val, gx, gy, gt = _point_term(field, ox, oy, res, pts[i, 0], pts[i, 1], x, y, c, s)
         r = 1.0 - val
         J[0] = -gx
         J[1] = -gy
-        J[2] = -(gx * (-s * px - c * py) + gy * (c * px - s * py))
+        J[2] = -gt
         for a in range(3):
             g[a] += J[a] * r
             for b in range(3):

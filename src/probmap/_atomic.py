@@ -275,8 +275,14 @@ def _sync_folder(folder: Path) -> None:
     """Make the rename durable (POSIX); best effort where folders cannot be opened."""
     if os.name != "posix":  # pragma: no cover
         return
+    _fsync_name(folder)
+
+
+def _fsync_name(name: str | os.PathLike[str]) -> None:
+    """fsync the file or folder ``name`` through a read-only descriptor; errors are ignored
+    (best effort: some file systems cannot open or sync a folder)."""
     with suppress(OSError):
-        fd = os.open(folder, os.O_RDONLY)
+        fd = os.open(name, os.O_RDONLY)
         try:
             os.fsync(fd)
         finally:
@@ -404,12 +410,7 @@ def _sync_tree(path: Path) -> None:
     """fsync a written file, or every file below a written folder (best effort)."""
     files = [path] if path.is_file() else [Path(d) / n for d, _, ns in os.walk(path) for n in ns]
     for name in files:
-        with suppress(OSError):
-            fd = os.open(name, os.O_RDONLY)
-            try:
-                os.fsync(fd)
-            finally:
-                os.close(fd)
+        _fsync_name(name)
 
 
 @contextmanager

@@ -94,7 +94,9 @@ def test_proposal_of_fastslam2_is_drawn_around_the_measured_pose():
         slam = FastSLAM(noisy, meas, [0, 0, 0], FastSLAMConfig(500, version, 0.0, seed=3))
         mark = np.array([5.0, 2.0])
         slam.update([meas.predict(np.zeros(3), mark)[0]], [1])  # first sight, exact pose
-        slam._cov[:] = 1e-8 * np.eye(2)  # a landmark known (almost) exactly
+        mean, _, count, _ = slam.store.gather(np.zeros(500, dtype=np.int64))
+        tight = np.repeat(1e-8 * np.eye(2)[None], 500, axis=0)  # a landmark known (almost) exactly
+        slam.store.scatter(np.zeros(500, dtype=np.int64), mean, tight, count)
         slam.predict([1.0, 0.0], 1.0)
         true = compose(np.zeros(3), np.array([1.0, 0.0, 0.0]))
         slam.update([meas.predict(true, mark)[0]], [1])
@@ -133,8 +135,10 @@ def test_monte_carlo_against_the_ekf():
 def test_bad_inputs_are_one_line_errors():
     meas = RangeBearingModel()
     slam = FastSLAM(QUIET, meas, [0, 0, 0])
-    with pytest.raises(ValueError, match="known correspondences"):
-        slam.update([[1.0, 0.0]], [-1])
+    with pytest.raises(ValueError, match="not both"):
+        slam.update([[1.0, 0.0], [2.0, 0.1]], [-1, 3])
+    with pytest.raises(ValueError, match="-1 for unknown"):
+        slam.update([[1.0, 0.0]], [-2])
     with pytest.raises(ValueError, match="z has 2 rows and ids 1"):
         slam.update([[1.0, 0.0], [2.0, 0.1]], [1])
     with pytest.raises(ValueError, match="finite"):
@@ -146,7 +150,11 @@ def test_bad_inputs_are_one_line_errors():
     with pytest.raises(ValueError, match="initial_pose"):
         FastSLAM(QUIET, meas, [0.0, np.nan, 0.0])
     for bad, match in (({"n_particles": 0}, "n_particles"), ({"version": 3}, "version"),
-                       ({"resample_threshold": 1.5}, "resample_threshold")):  # fmt: skip
+                       ({"resample_threshold": 1.5}, "resample_threshold"),
+                       ({"landmark_store": "list"}, "landmark_store"),
+                       ({"new_landmark_likelihood": 0.0}, "new_landmark_likelihood"),
+                       ({"min_count": 0}, "min_count"),
+                       ({"visibility_range": 0.0}, "visibility_range")):  # fmt: skip
         with pytest.raises(ValueError, match=match):
             FastSLAMConfig(**bad)
 

@@ -154,7 +154,8 @@ class FlatLandmarks:
 
     def gather(self, cols: IntArray) -> tuple[FloatArray, FloatArray, IntArray, BoolArray]:
         """Column ``cols[m]`` of each particle ``m`` (``-1``: none): ``mean (M, 2)``, ``cov
-        (M, 2, 2)``, ``count (M,)`` and ``found (M,)``."""
+        (M, 2, 2)``, ``count (M,)`` and ``found (M,)`` (the values of rows not found are
+        unspecified)."""
         m = len(cols)
         ok = cols >= 0
         rows = np.flatnonzero(ok)

@@ -801,6 +801,31 @@ class RosBag:
                             ) from None
         return tf, odom_frame
 
+    def _scan_connections(self, reader: Any) -> Any:
+        """Connections of the scan topic, or :class:`BagError` when the bag has none."""
+        conns = self._pick(reader, self.scan_topic, SCAN_TYPES, "scan")
+        if conns is None:
+            raise BagError(
+                "no sensor_msgs/LaserScan or MultiEchoLaserScan topic in the bag", path=self.path
+            )
+        return conns
+
+    def _sources(self, reader: Any) -> tuple[Any, TfBuffer, str | None]:
+        """A fresh read's scan connections, transform tree and odometry frame (resets the
+        odometry's base frame and the count of scans outside tf)."""
+        self._base = None
+        self.scans_outside_tf = 0
+        scan_conns = self._scan_connections(reader)
+        odom_conns = self._pick(reader, self.odom_topic, (ODOM_TYPE,), "odom")
+        tf, odom_frame = self._tf(reader, odom_conns)
+        return scan_conns, tf, odom_frame
+
+    def _frames(self, tf: TfBuffer, odom_frame: str | None, laser: str) -> tuple[str, str]:
+        """``(fixed, base)`` frames of scans in frame ``laser``: in the laser's own frame the
+        robot is the laser."""
+        fixed = self._resolve_fixed(tf, odom_frame, laser)
+        return fixed, (laser if fixed == laser else self._base_frame(tf, laser))
+
     def _resolve_fixed(self, tf: TfBuffer, odom_frame: str | None, laser: str) -> str:
         if self.fixed_frame is not None:
             return self.fixed_frame
@@ -834,27 +859,15 @@ class RosBag:
         self, chunk: int = 512
     ) -> Iterator[tuple[list[_RawScan], FloatArray, FloatArray]]:
         """Scans with their laser and robot poses, ``chunk`` at a time (one tf lookup each)."""
-        self._base = None
-        self.scans_outside_tf = 0
         with _open_reader(self.path) as reader:
-            scan_conns = self._pick(reader, self.scan_topic, SCAN_TYPES, "scan")
-            if scan_conns is None:
-                raise BagError(
-                    "no sensor_msgs/LaserScan or MultiEchoLaserScan topic in the bag",
-                    path=self.path,
-                )
-            odom_conns = self._pick(reader, self.odom_topic, (ODOM_TYPE,), "odom")
-            tf, odom_frame = self._tf(reader, odom_conns)
+            scan_conns, tf, odom_frame = self._sources(reader)
             topic = scan_conns[0].topic
             buf: list[_RawScan] = []
             fixed = base = laser = ""
             for raw in self._read_raw_scans(reader, scan_conns):
                 if not fixed:
                     laser = raw.frame
-                    fixed = self._resolve_fixed(tf, odom_frame, raw.frame)
-                    base = self._base_frame(tf, raw.frame)
-                    if fixed == raw.frame:
-                        base = raw.frame
+                    fixed, base = self._frames(tf, odom_frame, laser)
                 buf.append(raw)
                 if len(buf) >= chunk:
                     yield self._posed(tf, fixed, base, buf, topic)
@@ -944,13 +957,7 @@ class RosBag:
         """Messages on the scan topic (from the bag's index; nothing is decoded)."""
         if self._count is None:
             with _open_reader(self.path) as reader:
-                conns = self._pick(reader, self.scan_topic, SCAN_TYPES, "scan")
-                if conns is None:
-                    raise BagError(
-                        "no sensor_msgs/LaserScan or MultiEchoLaserScan topic in the bag",
-                        path=self.path,
-                    )
-                self._count = sum(int(c.msgcount) for c in conns)
+                self._count = sum(int(c.msgcount) for c in self._scan_connections(reader))
         return self._count
 
     def odometry(self) -> Iterator[Odometry]:
@@ -975,22 +982,12 @@ class RosBag:
         BagError
             As iteration: no scan topic, no pose source, an empty scan topic.
         """
-        self._base = None
-        self.scans_outside_tf = 0
         with _open_reader(self.path) as reader:
-            scan_conns = self._pick(reader, self.scan_topic, SCAN_TYPES, "scan")
-            if scan_conns is None:
-                raise BagError(
-                    "no sensor_msgs/LaserScan or MultiEchoLaserScan topic in the bag",
-                    path=self.path,
-                )
-            odom_conns = self._pick(reader, self.odom_topic, (ODOM_TYPE,), "odom")
-            tf, odom_frame = self._tf(reader, odom_conns)
+            scan_conns, tf, odom_frame = self._sources(reader)
             first = next(self._read_raw_scans(reader, scan_conns), None)
             if first is None:
                 raise BagError(f"topic {scan_conns[0].topic!r} holds no message", path=self.path)
-            fixed = self._resolve_fixed(tf, odom_frame, first.frame)
-            base = first.frame if fixed == first.frame else self._base_frame(tf, first.frame)
+            fixed, base = self._frames(tf, odom_frame, first.frame)
         self.resolved_frames = (fixed, base, first.frame)
         return self.resolved_frames
 

@@ -9,6 +9,8 @@ the run."""
 from __future__ import annotations
 
 import importlib.metadata
+import json
+import re
 
 import numpy as np
 import pytest
@@ -24,7 +26,8 @@ runner = CliRunner()
 
 
 def run(*args):
-    return runner.invoke(app, [str(a) for a in args])
+    # wide enough that rich prints every table cell in full
+    return runner.invoke(app, [str(a) for a in args], env={"COLUMNS": "200"})
 
 
 def ok(*args):
@@ -286,3 +289,81 @@ def test_match_bad_config(short_log, tmp_path):
     bad.write_text("sigma: -1\n")
     res = run("match", tmp_path / "m.npz", short_log, "--config", bad)
     one_line_error(res, "bad.yaml", "sigma")
+
+
+# ----------------------------------------------------------------------------- slam seif, compare
+@pytest.fixture
+def small_landmarks(monkeypatch):
+    """``slam seif`` and ``slam compare`` on a short simulated run (60 steps, 30 landmarks)
+    instead of the registry's 2,000-step simulation."""
+    import probmap.cli.seif
+    from probmap.datasets.simulation import simulate_landmarks
+
+    ds = simulate_landmarks(30, 60, seed=3)
+    monkeypatch.setattr(probmap.cli.seif, "open_landmark_dataset", lambda *args: ds)
+    return ds
+
+
+def _csv(path):
+    return np.loadtxt(path, delimiter=",", skiprows=1)
+
+
+def test_seif_config(small_landmarks, tmp_path):
+    from probmap.slam.seif import SeifConfig
+
+    def seif(out, *args):
+        return ok("slam", "seif", "simulation", "-o", tmp_path / out, "--no-plot", *args)
+
+    seif("opt", "--max-active", "3")
+    cfg_file = tmp_path / "c.yaml"
+    cfg_file.write_text("max_active: 3\ncontext_hops: 1\n")
+    res = seif("file", "--config", cfg_file, "--context-hops", "0")  # an option over the file
+    assert "SEIF SLAM (max_active=3)" in res.output
+    by_opt, by_file = (_csv(tmp_path / n / "trajectory.csv") for n in ("opt", "file"))
+    np.testing.assert_array_equal(by_file, by_opt)
+    assert load_config(SeifConfig, tmp_path / "file" / "config.yaml") == SeifConfig(max_active=3)
+    metrics = json.loads((tmp_path / "file" / "metrics.json").read_text())
+    assert metrics["probmap_version"] == importlib.metadata.version("probmap")
+    assert metrics["command"] and metrics["configuration"]["max_active"] == 3
+    res = seif("over", "--config", cfg_file, "--max-active", "0")
+    assert "SEIF SLAM (max_active=unbounded, context_hops=1)" in res.output
+    assert load_config(SeifConfig, tmp_path / "over" / "config.yaml") == SeifConfig(
+        max_active=None, context_hops=1
+    )
+    assert not np.array_equal(_csv(tmp_path / "over" / "trajectory.csv"), by_opt)
+    # the recorded file reproduces the run
+    seif("again", "--config", tmp_path / "opt" / "config.yaml")
+    np.testing.assert_array_equal(_csv(tmp_path / "again" / "trajectory.csv"), by_opt)
+
+
+def _seif_row(output):
+    rows = [line for line in output.splitlines() if "SEIF-" in line]
+    assert len(rows) == 1, output
+    cells = [c.strip() for c in rows[0].split("│") if c.strip()]
+    return cells[0], cells[4:]  # the name; map size and the errors (not the timings)
+
+
+def test_compare_config(small_landmarks, tmp_path):
+    args = ("slam", "compare", "simulation", "--methods", "seif")
+    by_opt = _seif_row(ok(*args, "--max-active", "3", "--context-hops", "1").output)
+    assert by_opt[0] == "SEIF-3-ctx1"
+    cfg_file = tmp_path / "c.yaml"
+    cfg_file.write_text("max_active: 3\ncontext_hops: 1\n")
+    res = ok(*args, "--config", cfg_file)
+    assert _seif_row(res.output) == by_opt
+    assert re.search(r"^time [\d.]+ s \(read [\d.]+ s, compute [\d.]+ s\)$", res.output, re.M)
+    over = _seif_row(ok(*args, "--config", cfg_file, "--max-active", "0").output)
+    assert over[0] == "SEIF-unbounded-ctx1" and over[1] != by_opt[1]
+
+
+@pytest.mark.parametrize("command", ["seif", "compare"])
+def test_seif_bad_config(small_landmarks, tmp_path, command):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("max_actives: 3\n")
+    out = ["-o", tmp_path / "out"] if command == "seif" else []
+    res = run("slam", command, "simulation", *out, "--config", bad)
+    one_line_error(res, "bad.yaml", "max_actives", "max_active?")
+    bad.write_text("deactivation: newest\n")
+    res = run("slam", command, "simulation", *out, "--config", bad)
+    one_line_error(res, "bad.yaml", "deactivation")
+    assert not (tmp_path / "out").exists()

@@ -33,27 +33,51 @@ CONTEXT_HELP = (
 )
 
 
-def _seif(ds: Any, max_active: int, context_hops: int = 0) -> Any:
-    from probmap.slam.seif import SeifConfig, build_seif
+CONFIG_HELP = (
+    "A YAML file of SeifConfig fields (as 'slam seif' records it in OUTPUT/config.yaml); "
+    "--max-active and --context-hops override it."
+)
 
-    if max_active < 0:
+
+def _seif_config(config: Path | None, max_active: int | None, context_hops: int | None) -> Any:
+    """SEIF's configuration: the file ``config`` (SeifConfig fields; the class defaults
+    without one), then the options given (``--max-active 0``: unbounded)."""
+    import dataclasses
+
+    from probmap.cli.common import resolve_config
+    from probmap.slam.seif import SeifConfig
+
+    if max_active is not None and max_active < 0:
         raise ValueError(f"--max-active must be >= 0, got {max_active}")
-    if context_hops < 0:
+    if context_hops is not None and context_hops < 0:
         raise ValueError(f"--context-hops must be >= 0, got {context_hops}")
-    return build_seif(ds, SeifConfig(max_active=max_active or None, context_hops=context_hops))
+    options = {"max_active": max_active or None, "context_hops": context_hops}
+    cfg = resolve_config(SeifConfig, config, options)
+    return dataclasses.replace(cfg, max_active=None) if max_active == 0 else cfg
 
 
-def _label(max_active: int, context_hops: int) -> str:
-    text = f"max_active={max_active or 'unbounded'}"
-    return text + (f", context_hops={context_hops}" if context_hops else "")
+def _seif(ds: Any, cfg: Any) -> Any:
+    from probmap.slam.seif import build_seif
+
+    return build_seif(ds, cfg)
+
+
+def _label(cfg: Any) -> str:
+    text = f"max_active={cfg.max_active or 'unbounded'}"
+    return text + (f", context_hops={cfg.context_hops}" if cfg.context_hops else "")
 
 
 @slam_app.command("seif")
 def seif_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
     output: Path = output_folder_option(),
-    max_active: int = typer.Option(10, "--max-active", help=MAX_ACTIVE_HELP),
-    context_hops: int = typer.Option(0, "--context-hops", help=CONTEXT_HELP),
+    max_active: int | None = typer.Option(
+        None, "--max-active", help=MAX_ACTIVE_HELP + " [default: 10]"
+    ),
+    context_hops: int | None = typer.Option(
+        None, "--context-hops", help=CONTEXT_HELP + " [default: 0]"
+    ),
+    config: Path | None = typer.Option(None, "--config", help=CONFIG_HELP),
     data_dir: Path | None = data_dir_option(),
     robot: int = robot_option(),
     unknown: bool = typer.Option(
@@ -68,8 +92,8 @@ def seif_command(
     save_partial: bool = save_partial_option(),
 ) -> None:
     """SEIF SLAM (Probabilistic Robotics Tables 12.1-12.5): writes trajectory.csv,
-    landmarks.csv, metrics.json and slam.png (and trajectory.tum with --tum) into OUTPUT, like
-    'probmap slam ekf'."""
+    landmarks.csv, metrics.json, config.yaml and slam.png (and trajectory.tum with --tum) into
+    OUTPUT, like 'probmap slam ekf'."""
     from probmap.cli.common import Stopwatch
 
     watch = Stopwatch()  # the summary time covers the whole command
@@ -78,12 +102,13 @@ def seif_command(
         from probmap.cli.slam import run_and_report
         from probmap.pipelines import check_output_folder
 
+        cfg = _seif_config(config, max_active, context_hops)
         check_output_folder(output)
         with watch("read"):
             ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
-        title = f"SEIF SLAM ({_label(max_active, context_hops)})"
+        title = f"SEIF SLAM ({_label(cfg)})"
         run_and_report(
-            _seif(ds, max_active, context_hops), ds, output, title, plot, tum=tum, watch=watch,
+            _seif(ds, cfg), ds, output, title, plot, tum=tum, watch=watch,
             viz=viz, viz_save=viz_save, save_partial=save_partial,
         )  # fmt: skip
 
@@ -98,8 +123,15 @@ def _state_bytes(estimator: Any) -> int:
 @slam_app.command("compare")
 def compare_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
-    max_active: int = typer.Option(10, "--max-active", help=MAX_ACTIVE_HELP),
-    context_hops: int = typer.Option(0, "--context-hops", help=CONTEXT_HELP),
+    max_active: int | None = typer.Option(
+        None, "--max-active", help=MAX_ACTIVE_HELP + " [default: 10]"
+    ),
+    context_hops: int | None = typer.Option(
+        None, "--context-hops", help=CONTEXT_HELP + " [default: 0]"
+    ),
+    config: Path | None = typer.Option(
+        None, "--config", help=CONFIG_HELP.replace("SeifConfig fields", "SEIF's SeifConfig fields")
+    ),
     data_dir: Path | None = data_dir_option(),
     robot: int = robot_option(),
     unknown: bool = typer.Option(
@@ -113,12 +145,16 @@ def compare_command(
 ) -> None:
     """Run EKF and SEIF (or the --methods given, GraphSLAM included) on the same data in one
     process and print one table: time per step, state memory, robot and landmark RMSE, pose
-    ANEES."""
+    ANEES. Writes no file."""
+    from probmap.cli.common import Stopwatch
+
+    watch = Stopwatch()  # the summary time covers the whole command
     limit_threads(threads)
     with cli_errors():
         from rich.console import Console
         from rich.table import Table
 
+        from probmap.cli.common import progress_bar
         from probmap.pipelines.landmark_slam import default_ekf_config, evaluate, run_landmark_slam
         from probmap.slam.ekf import EKFSLAM
 
@@ -126,11 +162,12 @@ def compare_command(
         known = ("ekf", "seif", "graphslam", "fastslam")
         if not chosen or any(m not in known for m in chosen):
             raise ValueError(f"--methods takes a list of {', '.join(known)}, got {methods!r}")
-        ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
-        console = Console(stderr=True)
+        seif_cfg = _seif_config(config, max_active, context_hops)
+        with watch("read"):
+            ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
         runs = []
-        seif_name = f"SEIF-{max_active or 'unbounded'}" + (
-            f"-ctx{context_hops}" if context_hops else ""
+        seif_name = f"SEIF-{seif_cfg.max_active or 'unbounded'}" + (
+            f"-ctx{seif_cfg.context_hops}" if seif_cfg.context_hops else ""
         )
         estimators: list[tuple[str, Any]] = []
         for method in dict.fromkeys(chosen):
@@ -144,7 +181,7 @@ def compare_command(
                 )
                 estimators.append(("EKF", est))
             elif method == "seif":
-                estimators.append((seif_name, _seif(ds, max_active, context_hops)))
+                estimators.append((seif_name, _seif(ds, seif_cfg)))
             elif method == "fastslam":
                 from probmap.slam.fastslam import FastSLAM
 
@@ -155,10 +192,18 @@ def compare_command(
                 from probmap.slam.graphslam import build_graphslam
 
                 estimators.append(("GraphSLAM", build_graphslam(ds, default_graphslam_config(ds))))
-        for name, est in estimators:
-            with console.status(f"running {name} on {len(ds):,} steps"):
-                result = run_landmark_slam(est, ds)
-            runs.append((name, evaluate(result, ds, with_dead_reckoning=False), est, result))
+        for k, (name, est) in enumerate(estimators, start=1):
+            label = f"{name} ({k}/{len(estimators)})"
+            with watch("compute"):
+                with progress_bar(label, unit="steps") as bar:
+                    task = bar.add_task(label, total=len(ds))
+
+                    def tick(i: int, n: int, b: Any = bar, t: Any = task) -> None:
+                        b.update(t, completed=i)
+
+                    result = run_landmark_slam(est, ds, progress=tick)
+                metrics = evaluate(result, ds, with_dead_reckoning=False)
+            runs.append((name, metrics, est, result))
         names = " vs ".join(name.split("-")[0] for name, _ in estimators)
         table = Table(title=f"{names} on {getattr(ds, 'name', dataset)}")
 
@@ -201,6 +246,8 @@ def compare_command(
             f"process peak RSS {peak / 2**20:.1f} MiB (all runs). pose ANEES = mean NEES over "
             "the steps: 3 (the pose's dof) for a consistent filter, larger = overconfident."
         )
+        name, value = watch.row()
+        Console().print(f"{name} {value}")
 
 
 def register(app: typer.Typer) -> None:

@@ -31,9 +31,10 @@ def reference_split(xy, max_step):
     return pieces + ([cur] if cur else [])
 
 
-def reference_converged(spread, threshold):
+def reference_converged(spread, threshold, hold):
     for i in range(len(spread)):
-        if all(s <= threshold for s in spread[i:]):
+        window = spread[i : i + hold]
+        if all(s <= threshold for s in window):  # hold updates, or all that are left
             return i
     return len(spread)
 
@@ -47,8 +48,13 @@ def test_split_and_convergence_match_plain_loops(seed):
     want = reference_split(xy.tolist(), 1.0)
     assert [len(p) for p in got] == [len(p) for p in want]
     np.testing.assert_array_equal(np.concatenate(got), xy)
-    spread = np.where(rng.random(40) < 0.3, 5.0, 0.2)
-    assert converged_index(spread, 1.0) == reference_converged(spread.tolist(), 1.0)
+    spread = np.where(rng.random(40) < 0.2, 5.0, 0.2)
+    for hold in (1, 3, 10):
+        got = converged_index(spread, 1.0, hold)
+        assert got == reference_converged(spread.tolist(), 1.0, hold)
+    assert converged_index(spread[:0]) == 0
+    with pytest.raises(ValueError, match="hold"):
+        converged_index(spread, 1.0, 0)
     with pytest.raises(ValueError, match="max_step"):
         split_at_jumps(xy, 0.0)
 

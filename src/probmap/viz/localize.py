@@ -16,22 +16,31 @@ from probmap.viz.maps import plot_map
 __all__ = ["converged_index", "plot_localization", "save_localization_figure", "split_at_jumps"]
 
 
-def converged_index(spread: ArrayLike, threshold: float = 1.0) -> int:
-    """The first update from which the particles' spread stays at or below ``threshold``
-    (m) to the end of the run; ``len(spread)`` when the last one is above it.
+def converged_index(spread: ArrayLike, threshold: float = 1.0, hold: int = 10) -> int:
+    """The first update that starts ``hold`` consecutive updates whose particle spread is at
+    or below ``threshold`` (m); ``len(spread)`` when there is none (a shorter run counts
+    when it reaches the end).
 
     A global localization's early estimates are the heaviest cluster of particles spread over
     the whole building: they jump from room to room and mean nothing until the filter
-    converges.
+    converges. Later spikes of the spread (the random particles of augmented MCL) do not undo
+    a convergence; a jump of the estimate is cut by :func:`split_at_jumps` instead.
 
-    >>> converged_index([8.0, 5.0, 0.3, 2.0, 0.4, 0.2])
+    >>> converged_index([8.0, 5.0, 0.3, 2.0, 0.4, 0.2, 0.2], hold=3)
     4
-    >>> converged_index([0.1, 0.2]), converged_index([0.1, 3.0])
-    (0, 2)
+    >>> converged_index([0.1, 0.2]), converged_index([3.0, 0.1]), converged_index([3.0, 4.0])
+    (0, 1, 2)
     """
+    if hold < 1:
+        raise ValueError(f"hold must be >= 1, got {hold}")
     s = np.asarray(spread, dtype=np.float64).reshape(-1)
-    above = np.flatnonzero(~(s <= threshold))  # NaN counts as not converged
-    return 0 if above.size == 0 else int(above[-1]) + 1
+    ok = s <= threshold  # NaN counts as not converged
+    run = 0
+    for i in range(len(s) - 1, -1, -1):  # run[i]: consecutive converged updates from i on
+        run = run + 1 if ok[i] else 0
+        ok[i] = run >= hold or (run > 0 and i + run == len(s))
+    hits = np.flatnonzero(ok)
+    return int(hits[0]) if hits.size else len(s)
 
 
 def split_at_jumps(xy: ArrayLike, max_step: float) -> list[NDArray[np.float64]]:
@@ -62,6 +71,7 @@ def plot_localization(
     reference: tuple[ArrayLike, ArrayLike] | None = None,
     particles: ArrayLike | None = None,
     converged_spread: float = 1.0,
+    converged_hold: int = 10,
     max_step: float = 1.0,
     title: str | None = None,
 ) -> Any:
@@ -69,8 +79,9 @@ def plot_localization(
 
     The trajectory is drawn from :func:`converged_index` on (the estimates before it are
     marked as faint dots), broken by :func:`split_at_jumps` where the estimate jumps (a
-    relocalization): it never draws a line through a wall. The reference is clipped to the
-    time span of the drawn trajectory.
+    relocalization): it never draws a line through a wall. The reference (a smoothed
+    trajectory, drawn whole: its poses may lie metres apart) is clipped to the time span of
+    the drawn trajectory.
 
     Parameters
     ----------
@@ -88,8 +99,9 @@ def plot_localization(
         A reference trajectory in the same frame and clock.
     particles : (N, 3) array_like, optional
         A particle set to draw (the last one, usually).
-    converged_spread : float
-        Spread (m) under which the filter counts as converged.
+    converged_spread, converged_hold : float, int
+        The filter counts as converged from the first of ``converged_hold`` consecutive
+        updates with a spread (m) at or below ``converged_spread``.
     max_step : float
         Largest distance (m) between consecutive estimates drawn as one line (updates come
         every 0.1 m of motion by default, so 1 m is a jump).
@@ -107,16 +119,15 @@ def plot_localization(
             f"times {t.shape}, poses {p.shape} and spread {s.shape} need one row per update"
         )
     plot_map(ax, grid, title=title)
-    c = converged_index(s, converged_spread)
+    c = converged_index(s, converged_spread, converged_hold)
     if reference is not None and c < len(t):
         rt = np.asarray(reference[0], dtype=np.float64).reshape(-1)
         rp = np.asarray(reference[1], dtype=np.float64).reshape(-1, 3)
         keep = (rt >= t[c]) & (rt <= t[-1])
-        for k, piece in enumerate(split_at_jumps(rp[keep, :2], max_step)):
-            ax.plot(
-                piece[:, 0], piece[:, 1], "-", color="tab:green", lw=0.8,
-                label="reference" if k == 0 else None,
-            )  # fmt: skip
+        ax.plot(
+            rp[keep, 0], rp[keep, 1], "-", color="tab:green", lw=2.0, alpha=0.6,
+            label="reference",
+        )  # fmt: skip
     if particles is not None:
         q = np.asarray(particles, dtype=np.float64).reshape(-1, 3)
         ax.plot(q[:, 0], q[:, 1], ".", color="tab:orange", ms=1.0, alpha=0.5, label="particles")

@@ -44,7 +44,7 @@ from typing import IO
 import numpy as np
 from numpy.typing import NDArray
 
-from probmap.datasets.records import LaserScan, Odometry, ScanBatch
+from probmap.datasets.records import LaserScan, Odometry, ScanBatch, stack_beams
 from probmap.datasets.validate import PoseLimits, PoseTracker, validate_ranges
 from probmap.errors import BadLinesWarning, DatasetError
 
@@ -661,23 +661,7 @@ def _stack(
         max_ranges.append(scan.max_range)
     if not rows:
         return None
-    beams = np.array([r.shape[0] for r in rows], dtype=np.int64)
-    b = int(beams.max())
-    if (beams == b).all():
-        ranges = np.array(rows, dtype=dtype)
-    else:
-        ranges = np.full((len(rows), b), np.nan, dtype=dtype)
-        for i, r in enumerate(rows):
-            ranges[i, : r.shape[0]] = r
-    first = angle_rows[0]
-    if all(a is first for a in angle_rows) or (
-        (beams == b).all() and all(np.array_equal(a, first) for a in angle_rows)
-    ):
-        angles = np.array(first, dtype=np.float64)
-    else:
-        angles = np.zeros((len(rows), b), dtype=np.float64)
-        for i, a in enumerate(angle_rows):
-            angles[i, : a.shape[0]] = a
+    ranges, angles, beams = stack_beams(rows, angle_rows, dtype)
     robot_poses = np.array(robot, dtype=np.float64).reshape(-1, 3)
     if poses == "corrected":
         laser_poses = np.array(laser, dtype=np.float64).reshape(-1, 3)

@@ -8,6 +8,7 @@ along each beam; times are seconds.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -142,3 +143,48 @@ class ScanBatch:
 
     def __len__(self) -> int:
         return int(self.times.shape[0])
+
+
+def stack_beams(
+    rows: Sequence[FloatArray], angle_rows: Sequence[FloatArray], dtype: type[np.floating]
+) -> tuple[NDArray[np.floating], FloatArray, NDArray[np.int64]]:
+    """Per-scan ranges and beam angles stacked as :class:`ScanBatch` holds them.
+
+    Parameters
+    ----------
+    rows : sequence of ndarray, each shape (B_s,)
+        Ranges of each scan, metres (at least one scan).
+    angle_rows : sequence of ndarray, each shape (B_s,)
+        Beam angles of each scan, radians.
+    dtype : numpy floating type
+        dtype of the stacked ranges.
+
+    Returns
+    -------
+    ranges : ndarray, shape (S, B), ``dtype``
+        Padded with NaN on the right where a scan has fewer than ``B = max B_s`` beams.
+    angles : ndarray, shape (B,) or (S, B), float64
+        One row when every scan has the same angles (the same object, or equal values with
+        equal beam counts), else one row per scan padded with 0.
+    beams : ndarray, shape (S,), int64
+        ``B_s`` per scan.
+    """
+    beams = np.array([r.shape[0] for r in rows], dtype=np.int64)
+    b = int(beams.max())
+    same = bool((beams == b).all())
+    if same:
+        ranges = np.array(rows, dtype=dtype)
+    else:
+        ranges = np.full((len(rows), b), np.nan, dtype=dtype)
+        for i, r in enumerate(rows):
+            ranges[i, : r.shape[0]] = r
+    first = angle_rows[0]
+    if all(a is first for a in angle_rows) or (
+        same and all(np.array_equal(a, first) for a in angle_rows)
+    ):
+        angles = np.array(first, dtype=np.float64)
+    else:
+        angles = np.zeros((len(rows), b), dtype=np.float64)
+        for i, a in enumerate(angle_rows):
+            angles[i, : a.shape[0]] = a
+    return ranges, angles, beams

@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 
 from probmap._atomic import atomic_path
 from probmap._typing import FloatArray
-from probmap.datasets.records import LaserScan, Odometry, ScanBatch
+from probmap.datasets.records import LaserScan, Odometry, ScanBatch, stack_beams
 from probmap.datasets.validate import PoseLimits, PoseTracker, ReadingReport, validate_ranges
 from probmap.errors import BadLinesWarning, BagError, MissingExtraError
 
@@ -1055,24 +1055,7 @@ class RosBag:
         report = replace(report, skipped_lines=skipped)
         if not rows:
             raise BagError("the scan topic holds no messages", path=self.path)
-        beams = np.array([r.shape[0] for r in rows], dtype=np.int64)
-        b = int(beams.max())
-        same = bool((beams == b).all())
-        if same:
-            ranges = np.array(rows, dtype=dtype)
-        else:
-            ranges = np.full((len(rows), b), np.nan, dtype=dtype)
-            for i, r in enumerate(rows):
-                ranges[i, : r.shape[0]] = r
-        first = angle_rows[0]
-        if all(a is first for a in angle_rows) or (
-            same and all(np.array_equal(a, first) for a in angle_rows)
-        ):
-            angles = np.array(first, dtype=np.float64)
-        else:
-            angles = np.zeros((len(rows), b))
-            for i, a in enumerate(angle_rows):
-                angles[i, : a.shape[0]] = a
+        ranges, angles, beams = stack_beams(rows, angle_rows, dtype)
         return ScanBatch(
             times=np.concatenate(times),
             ranges=ranges,

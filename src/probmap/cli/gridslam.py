@@ -114,6 +114,9 @@ def grid_command(
     method, the pose graph PREFIX.g2o and PREFIX.slam.png (map, trajectory, loop closures), and
     PREFIX.config.yaml (the configuration used, with the probmap version); with --tum also
     PREFIX.tum, the trajectory in the TUM format that evo reads."""
+    from probmap.cli.common import Stopwatch
+
+    watch = Stopwatch()  # the summary time covers the whole command
     with cli_errors():
         if method not in ("graph", "rbpf"):
             raise ValueError(f"--method must be 'graph' or 'rbpf', got {method!r}")
@@ -133,7 +136,7 @@ def grid_command(
             _graph(
                 log, prefix, end_time, bag_options, config, skip_bad_lines=skip_bad_lines,
                 viz=viz, viz_save=viz_save, save_partial=save_partial, tum=tum,
-                save_session=save_session, resume=resume,
+                save_session=save_session, resume=resume, watch=watch,
             )  # fmt: skip
         else:
             if viz or viz_save is not None:
@@ -143,7 +146,7 @@ def grid_command(
             _rbpf(
                 log, prefix, rbpf_options, end_time, config, skip_bad_lines=skip_bad_lines,
                 bag_options=bag_options,
-                tum=tum,
+                tum=tum, watch=watch,
             )  # fmt: skip
 
 
@@ -161,6 +164,7 @@ def _graph(
     tum: bool = False,
     save_session: Path | None = None,
     resume: Path | None = None,
+    watch: Any = None,
 ) -> None:
     import os
     import resource
@@ -168,9 +172,8 @@ def _graph(
     import tempfile
     import warnings
 
-    from rich.progress import Progress
-
     from probmap._atomic import atomic_outputs
+    from probmap.cli.common import Stopwatch, progress_bar
     from probmap.config import write_config
     from probmap.pipelines import check_output_prefix
     from probmap.pipelines.grid_slam import load_laser_log, run_graph_slam, write_graph_slam
@@ -211,14 +214,16 @@ def _graph(
         view = LiveView(f"probmap slam grid {log.name}", save=viz_save, spawn=viz)
         observer = GraphSlamObserver(view)
 
-    with Progress(transient=True) as bar, warnings.catch_warnings():
+    watch = watch if watch is not None else Stopwatch()
+    with warnings.catch_warnings():
         # the summary reports skipped lines; no Python warning text on the terminal
         warnings.simplefilter("ignore", BadLinesWarning)
-        task = bar.add_task(f"reading {log.name}", total=None)
-        batch = load_laser_log(
-            log, end_time=end_time, bag_options=bag_options, skip_bad_lines=skip_bad_lines
-        )
-        bar.update(task, description=f"graph SLAM {log.name}")
+        with watch("read"):
+            batch = load_laser_log(
+                log, end_time=end_time, bag_options=bag_options, skip_bad_lines=skip_bad_lines
+            )
+    with watch("compute"), progress_bar(f"graph SLAM {log.name}", unit="scans") as bar:
+        task = bar.add_task(log.name, total=len(batch.times))
 
         def tick(done: int, total: int) -> None:
             bar.update(task, completed=done, total=total)
@@ -245,7 +250,7 @@ def _graph(
         if observer is not None:
             observer.view.close()
     try:
-        with atomic_outputs():  # every file or none
+        with watch("write"), atomic_outputs():  # every file or none
             files = write_graph_slam(prefix, run)
             files.append(write_config(f"{prefix}.config.yaml", cfg))
             if save_session is not None and part is not None:
@@ -281,12 +286,7 @@ def _graph(
         ),
         ("map", f"{spec.width} x {spec.height} cells at {spec.resolution:g} m"),
         ("optimization", f"{run.optimize_seconds:.1f} s"),
-        (
-            "time",
-            f"{run.seconds:.1f} s ({run.real_time_factor:.1f}x real time)"
-            if run.duration > 0
-            else f"{run.seconds:.1f} s (the log has no timestamps: no real-time factor)",
-        ),
+        _time_row(watch, run.duration, run.seconds),
         ("peak memory", f"{rss:.0f} MiB"),
     ]
     rows += [("wrote", str(f)) for f in files]
@@ -302,6 +302,15 @@ def _graph(
             file=sys.stderr,
         )
         raise typer.Exit(130)
+
+
+def _time_row(watch: Any, duration: float, seconds: float) -> tuple[str, str]:
+    """The summary's time row: the whole command split into its phases, and how much faster
+    than the log's own duration the SLAM itself ran."""
+    name, value = watch.row()
+    if duration > 0:
+        return name, f"{value}, SLAM {duration / max(seconds, 1e-9):.1f}x real time"
+    return name, f"{value} (the log has no timestamps: no real-time factor)"
 
 
 @contextmanager
@@ -344,43 +353,58 @@ def _rbpf(
     skip_bad_lines: bool = False,
     bag_options: dict | None = None,
     tum: bool = False,
+    watch: Any = None,
 ) -> None:
+    import time
     import warnings
 
-    from rich.progress import Progress
-
     from probmap._atomic import atomic_outputs
+    from probmap.cli.common import Stopwatch, progress_bar
     from probmap.config import write_config
     from probmap.grid.io import save_map
     from probmap.pipelines import check_output_prefix
     from probmap.pipelines.grid_slam import slam_log, write_trajectory
     from probmap.slam.gridslam import GridSlamConfig
 
+    watch = watch if watch is not None else Stopwatch()
     cfg = resolve_config(GridSlamConfig, config, options)
     prefix = check_output_prefix(output)
-    with Progress(transient=True) as bar, warnings.catch_warnings(record=True) as caught:
+    t0 = time.perf_counter()
+    with (
+        progress_bar(f"grid SLAM {log.name}", unit="scans") as bar,
+        warnings.catch_warnings(record=True) as caught,
+    ):
         warnings.simplefilter("always")
-        task = bar.add_task(f"grid SLAM {log.name}", total=None)
+        task = bar.add_task(log.name, total=0)
+        reports: list = []
+        read_end: list[float] = []
 
         def tick(done: int, total: int) -> None:
             bar.update(task, completed=done, total=total)
 
-        reports: list = []
+        def read(report: Any) -> None:  # called once the log is read, before the SLAM
+            read_end.append(time.perf_counter())
+            reports.append(report)
+
         result = slam_log(
             log,
             cfg,
             end_time=end_time,
             progress=tick,
             skip_bad_lines=skip_bad_lines,
-            readings=reports.append,
+            readings=read,
             bag_options=bag_options,
         )
+    t1 = time.perf_counter()
+    t_read = read_end[0] if read_end else t1 - result.seconds
+    watch.phases["read"] = watch.phases.get("read", 0.0) + t_read - t0
+    watch.phases["compute"] = watch.phases.get("compute", 0.0) + t1 - t_read
     from probmap.errors import BadLinesWarning
 
     for w in caught:
         if not issubclass(w.category, BadLinesWarning):  # counted in the summary
             typer.echo(f"warning: {w.message}", err=True)
-    with atomic_outputs():  # every file or none; a missing folder is created
+    with watch("write"), atomic_outputs():  # every file or none; a missing folder is created
         files = save_map(prefix, result.grid)
         traj = write_trajectory(f"{prefix}.trajectory.csv", result.times, result.poses)
         written = write_config(f"{prefix}.config.yaml", cfg)
@@ -398,7 +422,7 @@ def _rbpf(
         ("failed matches", f"{result.failed_matches:,}"),
         ("map", f"{spec.width} x {spec.height} cells at {spec.resolution:g} m"),
         ("map tiles", f"{result.map_bytes / 2**20:.1f} MiB (peak)"),
-        ("time", f"{result.seconds:.1f} s ({duration / max(result.seconds, 1e-9):.1f}x real time)"),
+        _time_row(watch, duration, result.seconds),
     ]
     rows += [("wrote", str(f)) for f in [*files, traj, written, *extra]]
     print_summary("grid SLAM (rbpf)", rows)

@@ -25,7 +25,6 @@ Examples
 from __future__ import annotations
 
 import io
-import math
 import os
 from pathlib import Path
 
@@ -33,6 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from probmap._atomic import atomic_write
+from probmap.datasets.validate import number_rows
 from probmap.errors import DatasetError
 
 __all__ = ["TUM_HEADER", "read_tum", "write_tum", "yaw_quaternion", "quaternion_yaw"]
@@ -125,27 +125,10 @@ def read_tum(path: str | os.PathLike[str]) -> tuple[NDArray[np.float64], NDArray
     if not p.exists():
         raise FileNotFoundError(f"{p}: no such file")
     rows: list[list[float]] = []
-    with open(p, encoding="utf-8", errors="replace", newline=None) as f:
-        for number, raw in enumerate(f, 1):
-            line = raw.strip()
-            if not line or line.startswith("#"):
-                continue
-            fields = line.replace(",", " ").split()
-            if len(fields) != 8:
-                raise DatasetError(
-                    f"expected 8 fields (timestamp tx ty tz qx qy qz qw), got {len(fields)}",
-                    path=p,
-                    line=number,
-                )
-            try:
-                values = [float(v) for v in fields]
-            except ValueError:
-                raise DatasetError("non-numeric field in TUM pose", path=p, line=number) from None
-            if not all(math.isfinite(v) for v in values):
-                raise DatasetError("non-finite value in TUM pose", path=p, line=number)
-            if not any(values[4:8]):
-                raise DatasetError("zero quaternion in TUM pose", path=p, line=number)
-            rows.append(values)
+    for number, values in number_rows(p, "timestamp tx ty tz qx qy qz qw", "TUM pose", commas=True):
+        if not any(values[4:8]):
+            raise DatasetError("zero quaternion in TUM pose", path=p, line=number)
+        rows.append(values)
     if not rows:
         raise DatasetError("TUM trajectory has no poses", path=p)
     a = np.asarray(rows, dtype=np.float64)

@@ -55,6 +55,7 @@ __all__ = [
     "PoseLimits",
     "PoseTracker",
     "ReadingReport",
+    "number_rows",
     "require_usable",
     "text_lines",
     "validate_ranges",
@@ -89,6 +90,41 @@ def text_lines(path: str | os.PathLike[str]) -> Iterator[tuple[int, str]]:
                     line=lineno,
                 ) from None
             yield lineno, line.replace("\r\n", "\n")
+
+
+def number_rows(
+    path: Path, layout: str, what: str, *, commas: bool = False
+) -> Iterator[tuple[int, list[float]]]:
+    """``(line_number, values)`` of every line of a table of finite numbers.
+
+    Blank lines and lines starting with ``#`` are skipped; the other lines must hold exactly as
+    many whitespace-separated numbers (also comma-separated with ``commas``) as ``layout``
+    names fields (``"t1 t2 dx dy dz droll dpitch dyaw"``). Undecodable bytes are replaced.
+
+    Raises
+    ------
+    DatasetError
+        A line with another number of fields, a field that is not a number, or a value that is
+        not finite; the message names the file, the line and ``what`` a row is ("TUM pose").
+    """
+    n = len(layout.split())
+    with open(path, encoding="utf-8", errors="replace") as f:
+        for number, raw in enumerate(f, 1):
+            line = raw.strip()
+            if not line or line.startswith("#"):
+                continue
+            fields = (line.replace(",", " ") if commas else line).split()
+            if len(fields) != n:
+                raise DatasetError(
+                    f"expected {n} fields ({layout}), found {len(fields)}", path=path, line=number
+                )
+            try:
+                values = [float(v) for v in fields]
+            except ValueError:
+                raise DatasetError(f"non-numeric field in {what}", path=path, line=number) from None
+            if not all(math.isfinite(v) for v in values):
+                raise DatasetError(f"non-finite value in {what}", path=path, line=number)
+            yield number, values
 
 
 # ---------------------------------------------------------------------------- readings

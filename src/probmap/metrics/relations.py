@@ -18,6 +18,7 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,6 +26,29 @@ from numpy.typing import NDArray
 from probmap.errors import DatasetError
 from probmap.geometry.se2 import between, compose, inverse, wrap_angle
 from probmap.geometry.timesync import nearest_time_index
+
+
+@dataclass(frozen=True)
+class RelationsConfig:
+    """Settings of ``probmap evaluate relations``; loadable from and dumpable to YAML with
+    :mod:`probmap.config`.
+
+    Attributes
+    ----------
+    tolerance : float
+        A relation's timestamps match a trajectory's pose within this many seconds (>= 0).
+    poses : {"robot", "laser"}
+        For a CARMEN log: its odometry fields (robot) or its laser poses.
+    """
+
+    tolerance: float = 1e-3
+    poses: Literal["robot", "laser"] = "robot"
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.tolerance) and self.tolerance >= 0):
+            raise ValueError(f"tolerance must be a number >= 0 s, got {self.tolerance}")
+        if self.poses not in ("robot", "laser"):
+            raise ValueError(f"poses must be 'robot' or 'laser', got {self.poses!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -97,26 +121,12 @@ def read_relations(path: str | os.PathLike[str]) -> Relations:
         Naming the file and line of a malformed relation, or an empty file.
     """
     p = Path(path)
-    rows: list[list[float]] = []
-    with open(p, encoding="utf-8", errors="replace") as f:
-        for number, line in enumerate(f, 1):
-            text = line.strip()
-            if not text or text.startswith("#"):
-                continue
-            fields = text.split()
-            if len(fields) != 8:
-                raise DatasetError(
-                    f"expected 8 fields (t1 t2 dx dy dz droll dpitch dyaw), found {len(fields)}",
-                    path=p,
-                    line=number,
-                )
-            try:
-                values = [float(v) for v in fields]
-            except ValueError:
-                raise DatasetError("non-numeric field in relation", path=p, line=number) from None
-            if not all(math.isfinite(v) for v in values):
-                raise DatasetError("non-finite value in relation", path=p, line=number)
-            rows.append([values[0], values[1], values[2], values[3], values[7]])
+    from probmap.datasets.validate import number_rows
+
+    rows = [
+        [v[0], v[1], v[2], v[3], v[7]]
+        for _, v in number_rows(p, "t1 t2 dx dy dz droll dpitch dyaw", "relation")
+    ]
     if not rows:
         raise DatasetError("no relations in file", path=p)
     a = np.asarray(rows)

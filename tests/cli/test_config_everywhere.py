@@ -367,3 +367,74 @@ def test_seif_bad_config(small_landmarks, tmp_path, command):
     res = run("slam", command, "simulation", *out, "--config", bad)
     one_line_error(res, "bad.yaml", "deactivation")
     assert not (tmp_path / "out").exists()
+
+
+# ----------------------------------------------------------------------------- evaluate relations
+@pytest.fixture(scope="module")
+def relations_case(tmp_path_factory):
+    """A 20-pose trajectory and its 19 consecutive relations (2 cm off in y); the relations of
+    every other pair carry timestamps 5 ms late, so only a tolerance >= 5 ms matches them."""
+    from probmap.geometry.se2 import between
+
+    root = tmp_path_factory.mktemp("rel")
+    t = np.arange(20) * 0.5
+    x = np.stack([0.3 * np.arange(20), 0.01 * np.arange(20) ** 1.5, 0.05 * np.arange(20)], 1)
+    csv = root / "traj.csv"
+    csv.write_text(
+        "time,x,y,theta\n"
+        + "".join(f"{a},{b},{c},{d}\n" for a, (b, c, d) in zip(t, x, strict=True))
+    )
+    ref = between(x[:-1], x[1:]) + np.array([0.0, 0.02, 0.0])
+    late = np.where(np.arange(19) % 2 == 1, 0.005, 0.0)
+    rel = root / "r.relations"
+    rel.write_text(
+        "".join(
+            f"{a + dt} {b + dt} {d[0]} {d[1]} 0 0 0 {d[2]}\n"
+            for a, b, d, dt in zip(t[:-1], t[1:], ref, late, strict=True)
+        )
+    )
+    return csv, rel
+
+
+def test_evaluate_relations_config(relations_case, tmp_path):
+    from probmap.metrics.relations import RelationsConfig
+
+    csv, rel = relations_case
+
+    def evaluate(name, *args):
+        ok("evaluate", "relations", csv, rel, "-o", tmp_path / f"{name}.json", *args)
+        return json.loads((tmp_path / f"{name}.json").read_text())
+
+    default = evaluate("default")
+    assert (default["relations"], default["missing"]) == (10, 9)
+    by_opt = evaluate("opt", "--tolerance", "0.01")
+    assert (by_opt["relations"], by_opt["missing"]) == (19, 0)
+    assert by_opt["trans_abs_mean_m"] == pytest.approx(0.02, abs=1e-9)
+    cfg_file = tmp_path / "c.yaml"
+    cfg_file.write_text("tolerance: 0.01\n")
+    by_file = evaluate("file", "--config", cfg_file)
+    figures = [k for k in by_opt if k not in ("command", "configuration")]
+    assert {k: by_file[k] for k in figures} == {k: by_opt[k] for k in figures}
+    assert by_file["probmap_version"] == importlib.metadata.version("probmap")
+    cfg = load_config(RelationsConfig, yaml.safe_dump(by_file["configuration"]))
+    assert cfg == RelationsConfig(tolerance=0.01)
+    over = evaluate("over", "--config", cfg_file, "--tolerance", "0.001")
+    assert (over["relations"], over["missing"]) == (10, 9)
+    assert over["configuration"]["tolerance"] == 0.001
+    # the recorded configuration reproduces the run
+    again_cfg = tmp_path / "again.yaml"
+    again_cfg.write_text(yaml.safe_dump(by_file["configuration"]))
+    again = evaluate("again", "--config", again_cfg)
+    assert {k: again[k] for k in figures} == {k: by_file[k] for k in figures}
+
+
+def test_evaluate_relations_bad_config(relations_case, tmp_path):
+    csv, rel = relations_case
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("tolerence: 0.01\n")
+    res = run("evaluate", "relations", csv, rel, "-o", tmp_path / "out.json", "--config", bad)
+    one_line_error(res, "bad.yaml", "tolerence", "tolerance?")
+    bad.write_text("tolerance: -1\n")
+    res = run("evaluate", "relations", csv, rel, "-o", tmp_path / "out.json", "--config", bad)
+    one_line_error(res, "bad.yaml", "tolerance must be")
+    assert not (tmp_path / "out.json").exists()

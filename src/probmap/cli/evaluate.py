@@ -19,38 +19,68 @@ def relations_command(
     relations: Path = typer.Argument(
         ..., help="Relations file (t1 t2 dx dy dz droll dpitch dyaw)."
     ),
-    tolerance: float = typer.Option(
-        1e-3, "--tolerance", help="Timestamp matching tolerance, seconds."
+    tolerance: float | None = typer.Option(
+        None, "--tolerance", help="Timestamp matching tolerance, seconds [default: 0.001]."
     ),
-    poses: str = typer.Option(
-        "robot", "--poses", help="For a CARMEN log: robot (odom fields) or laser poses."
+    poses: str | None = typer.Option(
+        None,
+        "--poses",
+        help="For a CARMEN log: robot (odom fields) or laser poses [default: robot].",
+    ),
+    config: Path | None = typer.Option(
+        None,
+        "--config",
+        help="A YAML file of RelationsConfig fields (tolerance, poses); the options given here "
+        "override it.",
     ),
     output: str | None = typer.Option(
         None,
         "-o",
         "--output",
-        help="Also write the figures as JSON; an existing folder (or a name ending in /) gets "
+        help="Also write the figures as JSON, with the settings used ('configuration'), the "
+        "command line and the probmap version; an existing folder (or a name ending in /) gets "
         "FOLDER/relations.json. Missing folders are created.",
     ),
 ) -> None:
     """Relation error of a trajectory: mean and std of translational and rotational errors."""
+    from probmap.cli.common import Stopwatch
+
+    watch = Stopwatch()  # the time line covers the whole command
     with cli_errors():
         import json
 
+        import yaml
         from rich.console import Console
         from rich.table import Table
 
         from probmap._atomic import atomic_outputs, atomic_write
-        from probmap.metrics.relations import read_relations, read_trajectory, relation_errors
+        from probmap.cli._provenance import command_line
+        from probmap.cli.common import resolve_config
+        from probmap.config import dump_config, package_version
+        from probmap.metrics.relations import (
+            RelationsConfig,
+            read_relations,
+            read_trajectory,
+            relation_errors,
+        )
         from probmap.pipelines import check_output_prefix
 
         target = None if output is None else check_output_prefix(output, "relations.json")
-        times, xy = read_trajectory(trajectory, poses=poses)
-        rel = read_relations(relations)
-        s = relation_errors(times, xy, rel, tolerance=tolerance).summary()
+        cfg = resolve_config(RelationsConfig, config, {"tolerance": tolerance, "poses": poses})
+        with watch("read"):
+            times, xy = read_trajectory(trajectory, poses=cfg.poses)
+            rel = read_relations(relations)
+        with watch("compute"):
+            s = relation_errors(times, xy, rel, tolerance=cfg.tolerance).summary()
         if target is not None:  # written before anything is printed: an error is one line
-            with atomic_outputs(), atomic_write(target, "w") as f:
-                json.dump(s, f, indent=2)
+            doc = {
+                **s,
+                "probmap_version": package_version(),
+                "command": command_line(),
+                "configuration": yaml.safe_load(dump_config(cfg)),
+            }
+            with watch("write"), atomic_outputs(), atomic_write(target, "w") as f:
+                json.dump(doc, f, indent=2)
         table = Table(title=f"relation error of {trajectory.name} on {relations.name}")
         table.add_column("error")
         table.add_column("absolute: mean ± std", justify="right")
@@ -70,6 +100,10 @@ def relations_command(
         console.print(
             f"{int(s['relations'])} relations evaluated, {int(s['missing'])} without poses"
         )
+        name, value = watch.row()
+        console.print(f"{name} {value}")
+        if target is not None:
+            console.print(f"wrote {target}")
 
 
 def register(app: typer.Typer) -> None:

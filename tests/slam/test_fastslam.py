@@ -13,31 +13,9 @@ import pytest
 from probmap.geometry.se2 import compose
 from probmap.models.measurement import RangeBearingModel
 from probmap.models.motion import VelocityModel
-from probmap.slam.fastslam import FastSLAM, FastSLAMConfig, _batch_measurement, _gauss_logpdf
+from probmap.slam.fastslam import FastSLAM, FastSLAMConfig
 
 QUIET = VelocityModel(alphas=(0.0, 0.0, 0.0, 0.0), sigma_v=0.0, sigma_w=0.0)
-
-
-def test_batch_measurement_equals_the_models_own():
-    model = RangeBearingModel(sensor_offset=(0.2, -0.1, 0.3), R=np.diag([0.01, 0.001]))
-    rng = np.random.default_rng(1)
-    poses = rng.normal(0.0, 2.0, (20, 3))
-    marks = rng.normal(0.0, 5.0, (20, 2))
-    z, H_x, H_m = _batch_measurement(model, poses, marks)
-    for k in range(20):
-        zk, hx, hm = model.predict(poses[k], marks[k])
-        np.testing.assert_allclose(z[k], zk, atol=1e-12)
-        np.testing.assert_allclose(H_x[k], hx, atol=1e-12)
-        np.testing.assert_allclose(H_m[k], hm, atol=1e-12)
-
-
-def test_gauss_logpdf_closed_form():
-    S = np.array([[[2.0, 0.3], [0.3, 0.5]]])
-    e = np.array([[0.4, -0.2]])
-    want = -0.5 * e[0] @ np.linalg.inv(S[0]) @ e[0] - 0.5 * math.log(
-        (2 * math.pi) ** 2 * np.linalg.det(S[0])
-    )
-    assert _gauss_logpdf(e, S)[0] == pytest.approx(want, rel=1e-12)
 
 
 @pytest.mark.parametrize("version", [1, 2])

@@ -376,3 +376,231 @@ def associate_ml(
                 cols[i, m] = -1
         for n in range(n_lm):
             unseen[m, n] = free[n] and zr[n] <= vis_range and abs(zb[n]) <= vis_half_fov
+
+
+@njit(cache=True)
+def _h(px, py, pth, offset, mx, my, hm, hx):  # pragma: no cover - compiled
+    """Range-bearing ``h`` of landmark ``(mx, my)`` from pose ``(px, py, pth)``: returns
+    ``(r, phi)`` and fills ``hm (2, 2)`` and ``hx (2, 3)`` (the sensor offset included)."""
+    c = math.cos(pth)
+    s = math.sin(pth)
+    sx = px + c * offset[0] - s * offset[1]
+    sy = py + s * offset[0] + c * offset[1]
+    dsx = -s * offset[0] - c * offset[1]
+    dsy = c * offset[0] - s * offset[1]
+    dx = mx - sx
+    dy = my - sy
+    q = max(dx * dx + dy * dy, 1e-18)
+    r = math.sqrt(q)
+    hm[0, 0] = dx / r
+    hm[0, 1] = dy / r
+    hm[1, 0] = -dy / q
+    hm[1, 1] = dx / q
+    for i in range(2):
+        hx[i, 0] = -hm[i, 0]
+        hx[i, 1] = -hm[i, 1]
+        hx[i, 2] = -(hm[i, 0] * dsx + hm[i, 1] * dsy)
+    hx[1, 2] -= 1.0
+    return r, _wrap(math.atan2(dy, dx) - (pth + offset[2]))
+
+
+@njit(cache=True)
+def _logpdf2(e0, e1, s00, s01, s10, s11):  # pragma: no cover - compiled
+    det = s00 * s11 - s01 * s10
+    m = (s11 * e0 * e0 - (s01 + s10) * e0 * e1 + s00 * e1 * e1) / det
+    return -0.5 * m - 0.5 * math.log(det) - math.log(_TWO_PI)
+
+
+@njit(cache=True)
+def fastslam_update(
+    particles, predicted, Rt, v2, z, R, offset, cols, mode, mean, cov, count, noise, new_logw,
+    logw,
+):  # pragma: no cover - compiled  # fmt: skip
+    """One measurement step of FastSLAM for every particle (Tables 13.1 and 13.3).
+
+    ``z (k, 2)``: the step's observations; ``cols (k, M)``: the column of observation ``i`` in
+    particle ``m``; ``mode (k, M)``: 0 nothing, 1 a landmark the particle holds, 2 a new one;
+    ``mean (k, M, 2)``, ``cov (k, M, 2, 2)``, ``count (k, M)``: the landmark of each (read as
+    gathered, rewritten with the update). With ``v2`` the pose is first drawn from the
+    proposal built from ``predicted (M, 3)``, ``Rt (3, 3)`` and the mode-1 observations, as
+    ``x + chol(Sigma) noise[m]`` (``noise (M, 3)`` standard normal); ``particles (M, 3)`` is
+    overwritten with the draw. Adds each particle's log importance factor to ``logw (M,)``
+    (``new_logw`` for a new landmark). An observation of a column seen earlier in the step
+    updates that earlier result (a landmark is never initialized twice).
+    """
+    k = z.shape[0]
+    n_part = particles.shape[0]
+    hm = np.empty((2, 2))
+    hx = np.empty((2, 3))
+    P = np.empty((3, 3))
+    x = np.empty(3)
+    pht = np.empty((3, 2))
+    kg = np.empty((3, 2))
+    for m in range(n_part):
+        if v2:
+            # Table 13.3 lines 6-14: the proposal, one observation after the other
+            for a in range(3):
+                x[a] = predicted[m, a]
+                for b in range(3):
+                    P[a, b] = Rt[a, b] + (1e-12 if a == b else 0.0)
+            for i in range(k):
+                if mode[i, m] != 1:
+                    continue
+                zr, zb = _h(x[0], x[1], x[2], offset, mean[i, m, 0], mean[i, m, 1], hm, hx)
+                C = cov[i, m]
+                # S = H_m C H_m' + R
+                s = np.empty((2, 2))
+                for a in range(2):
+                    for b in range(2):
+                        acc = R[a, b]
+                        for u in range(2):
+                            for v in range(2):
+                                acc += hm[a, u] * C[u, v] * hm[b, v]
+                        s[a, b] = acc
+                e0 = z[i, 0] - zr
+                e1 = _wrap(z[i, 1] - zb)
+                for a in range(3):
+                    for b in range(2):
+                        acc = 0.0
+                        for u in range(3):
+                            acc += P[a, u] * hx[b, u]
+                        pht[a, b] = acc
+                t00 = s[0, 0]
+                t01 = s[0, 1]
+                t10 = s[1, 0]
+                t11 = s[1, 1]
+                for u in range(3):
+                    t00 += hx[0, u] * pht[u, 0]
+                    t01 += hx[0, u] * pht[u, 1]
+                    t10 += hx[1, u] * pht[u, 0]
+                    t11 += hx[1, u] * pht[u, 1]
+                det = t00 * t11 - t01 * t10
+                i00 = t11 / det
+                i01 = -t01 / det
+                i10 = -t10 / det
+                i11 = t00 / det
+                for a in range(3):
+                    kg[a, 0] = pht[a, 0] * i00 + pht[a, 1] * i10
+                    kg[a, 1] = pht[a, 0] * i01 + pht[a, 1] * i11
+                for a in range(3):
+                    x[a] += kg[a, 0] * e0 + kg[a, 1] * e1
+                x[2] = _wrap(x[2])
+                for a in range(3):
+                    for b in range(3):
+                        P[a, b] -= kg[a, 0] * pht[b, 0] + kg[a, 1] * pht[b, 1]
+            # symmetrize, Cholesky (3 x 3), draw
+            for a in range(3):
+                for b in range(a):
+                    v = 0.5 * (P[a, b] + P[b, a])
+                    P[a, b] = v
+                    P[b, a] = v
+                P[a, a] += 1e-15
+            l00 = math.sqrt(P[0, 0])
+            l10 = P[1, 0] / l00
+            l20 = P[2, 0] / l00
+            l11 = math.sqrt(P[1, 1] - l10 * l10)
+            l21 = (P[2, 1] - l20 * l10) / l11
+            l22 = math.sqrt(P[2, 2] - l20 * l20 - l21 * l21)
+            particles[m, 0] = x[0] + l00 * noise[m, 0]
+            particles[m, 1] = x[1] + l10 * noise[m, 0] + l11 * noise[m, 1]
+            particles[m, 2] = _wrap(
+                x[2] + l20 * noise[m, 0] + l21 * noise[m, 1] + l22 * noise[m, 2]
+            )
+        px = particles[m, 0]
+        py = particles[m, 1]
+        pth = particles[m, 2]
+        for i in range(k):
+            md = mode[i, m]
+            if md == 0:
+                continue
+            for j in range(i - 1, -1, -1):  # the same landmark earlier in the step
+                if mode[j, m] != 0 and cols[j, m] == cols[i, m]:
+                    mean[i, m, 0] = mean[j, m, 0]
+                    mean[i, m, 1] = mean[j, m, 1]
+                    for a in range(2):
+                        for b in range(2):
+                            cov[i, m, a, b] = cov[j, m, a, b]
+                    count[i, m] = count[j, m]
+                    md = 1
+                    break
+            if md == 2:
+                # Table 13.1 lines 10-12: initialize from the inverse measurement model
+                c = math.cos(pth)
+                s_ = math.sin(pth)
+                sx = px + c * offset[0] - s_ * offset[1]
+                sy = py + s_ * offset[0] + c * offset[1]
+                ang = pth + offset[2] + z[i, 1]
+                ca = math.cos(ang)
+                sa = math.sin(ang)
+                mean[i, m, 0] = sx + z[i, 0] * ca
+                mean[i, m, 1] = sy + z[i, 0] * sa
+                j00 = ca
+                j01 = -z[i, 0] * sa
+                j10 = sa
+                j11 = z[i, 0] * ca
+                a00 = j00 * R[0, 0] + j01 * R[1, 0]
+                a01 = j00 * R[0, 1] + j01 * R[1, 1]
+                a10 = j10 * R[0, 0] + j11 * R[1, 0]
+                a11 = j10 * R[0, 1] + j11 * R[1, 1]
+                cov[i, m, 0, 0] = a00 * j00 + a01 * j01
+                cov[i, m, 0, 1] = a00 * j10 + a01 * j11
+                cov[i, m, 1, 0] = a10 * j00 + a11 * j01
+                cov[i, m, 1, 1] = a10 * j10 + a11 * j11
+                count[i, m] = 1
+                logw[m] += new_logw
+                continue
+            # Table 13.1 lines 14-18: the landmark's EKF update
+            mu0 = mean[i, m, 0]
+            mu1 = mean[i, m, 1]
+            zr, zb = _h(px, py, pth, offset, mu0, mu1, hm, hx)
+            C = cov[i, m].copy()
+            hc = np.empty((2, 2))  # H_m C
+            for a in range(2):
+                for b in range(2):
+                    hc[a, b] = hm[a, 0] * C[0, b] + hm[a, 1] * C[1, b]
+            q00 = R[0, 0] + hc[0, 0] * hm[0, 0] + hc[0, 1] * hm[0, 1]
+            q01 = R[0, 1] + hc[0, 0] * hm[1, 0] + hc[0, 1] * hm[1, 1]
+            q10 = R[1, 0] + hc[1, 0] * hm[0, 0] + hc[1, 1] * hm[0, 1]
+            q11 = R[1, 1] + hc[1, 0] * hm[1, 0] + hc[1, 1] * hm[1, 1]
+            det = q00 * q11 - q01 * q10
+            i00 = q11 / det
+            i01 = -q01 / det
+            i10 = -q10 / det
+            i11 = q00 / det
+            e0 = z[i, 0] - zr
+            e1 = _wrap(z[i, 1] - zb)
+            # K = C H_m' Q^-1 = (H_m C)' Q^-1
+            k00 = hc[0, 0] * i00 + hc[1, 0] * i10
+            k01 = hc[0, 0] * i01 + hc[1, 0] * i11
+            k10 = hc[0, 1] * i00 + hc[1, 1] * i10
+            k11 = hc[0, 1] * i01 + hc[1, 1] * i11
+            mean[i, m, 0] = mu0 + k00 * e0 + k01 * e1
+            mean[i, m, 1] = mu1 + k10 * e0 + k11 * e1
+            n00 = C[0, 0] - (k00 * hc[0, 0] + k01 * hc[1, 0])
+            n01 = C[0, 1] - (k00 * hc[0, 1] + k01 * hc[1, 1])
+            n10 = C[1, 0] - (k10 * hc[0, 0] + k11 * hc[1, 0])
+            n11 = C[1, 1] - (k10 * hc[0, 1] + k11 * hc[1, 1])
+            cov[i, m, 0, 0] = n00
+            cov[i, m, 1, 1] = n11
+            cov[i, m, 0, 1] = 0.5 * (n01 + n10)
+            cov[i, m, 1, 0] = 0.5 * (n01 + n10)
+            count[i, m] += 1
+            if v2:
+                # Table 13.3 line 16: the likelihood under the proposal's prior
+                pr, pb = _h(predicted[m, 0], predicted[m, 1], predicted[m, 2], offset, mu0, mu1,
+                            hm, hx)  # fmt: skip
+                f0 = z[i, 0] - pr
+                f1 = _wrap(z[i, 1] - pb)
+                l00_ = q00
+                l01_ = q01
+                l10_ = q10
+                l11_ = q11
+                for u in range(3):
+                    for v in range(3):
+                        l00_ += hx[0, u] * Rt[u, v] * hx[0, v]
+                        l01_ += hx[0, u] * Rt[u, v] * hx[1, v]
+                        l10_ += hx[1, u] * Rt[u, v] * hx[0, v]
+                        l11_ += hx[1, u] * Rt[u, v] * hx[1, v]
+                logw[m] += _logpdf2(f0, f1, l00_, l01_, l10_, l11_)
+            else:
+                logw[m] += _logpdf2(e0, e1, q00, q01, q10, q11)

@@ -335,41 +335,6 @@ class LandmarkTree:
         return int(self.nodes_in_use * per_node + self.roots.nbytes)
 
 
-def _batch_measurement(
-    model: Any, poses: FloatArray, landmarks: FloatArray
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Range-bearing ``h`` for one landmark per pose: poses (M, 3), landmarks (M, 2) ->
-    ``z (M, 2)``, ``H_x (M, 2, 3)``, ``H_m (M, 2, 2)`` (the model's sensor offset included)."""
-    spos, ds, heading = model._sensor(poses)
-    d = landmarks - spos
-    q = np.maximum(np.einsum("ij,ij->i", d, d), 1e-18)
-    r = np.sqrt(q)
-    z = np.stack([r, wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - heading)], -1)
-    H_m = np.empty((len(poses), 2, 2))
-    H_m[:, 0, 0] = d[:, 0] / r
-    H_m[:, 0, 1] = d[:, 1] / r
-    H_m[:, 1, 0] = -d[:, 1] / q
-    H_m[:, 1, 1] = d[:, 0] / q
-    H_x = np.empty((len(poses), 2, 3))
-    H_x[:, :, :2] = -H_m
-    H_x[:, :, 2] = -np.einsum("nij,nj->ni", H_m, ds)
-    H_x[:, 1, 2] -= 1.0
-    return z, H_x, H_m
-
-
-def _gauss_logpdf(e: FloatArray, S: FloatArray) -> FloatArray:
-    """log N(e; 0, S) for e (M, 2), S (M, 2, 2)."""
-    det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
-    inv = (
-        np.stack(
-            [np.stack([S[:, 1, 1], -S[:, 0, 1]], -1), np.stack([-S[:, 1, 0], S[:, 0, 0]], -1)], 1
-        )
-        / det[:, None, None]
-    )
-    m = np.einsum("ni,nij,nj->n", e, inv, e)
-    return -0.5 * m - 0.5 * np.log(det) - math.log(2.0 * math.pi)
-
-
 class FastSLAM:
     """FastSLAM 1.0 / 2.0 with known or unknown correspondences (a :class:`LandmarkSLAM
     <probmap.slam.base.LandmarkSLAM>`: ``predict`` then ``update`` each step).
@@ -488,11 +453,7 @@ class FastSLAM:
             new_lm = None
         else:
             colmat, new_lm, unseen = self._associate(zs)
-        if self.config.version == 2 and self._Rt.any():
-            self._propose(zs, colmat if new_lm is None else np.where(new_lm, -1, colmat))
-        logw = np.zeros(m)
-        for i, zk in enumerate(zs):
-            logw += self._landmark_update(zk, colmat[i], None if new_lm is None else new_lm[i])
+        logw = self._measurement_step(zs, colmat, new_lm is not None)
         if new_lm is not None:
             self._count_misses(unseen)
         self.log_weights += logw
@@ -506,6 +467,43 @@ class FastSLAM:
             self._next_col = self._next_col[keep]
             self.log_weights = np.zeros(len(keep))
             self.resamples += 1
+
+    def add_landmarks(self, ids: ArrayLike, xy: ArrayLike, cov: ArrayLike) -> None:
+        """A prior map with known ids, before the first update: every particle holds landmark
+        ``ids[i]`` at ``xy[i] (2,)`` (m) with covariance ``cov[i] (2, 2)`` (m^2). The tree
+        store keeps one copy shared by all particles.
+
+        Parameters
+        ----------
+        ids : array_like, shape (n,), int, >= 0
+        xy : array_like, shape (n, 2)
+        cov : array_like, shape (n, 2, 2)
+        """
+        idx = np.asarray(ids, dtype=np.int64).reshape(-1)
+        pts = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        covs = np.asarray(cov, dtype=np.float64).reshape(-1, 2, 2)
+        if not (len(idx) == len(pts) == len(covs)):
+            raise ValueError(f"ids, xy and cov have {len(idx)}, {len(pts)} and {len(covs)} rows")
+        if np.any(idx < 0) or len(set(idx.tolist())) != len(idx):
+            raise ValueError("prior landmark ids must be distinct and >= 0")
+        if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(covs))):
+            raise ValueError("prior landmarks must be finite")
+        if self._known is not None or self._slot:
+            raise ValueError("add_landmarks takes a prior map before the first update")
+        self._known = True
+        m = len(self.particles)
+        self.store.ensure_cols(len(idx))
+        only_first = np.full(m, -1, dtype=np.int64)
+        for c, j in enumerate(idx.tolist()):
+            self._slot[j] = c
+            only_first[0] = c
+            self.store.scatter(
+                only_first,
+                np.repeat(pts[c : c + 1], m, 0),
+                np.repeat(covs[c : c + 1], m, 0),
+                np.ones(m, dtype=np.int64),
+            )
+        self.store.resample(np.zeros(m, dtype=np.int64))  # every particle takes the first's
 
     def _associate(self, zs: FloatArray) -> tuple[IntArray, BoolArray, BoolArray]:
         """Maximum-likelihood association per particle (Table 13.2 lines 5-15): each
@@ -552,83 +550,33 @@ class FastSLAM:
             self.store.scatter(np.where(found & ~gone, cols, -1), mean, cov, count)
             self.store.clear(np.where(gone, cols, -1))
 
-    def _propose(self, zs: FloatArray, colmat: IntArray) -> None:
-        """FastSLAM 2.0: draw each particle's pose from the Gaussian updated by the step's
-        measurements of landmarks it has seen (Table 13.3 lines 6-14); 2.0's weights (line
-        16) use the prior ``R_t`` and are taken in :meth:`_landmark_update`. ``colmat (k,
-        M)``: each observation's column in each particle (-1: none)."""
-        x = self._predicted.copy()  # mean of the proposal, per particle
-        P = np.repeat(self._Rt[None, :, :] + 1e-12 * np.eye(3), len(x), axis=0)
-        model = self.measurement_model
-        for zk, cols in zip(zs, colmat, strict=True):
-            mean, cov, _, seen = self.store.gather(cols)
-            if not seen.any():
-                continue
-            xs, Ps = x[seen], P[seen]
-            zh, H_x, H_m = _batch_measurement(model, xs, mean[seen])
-            S = self._R + np.einsum("nij,njk,nlk->nil", H_m, cov[seen], H_m)
-            innov = zk - zh
-            innov[:, 1] = wrap_angle(innov[:, 1])
-            PHt = np.einsum("nij,nkj->nik", Ps, H_x)
-            T = np.einsum("nij,njk->nik", H_x, PHt) + S
-            K = np.einsum("nij,njk->nik", PHt, np.linalg.inv(T))
-            x[seen] = xs + np.einsum("nij,nj->ni", K, innov)
-            x[seen, 2] = wrap_angle(x[seen, 2])
-            P[seen] = Ps - np.einsum("nij,njk->nik", K, np.transpose(PHt, (0, 2, 1)))
-        P = 0.5 * (P + np.transpose(P, (0, 2, 1)))
-        L = np.linalg.cholesky(P + 1e-15 * np.eye(3))
-        e = self._rng.standard_normal((len(x), 3))
-        self.particles = x + np.einsum("nij,nj->ni", L, e)
-        self.particles[:, 2] = wrap_angle(self.particles[:, 2])
+    def _measurement_step(self, zs: FloatArray, colmat: IntArray, unknown: bool) -> FloatArray:
+        """Proposal (2.0), landmark updates and importance factors of one step, in the
+        :func:`~probmap.slam._fastslam_kernels.fastslam_update` kernel: the landmarks of
+        ``colmat (k, M)`` (-1: none) are read from the store, updated and written back."""
+        from probmap.slam._fastslam_kernels import fastslam_update
 
-    def _landmark_update(
-        self, zk: FloatArray, cols: IntArray, new_lm: BoolArray | None = None
-    ) -> FloatArray:
-        """One measurement, of column ``cols[m]`` in particle ``m`` (-1: none): initialize the
-        landmark where it is new, EKF-update it where it is known; returns each particle's
-        log importance factor (``log p0`` for a new landmark with unknown correspondences)."""
-        model = self.measurement_model
-        m = len(self.particles)
+        k, m = colmat.shape[0], len(self.particles)
+        mean, cov = np.empty((k, m, 2)), np.empty((k, m, 2, 2))
+        count, found = np.empty((k, m), dtype=np.int64), np.empty((k, m), dtype=bool)
+        for i in range(k):
+            mean[i], cov[i], count[i], found[i] = self.store.gather(colmat[i])
+        active = colmat >= 0
+        mode = np.where(active & found, 1, np.where(active, 2, 0)).astype(np.int64)
+        v2 = self.config.version == 2 and bool(self._Rt.any())
+        # 2.0 draws every particle's pose each step (Table 13.3 line 15), observations or not
+        noise = self._rng.standard_normal((m, 3)) if v2 else np.zeros((m, 3))
+        offset = np.asarray(
+            getattr(self.measurement_model, "sensor_offset", (0.0, 0.0, 0.0)), dtype=np.float64
+        )
         logw = np.zeros(m)
-        mean, cov, count, found = self.store.gather(cols)
-        active = cols >= 0
-        new = active & ~found
-        if new.any():
-            poses = self.particles[new]
-            spos, _, heading = model._sensor(poses)
-            a = heading + zk[1]
-            ca, sa = np.cos(a), np.sin(a)
-            mean[new] = spos + zk[0] * np.stack([ca, sa], -1)
-            Jz = np.empty((len(poses), 2, 2))
-            Jz[:, 0, 0], Jz[:, 0, 1] = ca, -zk[0] * sa
-            Jz[:, 1, 0], Jz[:, 1, 1] = sa, zk[0] * ca
-            cov[new] = np.einsum("nij,jk,nlk->nil", Jz, self._R, Jz)
-            count[new] = 1
-            if new_lm is not None:
-                logw[new] = self._log_p0
-        old = active & found
-        if old.any():
-            poses = self.particles[old]
-            mu, Sig = mean[old], cov[old]
-            zh, H_x, H_m = _batch_measurement(model, poses, mu)
-            Q = self._R + np.einsum("nij,njk,nlk->nil", H_m, Sig, H_m)
-            innov = zk - zh
-            innov[:, 1] = wrap_angle(innov[:, 1])
-            K = np.einsum("nij,nkj,nkl->nil", Sig, H_m, np.linalg.inv(Q))
-            mean[old] = mu + np.einsum("nij,nj->ni", K, innov)
-            c = Sig - np.einsum("nij,njk,nkl->nil", K, H_m, Sig)
-            cov[old] = 0.5 * (c + np.transpose(c, (0, 2, 1)))
-            count[old] += 1
-            if self.config.version == 2 and self._Rt.any():
-                # Table 13.3 line 16: the measurement's likelihood under the proposal's prior
-                zp, Hp, _ = _batch_measurement(model, self._predicted[old], mu)
-                e = zk - zp
-                e[:, 1] = wrap_angle(e[:, 1])
-                L = Q + np.einsum("nij,jk,nlk->nil", Hp, self._Rt, Hp)
-                logw[old] = _gauss_logpdf(e, L)
-            else:
-                logw[old] = _gauss_logpdf(innov, Q)
-        self.store.scatter(cols, mean, cov, count)
+        self.particles = np.ascontiguousarray(self.particles, dtype=np.float64)
+        fastslam_update(self.particles, np.ascontiguousarray(self._predicted), self._Rt, v2,
+                        np.ascontiguousarray(zs), self._R, offset,
+                        np.ascontiguousarray(colmat), mode, mean, cov, count, noise,
+                        self._log_p0 if unknown else 0.0, logw)  # fmt: skip
+        for i in range(k):  # in order: a landmark observed twice keeps the later result
+            self.store.scatter(np.where(active[i], colmat[i], -1), mean[i], cov[i], count[i])
         return logw
 
     def state_nbytes(self) -> int:

@@ -11,6 +11,7 @@ with ``l_0 = logit(p0)`` the prior, and ``p(m_i | z_1:t, x_1:t) = 1 - 1 / (1 + e
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -251,6 +252,19 @@ def check_angles_and_max_range(
     return np.ascontiguousarray(A), shared, max_range
 
 
+def observed_mask(
+    observed: ArrayLike | None, spec: GridSpec, unchanged: Callable[[], NDArray[np.bool_]]
+) -> NDArray[np.bool_]:
+    """The observed cells (H, W) of a grid rebuilt from stored log odds: ``observed`` checked
+    against ``spec.shape``, or when it is None, ``unchanged()`` (the cells off the prior)."""
+    if observed is None:
+        return unchanged()
+    seen = np.asarray(observed, dtype=bool)
+    if seen.shape != spec.shape:
+        raise ValueError(f"observed shape {seen.shape} does not match spec.shape {spec.shape}")
+    return seen
+
+
 class _ScanGrid:
     """What :class:`OccupancyGrid` and :class:`~probmap.grid.semantic.SemanticGrid` share: the
     geometry, the per-cell stamp of the last scan that changed a cell (0: never), the scan
@@ -438,14 +452,7 @@ class OccupancyGrid(_ScanGrid):
             raise ValueError(f"log_odds shape {lo.shape} does not match spec.shape {spec.shape}")
         grid = cls(spec.resolution, p0=p0, clamp=clamp, model=model, spec=spec)
         grid._lo = np.ascontiguousarray(lo).copy()
-        if observed is None:
-            seen = lo != np.float32(grid.l0)
-        else:
-            seen = np.asarray(observed, dtype=bool)
-            if seen.shape != spec.shape:
-                raise ValueError(
-                    f"observed shape {seen.shape} does not match spec.shape {spec.shape}"
-                )
+        seen = observed_mask(observed, spec, lambda: lo != np.float32(grid.l0))
         grid._stamp = seen.astype(np.uint8)
         grid._scans = 1 if seen.any() else 0
         return grid

@@ -37,6 +37,7 @@ from probmap.grid.occupancy import (
     check_poses,
     effective_clear_range,
     grid_resolution,
+    observed_mask,
     plan_growth,
     regrid,
 )
@@ -550,14 +551,9 @@ class SemanticGrid(_ScanGrid):
         if not np.isfinite(lo).all():
             raise ValueError("log_odds must be finite")
         grid._lo = np.ascontiguousarray(lo, dtype=np.float32).copy()
-        if observed is None:
-            seen = (grid._lo != grid.l_prior.astype(np.float32)).any(axis=-1)
-        else:
-            seen = np.asarray(observed, dtype=bool)
-            if seen.shape != spec.shape:
-                raise ValueError(
-                    f"observed shape {seen.shape} does not match spec.shape {spec.shape}"
-                )
+        seen = observed_mask(
+            observed, spec, lambda: (grid._lo != grid.l_prior.astype(np.float32)).any(axis=-1)
+        )
         grid._stamp = seen.astype(np.int32)
         grid._scans = int(scans) if scans is not None else int(seen.any())
         return grid

@@ -20,7 +20,11 @@ __all__ = ["command_line", "config_over", "write_run_config"]
 
 def command_line(argv: list[str] | None = None) -> str:
     """The command line of this process on one line, shell-quoted (``probmap semantic ...``);
-    ``argv`` defaults to :data:`sys.argv`, whose first item is shown by its base name."""
+    ``argv`` defaults to :data:`sys.argv`, whose first item is shown by its base name.
+
+    >>> command_line(["/opt/venv/bin/probmap", "map", "my log.clf", "-o", "out"])
+    "probmap map 'my log.clf' -o out"
+    """
     args = list(sys.argv if argv is None else argv)
     if args:
         args[0] = Path(args[0]).name

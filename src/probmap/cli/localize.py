@@ -236,7 +236,10 @@ def localize_command(
         if viz or viz_save is not None:
             from probmap.viz.live import LiveView, LocalizationObserver
 
-            view = LiveView(f"probmap localize {log.name}", save=viz_save, spawn=viz)
+            # rerun's application ids take no dots: "intel.clf.bz2" would be renamed with a
+            # warning on the terminal
+            app_id = "probmap localize " + log.name.replace(".", "-")
+            view = LiveView(app_id, save=viz_save, spawn=viz)
             span = None
             if ref_t is not None and ref_p is not None:
                 last = len(batch.times) if stop is None else min(stop, len(batch.times))

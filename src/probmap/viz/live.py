@@ -561,9 +561,10 @@ class LocalizationObserver:
             return
         n = len(particles)
         q = particles[:: max(1, -(-n // self.max_particles)), :2]
-        v.points("world/particles", q, color=(240, 140, 0), radius=0.03)
-        v.points("world/estimate", pose[:2], color=(220, 40, 40), radius=0.12)
-        v.points("world/scan", _scan_points(pose, ranges, angles, self.max_range), radius=0.03)
+        # radii in UI points (negative): visible at any zoom, from a room to a campus
+        v.points("world/particles", q, color=(240, 140, 0), radius=-1.5)
+        v.points("world/estimate", pose[:2], color=(220, 40, 40), radius=-5.0)
+        v.points("world/scan", _scan_points(pose, ranges, angles, self.max_range), radius=-1.5)
         v.scalar("stats/spread", estimate.spread)
         now = time.perf_counter()
         if now - self._last >= self.interval:

@@ -130,7 +130,7 @@ def plot_localization(
         )  # fmt: skip
     if particles is not None:
         q = np.asarray(particles, dtype=np.float64).reshape(-1, 3)
-        ax.plot(q[:, 0], q[:, 1], ".", color="tab:orange", ms=1.0, alpha=0.5, label="particles")
+        ax.plot(q[:, 0], q[:, 1], ".", color="tab:orange", ms=2.0, alpha=0.6, label="particles")
     if c > 0:
         ax.plot(
             p[:c, 0], p[:c, 1], ".", color="tab:red", ms=2.0, alpha=0.3,

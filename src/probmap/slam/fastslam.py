@@ -1,5 +1,5 @@
-"""FastSLAM 1.0 and 2.0 with known correspondences (Probabilistic Robotics ch. 13, Tables 13.1
-and 13.3): a particle filter over robot paths, each particle carrying one small EKF per
+"""FastSLAM 1.0 and 2.0 with known and unknown correspondences (Probabilistic Robotics ch. 13,
+Tables 13.1-13.3): a particle filter over robot paths, each particle carrying one small EKF per
 landmark (Rao-Blackwellization: given the path, landmarks are independent).
 
 Per step, for every particle ``m``:
@@ -25,10 +25,20 @@ Per step, for every particle ``m``:
 The estimate reported each step is the weighted mean pose (circular mean for the heading) and
 its weighted covariance; the map is the landmarks of the heaviest particle.
 
-Landmark arrays are copied on resampling (``O(M L)``), not shared in the book's balanced tree
-(``O(M log L)``): for the tens of landmarks of the datasets here that is the faster choice.
-Unknown correspondences (Table 13.2's maximum-likelihood association with a new-landmark
-likelihood) are not implemented: ``update`` refuses measurements with ``id < 0``.
+**Unknown correspondences (Table 13.2).** Each particle associates each observation with the
+landmark of largest likelihood (under the proposal's prior with 2.0) that no earlier
+observation of the step took, or starts a new landmark when that likelihood is below ``p0``
+(``new_landmark_likelihood``, also the new landmark's importance factor). Each landmark keeps
+the book's counter: +1 when observed, -1 when inside the perceptual range and not observed,
+removed below 0; :meth:`FastSLAM.landmarks` reports those whose counter reached ``min_count``
+(the provisional list).
+
+**Landmark storage (section 13.8).** :class:`LandmarkTree` keeps the particles' landmark
+filters in Montemerlo's balanced binary tree shared between particles: resampling copies
+roots, an update copies the ``O(log N)`` shared nodes of one path. :class:`FlatLandmarks`
+keeps ``(M, N)`` arrays (``O(M N)`` per resample) and gives the same estimates; the tree is the
+default. The per-step arithmetic (proposal, draws, landmark updates, weights) and the
+association run in numba kernels (:mod:`probmap.slam._fastslam_kernels`).
 """
 
 from __future__ import annotations

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -65,7 +66,15 @@ def _finite(v: object) -> bool:
         return False
 
 
-def _check_reference_dt(dt: float | None) -> None:
+def _check_noise(model: Any, a: str, b: str) -> None:
+    """Raise unless the noise floors ``model.<a>`` and ``model.<b>`` are finite and >= 0 and
+    ``model.reference_dt`` is None or a finite number > 0 (seconds)."""
+    va, vb = getattr(model, a), getattr(model, b)
+    if not (_finite(va) and _finite(vb)):
+        raise ValueError(f"{a} and {b} must be finite, got {va}, {vb}")
+    if va < 0 or vb < 0:
+        raise ValueError(f"{a} and {b} must be >= 0")
+    dt = model.reference_dt
     if dt is not None and not (_finite(dt) and dt > 0):
         raise ValueError(f"reference_dt must be a finite number > 0 s, got {dt}")
 
@@ -103,13 +112,7 @@ class VelocityModel:
     def __post_init__(self) -> None:
         if len(self.alphas) != 4 or not all(_finite(a) and a >= 0 for a in self.alphas):
             raise ValueError(f"alphas must be 4 finite non-negative numbers, got {self.alphas}")
-        if not (_finite(self.sigma_v) and _finite(self.sigma_w)):
-            raise ValueError(
-                f"sigma_v and sigma_w must be finite, got {self.sigma_v}, {self.sigma_w}"
-            )
-        if self.sigma_v < 0 or self.sigma_w < 0:
-            raise ValueError("sigma_v and sigma_w must be >= 0")
-        _check_reference_dt(self.reference_dt)
+        _check_noise(self, "sigma_v", "sigma_w")
 
     def predict(
         self, x: ArrayLike, u: ArrayLike, dt: float
@@ -212,13 +215,7 @@ class AckermannModel:
             raise ValueError(
                 f"reference_point must be 2 finite numbers, got {self.reference_point}"
             )
-        if not (_finite(self.sigma_v) and _finite(self.sigma_steer)):
-            raise ValueError(
-                f"sigma_v and sigma_steer must be finite, got {self.sigma_v}, {self.sigma_steer}"
-            )
-        if self.sigma_v < 0 or self.sigma_steer < 0:
-            raise ValueError("sigma_v and sigma_steer must be >= 0")
-        _check_reference_dt(self.reference_dt)
+        _check_noise(self, "sigma_v", "sigma_steer")
 
     def predict(
         self, x: ArrayLike, u: ArrayLike, dt: float

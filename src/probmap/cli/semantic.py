@@ -10,8 +10,18 @@ import typer
 from probmap.cli.common import cli_errors, input_rows, print_summary
 
 
-def print_semantic_demo(summary: dict[str, Any]) -> None:
-    """Print what :func:`probmap.pipelines.semantic.run_semantic_demo` returned (for ``demo``)."""
+def _demo_time_row(summary: dict[str, Any], watch: Any = None) -> tuple[str, str]:
+    """The demo's time row, as :meth:`probmap.cli.common.Stopwatch.row` writes it: the total
+    (the command's stopwatch when given, else the sum of the phases) and its phases."""
+    phases = {k: float(summary[f"{k} seconds"]) for k in ("simulate", "map", "write")}
+    total = watch.total if watch is not None else sum(phases.values())
+    parts = ", ".join(f"{k} {v:.1f} s" for k, v in phases.items())
+    return ("time", f"{total:.1f} s ({parts})")
+
+
+def print_semantic_demo(summary: dict[str, Any], watch: Any = None) -> None:
+    """Print what :func:`probmap.pipelines.semantic.run_semantic_demo` returned (for ``demo``);
+    ``watch``, the command's :class:`~probmap.cli.common.Stopwatch`, gives the total time."""
     from rich.console import Console
     from rich.table import Table
 
@@ -22,11 +32,7 @@ def print_semantic_demo(summary: dict[str, Any]) -> None:
         ("cells updated", f"{summary['cell updates']:,}"),
         ("observed cells", f"{summary['observed cells']:,}"),
         ("calibration error", f"{summary['calibration error']:.3f} (ECE, 10 bins)"),
-        (
-            "time",
-            f"simulate {summary['simulate seconds']:.2f} s, map {summary['map seconds']:.2f} s, "
-            f"write {summary['write seconds']:.2f} s",
-        ),
+        _demo_time_row(summary, watch),
     ]
     rows += [("wrote", f) for f in summary["files"]]
     print_summary("probmap demo --semantic: labelled floor plan", rows)

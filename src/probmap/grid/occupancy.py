@@ -222,11 +222,22 @@ def check_poses(poses: ArrayLike) -> FloatArray:
     first bad pose."""
     P = np.ascontiguousarray(poses, dtype=np.float64)
     if P.ndim != 2 or P.shape[1] != 3:
-        raise ValueError(f"poses must have shape (S, 3), got {P.shape}")
+        raise ValueError(f"poses must have shape (S, 3) = (x, y, theta), got {P.shape}")
     if not np.isfinite(P).all():
         bad = int(np.nonzero(~np.isfinite(P).all(axis=1))[0][0])
         raise ValueError(f"poses must be finite numbers; pose {bad} is {P[bad].tolist()}")
     return P
+
+
+def check_poses_and_ranges(poses: ArrayLike, ranges: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """:func:`check_poses` and the ranges as contiguous float64 (S, B), one row per pose."""
+    P = check_poses(poses)
+    R = np.ascontiguousarray(ranges, dtype=np.float64)
+    if R.ndim != 2 or R.shape[0] != P.shape[0]:
+        raise ValueError(
+            f"ranges must have shape (S, B) with S = {P.shape[0]} poses, got {R.shape}"
+        )
+    return P, R
 
 
 def check_angles_and_max_range(
@@ -643,12 +654,7 @@ class OccupancyGrid(_ScanGrid):
         """
         from probmap.grid import _kernels
 
-        P = check_poses(poses)
-        R = np.ascontiguousarray(ranges, dtype=np.float64)
-        if R.ndim != 2 or R.shape[0] != P.shape[0]:
-            raise ValueError(
-                f"ranges must have shape (S, B) with S = {P.shape[0]} poses, got {R.shape}"
-            )
+        P, R = check_poses_and_ranges(poses, ranges)
         A, shared, max_range = check_angles_and_max_range(angles, R, max_range)
         clear_range = effective_clear_range(self.model.max_clear_range, max_range)
         if P.shape[0] == 0:

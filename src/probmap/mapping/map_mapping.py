@@ -202,17 +202,9 @@ def cone_log_odds_grid(
 def _scan_inputs(
     poses: ArrayLike, ranges: ArrayLike, angles: ArrayLike, max_range: float
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float]:
-    P = np.ascontiguousarray(poses, dtype=np.float64)
-    if P.ndim != 2 or P.shape[1] != 3:
-        raise ValueError(f"poses must have shape (S, 3) = (x, y, theta), got {P.shape}")
-    if not np.isfinite(P).all():
-        bad = int(np.nonzero(~np.isfinite(P).all(axis=1))[0][0])
-        raise ValueError(f"poses must be finite numbers; pose {bad} is {P[bad].tolist()}")
-    R = np.asarray(ranges, dtype=np.float64)
-    if R.ndim != 2 or R.shape[0] != P.shape[0]:
-        raise ValueError(
-            f"ranges must have shape (S, B) with S = {P.shape[0]} poses, got {R.shape}"
-        )
+    from probmap.grid.occupancy import check_poses_and_ranges
+
+    P, R = check_poses_and_ranges(poses, ranges)
     A = np.asarray(angles, dtype=np.float64)
     if A.ndim == 1 and A.shape[0] == R.shape[1]:
         A = np.broadcast_to(A[None, :], R.shape)

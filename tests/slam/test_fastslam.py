@@ -19,9 +19,11 @@ QUIET = VelocityModel(alphas=(0.0, 0.0, 0.0, 0.0), sigma_v=0.0, sigma_w=0.0)
 
 
 @pytest.mark.parametrize("version", [1, 2])
-def test_one_particle_without_noise_is_dead_reckoning_with_exact_landmarks(version):
+@pytest.mark.parametrize("known", [True, False])
+def test_one_particle_without_noise_is_dead_reckoning_with_exact_landmarks(version, known):
     """No motion noise, noise-free measurements: the path is dead reckoning and every landmark
-    lands exactly where it is (the book's degenerate case, a test the issue asks for)."""
+    lands exactly where it is (the book's degenerate case, a test the issue asks for); without
+    ids the association finds the same two landmarks (numbered 0, 1 in the order seen)."""
     meas = RangeBearingModel(R=np.diag([1e-4, 1e-6]))
     slam = FastSLAM(QUIET, meas, [0.0, 0.0, 0.0], FastSLAMConfig(n_particles=1, version=version))
     marks = {3: np.array([4.0, 1.0]), 8: np.array([2.0, -3.0])}
@@ -32,10 +34,10 @@ def test_one_particle_without_noise_is_dead_reckoning_with_exact_landmarks(versi
         pose = QUIET.predict(pose, u, 0.1)[0]
         ids = list(marks)
         z = [meas.predict(pose, marks[i])[0] for i in ids]
-        slam.update(z, ids)
+        slam.update(z, ids if known else [-1, -1])
         np.testing.assert_allclose(slam.pose, pose, atol=1e-9)
     ids, xy, _ = slam.landmarks()
-    assert ids.tolist() == [3, 8]
+    assert ids.tolist() == ([3, 8] if known else [0, 1])
     np.testing.assert_allclose(xy, [marks[3], marks[8]], atol=1e-9)
 
 

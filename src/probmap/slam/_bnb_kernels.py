@@ -146,6 +146,17 @@ def node_sum(buf, levels, lev, table, cxa, cya, kx, ky):  # pragma: no cover - c
     return total
 
 
+@njit(cache=True, inline="always")
+def _store(out, found, a, kx, ky, score, count):  # pragma: no cover - compiled
+    """``out = (found, a, kx, ky, score, evaluated)``, the result of both searches."""
+    out[0] = 1.0 if found else 0.0
+    out[1] = a
+    out[2] = kx
+    out[3] = ky
+    out[4] = score
+    out[5] = count
+
+
 @njit(cache=True)
 def brute_force(base, cx, cy, nl, min_score, out):  # pragma: no cover - compiled
     """Score every candidate of the window; ``out = (found, a, kx, ky, score, evaluated)``.
@@ -173,12 +184,7 @@ def brute_force(base, cx, cy, nl, min_score, out):  # pragma: no cover - compile
                     ba = a
                     bx = kx
                     by = ky
-    out[0] = 1.0 if found else 0.0
-    out[1] = ba
-    out[2] = bx
-    out[3] = by
-    out[4] = best
-    out[5] = count
+    _store(out, found, ba, bx, by, best, count)
 
 
 @njit(cache=True)
@@ -257,12 +263,7 @@ def branch_and_bound(
                 ba = ra[k]
                 bx = rx[k]
                 by = ry[k]
-        out[0] = 1.0 if found else 0.0
-        out[1] = ba
-        out[2] = bx
-        out[3] = by
-        out[4] = best
-        out[5] = count
+        _store(out, found, ba, bx, by, best, count)
         return
 
     cap = n_roots + 4 * (top + 1)
@@ -359,9 +360,4 @@ def branch_and_bound(
             sh[sp] = lev
             ss[sp] = m
             sp += 1
-    out[0] = 1.0 if found else 0.0
-    out[1] = ba
-    out[2] = bx
-    out[3] = by
-    out[4] = best
-    out[5] = count
+    _store(out, found, ba, bx, by, best, count)

@@ -263,11 +263,11 @@ def _map_one(
             def tick(done: int, total: int) -> None:
                 bar.update(task, description=f"mapping {log.name}", completed=done, total=total)
 
+            setup = watch.total  # imports, checks, the viewer
             result = map_log(
                 log, cfg, progress=tick, bag_options=bag_options, observer=observer, stop=stop
             )
-        watch.phases["read"] = result.parse_seconds
-        watch.phases["compute"] = result.map_seconds
+        watch.phases.update(setup=setup, read=result.parse_seconds, compute=result.map_seconds)
         if observer is not None:
             observer.finish(result)
         with watch("write"), progress_bar(unit="maps") as bar:
@@ -355,10 +355,13 @@ def demo_command(
         note_first_compile("probmap.grid._kernels")
         with progress_bar(unit="runs") as bar:
             bar.add_task("simulating, mapping and writing the demo", total=1)
+            setup = watch.total  # imports, checks
             demo = run_mapping_demo(prefix, seed=seed, config=cfg)
         m = demo.mapping
         # the pipeline times its phases; the stopwatch's total covers the whole command
-        watch.phases.update(simulate=m.parse_seconds, compute=m.map_seconds, write=m.write_seconds)
+        watch.phases.update(
+            setup=setup, simulate=m.parse_seconds, compute=m.map_seconds, write=m.write_seconds
+        )
         rows = [r for r in mapping_rows(m) if r[0] not in ("time", "wrote")]
         rows.insert(
             0,

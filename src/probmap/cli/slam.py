@@ -239,6 +239,8 @@ def run_and_report(
         from probmap.viz.live import LandmarkSlamObserver
 
         observer = LandmarkSlamObserver(view, dataset.measurement_model)
+    # the time so far outside the phases: imports (numba kernels loaded), checks, the viewer
+    watch.phases = {"setup": watch.total - sum(watch.phases.values()), **watch.phases}
     try:
         with watch("compute"):
             with progress_bar(title, unit="steps") as bar, _stop_on_ctrl_c(save_partial) as stop:
@@ -250,7 +252,9 @@ def run_and_report(
                     observer=observer,
                     stop=stop,
                 )
-            metrics = evaluate(result, dataset)
+            with progress_bar(unit="runs") as bar:
+                bar.add_task(f"evaluating {len(result.trajectory):,} steps", total=1)
+                metrics = evaluate(result, dataset)
     except KeyboardInterrupt:
         if view is not None:
             view.close(keep=False)
@@ -265,7 +269,8 @@ def run_and_report(
     metrics.update(_provenance(estimator))
     if result.interrupted:
         metrics["interrupted"] = {"steps": len(result.trajectory), "of": result.steps_total}
-    with watch("write"):
+    with watch("write"), progress_bar(unit="parts") as bar:
+        task = bar.add_task(f"writing {output}", total=2 + tum + plot)
         try:
             if observer is not None:
                 observer.finish(result, dataset, metrics)
@@ -276,11 +281,13 @@ def run_and_report(
                     from probmap.config import write_config
 
                     files.append(write_config(output / "config.yaml", cfg))  # exact, loadable
+                bar.advance(task, 2)
                 if tum:
                     from probmap.datasets.tum import write_tum
 
                     tr = result.trajectory
                     files.append(write_tum(output / "trajectory.tum", tr[:, 0], tr[:, 1:4]))
+                    bar.advance(task)
                 if plot:
                     from probmap.viz.slam import save_slam_figure
 

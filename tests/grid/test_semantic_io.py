@@ -170,5 +170,30 @@ def test_labelled_scans_errors_name_key_and_scan(tmp_path):
     with pytest.raises(SemanticFileError, match=r"'ranges'.*5 scans of ranges for 4 poses"):
         read_labelled_scans(p)
     p = _write_raw(tmp_path / "f.npz", **{k: v for k, v in base.items() if k != "angles"})
-    with pytest.raises(SemanticFileError, match="missing key 'angles'"):
+    with pytest.raises(SemanticFileError, match="field 'angles': missing array"):
         read_labelled_scans(p)
+
+
+@pytest.mark.parametrize(
+    ("change", "needle"),
+    [
+        ({"format": np.array("probmap.OccupancyGrid")}, "field 'format': not a probmap semantic"),
+        ({"version": np.array(7)}, "field 'version': format version 7 is newer"),
+        ({"log_odds": None}, "field 'log_odds': missing array"),
+    ],
+)
+def test_semantic_map_header_errors_name_the_field(tmp_path, change, needle):
+    path = save_semantic(tmp_path / "m.npz", _grid())
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    for k, v in change.items():
+        if v is None:
+            del arrays[k]
+        else:
+            arrays[k] = v
+    bad = _write_raw(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(SemanticFileError, match=needle):
+        load_semantic(bad)
+    np.save(tmp_path / "one.npy", np.zeros(3))
+    with pytest.raises(SemanticFileError, match="single .npy array"):
+        load_semantic(tmp_path / "one.npy")

@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from probmap._atomic import atomic_files
-from probmap.errors import MapFileError
+from probmap.errors import DatasetError, MapFileError
 from probmap.grid.spec import GridSpec
 
 if TYPE_CHECKING:
@@ -578,13 +578,64 @@ def save_npz(path: str | os.PathLike[str], grid: GridLike) -> Path:
     return p
 
 
-def _npz_get(z: Any, key: str, path: Path) -> NDArray[Any]:
+def open_npz(
+    path: str | os.PathLike[str], what: str, error: type[DatasetError] = MapFileError
+) -> tuple[Path, Any]:
+    """``(path, archive)``: the ``.npz`` archive at ``path`` opened without pickles.
+
+    Raises
+    ------
+    FileNotFoundError
+        The file does not exist.
+    DatasetError
+        ``error`` (a :class:`~probmap.errors.DatasetError`), "not a ``what``", when the file
+        is not an ``.npz`` archive (a single ``.npy`` array included).
+    """
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(2, f"{p}: no such file", str(p))
+    try:
+        z = np.load(p, allow_pickle=False)
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise error(f"not a {what} ({exc})", path=p) from None
+    if not hasattr(z, "files"):
+        raise error(f"not a {what} (a single .npy array)", path=p)
+    return p, z
+
+
+def npz_array(
+    z: Any, key: str, path: Path, error: type[DatasetError] = MapFileError
+) -> NDArray[Any]:
+    """Array ``key`` of the open archive ``z``; ``error`` naming the file and the key when it
+    is missing or cannot be read."""
     if key not in z.files:
-        raise MapFileError("missing array", path=path, field=key)
+        raise error("missing array", path=path, field=key)
     try:
         return np.asarray(z[key])
     except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
-        raise MapFileError(f"corrupt array ({exc})", path=path, field=key) from None
+        raise error(f"corrupt array ({exc})", path=path, field=key) from None
+
+
+def check_npz_format(
+    z: Any,
+    path: Path,
+    fmt: str,
+    version: int,
+    what: str,
+    error: type[DatasetError] = MapFileError,
+) -> None:
+    """Raise ``error`` unless the archive's ``format`` is ``fmt`` and its ``version`` is at most
+    ``version`` (this reader reads older versions)."""
+    found = npz_array(z, "format", path, error)
+    if found.shape != () or str(found) != fmt:
+        raise error(f"not a {what} (format {found!r})", path=path, field="format")
+    v = int(npz_array(z, "version", path, error))
+    if v > version:
+        raise error(
+            f"format version {v} is newer than this probmap reads ({version})",
+            path=path,
+            field="version",
+        )
 
 
 def load_npz(path: str | os.PathLike[str]) -> OccupancyGrid:
@@ -600,36 +651,17 @@ def load_npz(path: str | os.PathLike[str]) -> OccupancyGrid:
     """
     from probmap.grid.occupancy import OccupancyGrid
 
-    p = Path(path)
-    if not p.exists():
-        raise FileNotFoundError(2, f"{p}: no such file", str(p))
-    try:
-        z = np.load(p, allow_pickle=False)
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
-        raise MapFileError(f"not a probmap .npz map ({exc})", path=p) from None
-    if not hasattr(z, "files"):
-        raise MapFileError("not a probmap .npz map (a single .npy array)", path=p)
+    p, z = open_npz(path, "probmap .npz map")
     with z:
         try:
-            fmt = _npz_get(z, "format", p)
-            if fmt.shape != () or str(fmt) != NPZ_FORMAT:
-                raise MapFileError(
-                    f"not a probmap map archive (format {fmt!r})", path=p, field="format"
-                )
-            version = int(_npz_get(z, "version", p))
-            if version > NPZ_VERSION:
-                raise MapFileError(
-                    f"format version {version} is newer than this probmap reads ({NPZ_VERSION})",
-                    path=p,
-                    field="version",
-                )
-            lo = _npz_get(z, "log_odds", p)
-            seen = _npz_get(z, "observed", p)
-            shape = tuple(int(v) for v in _npz_get(z, "shape", p).ravel())
-            origin = _npz_get(z, "origin", p).astype(np.float64).ravel()
-            res = float(_npz_get(z, "resolution", p))
-            p0 = float(_npz_get(z, "p0", p))
-            clamp_a = _npz_get(z, "clamp", p).astype(np.float64).ravel()
+            check_npz_format(z, p, NPZ_FORMAT, NPZ_VERSION, "probmap map archive")
+            lo = npz_array(z, "log_odds", p)
+            seen = npz_array(z, "observed", p)
+            shape = tuple(int(v) for v in npz_array(z, "shape", p).ravel())
+            origin = npz_array(z, "origin", p).astype(np.float64).ravel()
+            res = float(npz_array(z, "resolution", p))
+            p0 = float(npz_array(z, "p0", p))
+            clamp_a = npz_array(z, "clamp", p).astype(np.float64).ravel()
         except MapFileError:
             raise
         except (TypeError, ValueError) as exc:

@@ -31,7 +31,6 @@ from __future__ import annotations
 import io
 import math
 import os
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -41,6 +40,7 @@ from numpy.typing import NDArray
 
 from probmap._atomic import atomic_files, atomic_outputs
 from probmap.errors import SemanticFileError
+from probmap.grid.io import check_npz_format, npz_array, open_npz
 from probmap.grid.semantic import (
     LabelledInverseModel,
     SemanticGrid,
@@ -112,22 +112,11 @@ def save_semantic(path: str | os.PathLike[str], grid: SemanticGrid) -> Path:
 
 
 def _get(z: Any, key: str, path: Path) -> NDArray[Any]:
-    if key not in z.files:
-        raise SemanticFileError(f"missing key {key!r}", path=path, field=key)
-    try:
-        return np.asarray(z[key])
-    except (ValueError, OSError, zipfile.BadZipFile) as exc:
-        raise SemanticFileError(f"unreadable array ({exc})", path=path, field=key) from None
+    return npz_array(z, key, path, SemanticFileError)
 
 
 def _open_npz(path: str | os.PathLike[str]) -> tuple[Path, Any]:
-    p = Path(path)
-    if not p.exists():
-        raise FileNotFoundError(f"{p}: no such file")
-    try:
-        return p, np.load(p, allow_pickle=False)
-    except (ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
-        raise SemanticFileError(f"not an .npz file ({exc})", path=p) from None
+    return open_npz(path, ".npz file", SemanticFileError)
 
 
 def load_semantic(path: str | os.PathLike[str]) -> SemanticGrid:
@@ -140,18 +129,9 @@ def load_semantic(path: str | os.PathLike[str]) -> SemanticGrid:
     """
     p, z = _open_npz(path)
     with z:
-        fmt = str(_get(z, "format", p))
-        if fmt != NPZ_FORMAT:
-            raise SemanticFileError(
-                f"format is {fmt!r}, not {NPZ_FORMAT!r}", path=p, field="format"
-            )
-        version = int(_get(z, "version", p))
-        if version > NPZ_VERSION:
-            raise SemanticFileError(
-                f"version {version} is newer than this reader ({NPZ_VERSION})",
-                path=p,
-                field="version",
-            )
+        check_npz_format(
+            z, p, NPZ_FORMAT, NPZ_VERSION, "probmap semantic map archive", SemanticFileError
+        )
         lo = _get(z, "log_odds", p)
         observed = _get(z, "observed", p)
         classes = [str(c) for c in _get(z, "classes", p).ravel()]

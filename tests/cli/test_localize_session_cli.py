@@ -68,22 +68,26 @@ def test_localize_in_a_session_with_a_recording(tmp_path):
 
     log = write_log(tmp_path / "tour.log")
     session = tmp_path / "tour.session"  # what slam grid --save-session writes
-    run_graph_slam(load_laser_log(log), save_session=session)
+    # the session covers the first 90 of the log's 120 scans; the localization all of them
+    run_graph_slam(load_laser_log(log, end_time=17.9), save_session=session)
     out, rrd = tmp_path / "loc", tmp_path / "rec" / "loc.rrd"
     res = run("localize", log, "--map", session, "-o", out, "-n", "300", "--viz-save", rrd)
     assert res.exit_code == 0, res.output
     assert "error against the session's trajectory" in res.output
     assert "(read " in res.output and "compute " in res.output and "write " in res.output
     traj = np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1, ndmin=2)
-    assert traj.shape[0] > 20
     # against the session's own trajectory (computed here, not by the command)
     slam = GraphSlam.load_session(session)
     slam.finish()
     t, poses = slam.trajectory()
-    idx = np.searchsorted(t, traj[:, 0])
-    np.testing.assert_allclose(t[idx], traj[:, 0], atol=1e-6)
-    err = np.hypot(*(traj[:, 1:3] - poses[idx, :2]).T)
+    assert len(t) == 90
+    inside = traj[:, 0] <= t[-1] + 1e-6
+    assert inside.sum() > 60 and (~inside).sum() > 20  # it went on beyond the session
+    idx = np.searchsorted(t, traj[inside, 0] - 1e-6)
+    np.testing.assert_allclose(t[idx], traj[inside, 0], atol=1e-6)
+    err = np.hypot(*(traj[inside, 1:3] - poses[idx, :2]).T)
     assert np.median(err) < 0.05 and err.max() < 0.3
+    assert np.all(traj[:, 4] < 0.5)  # and kept track to the end
     # the recording: one row per update of the particles, estimate, scan and spread; the map
     # (transform and image) and the reference once; the trajectory at least at the end
     counts = read_recording(rrd)
@@ -101,6 +105,10 @@ def test_localize_in_a_session_with_a_recording(tmp_path):
     again = np.loadtxt(tmp_path / "loc2" / "trajectory.csv", delimiter=",", skiprows=1, ndmin=2)
     assert 10 < len(again) < len(traj)
     np.testing.assert_array_equal(again, traj[: len(again)])
+    # a part of the log the session does not cover: no error table, no error
+    res = run("localize", session, log, "-o", tmp_path / "loc3", "-n", "300", "--start", "95")
+    assert res.exit_code == 0, res.output
+    assert "error against" not in res.output and (tmp_path / "loc3" / "trajectory.csv").exists()
 
 
 def test_bad_map_or_arguments_are_one_line(tmp_path):

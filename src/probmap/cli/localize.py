@@ -285,7 +285,9 @@ def localize_command(
         errors = None
         if ref_t is not None and ref_p is not None:
             errors = trajectory_errors(run, ref_t, ref_p)
-            if errors[0].size == 0:
+            if errors[0].size == 0 and reference is None:
+                errors = None  # a session's scans outside the localized part: no table
+            elif errors[0].size == 0:
                 if observer is not None:
                     observer.view.close(keep=False)
                 raise CliError("no update coincides with a reference pose")

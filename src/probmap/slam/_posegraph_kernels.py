@@ -204,6 +204,14 @@ def mahalanobis(e, info, k):  # pragma: no cover - compiled
     return s
 
 
+@njit(cache=True, inline="always")
+def _edge_rho_weight(s, robust, kernel, scale):  # pragma: no cover - compiled
+    """:func:`rho_weight` for an edge under the robust kernel, ``(s, 1)`` for a plain one."""
+    if robust:
+        return rho_weight(s, kernel, scale)
+    return s, 1.0
+
+
 @njit(cache=True)
 def graph_cost(
     poses, ei, ej, meas, info, chart, kernel, scale, robust, chi2, weights
@@ -215,11 +223,7 @@ def graph_cost(
         edge_residual(poses, ei[k], ej[k], meas[k, 0], meas[k, 1], meas[k, 2], chart, e)
         s = mahalanobis(e, info, k)
         chi2[k] = s
-        if robust[k]:
-            r, w = rho_weight(s, kernel, scale)
-        else:
-            r = s
-            w = 1.0
+        r, w = _edge_rho_weight(s, robust[k], kernel, scale)
         weights[k] = w
         total += r
     return 0.5 * total
@@ -237,6 +241,27 @@ def _add_block(data, colptr, col0, base, M, upper_only):  # pragma: no cover - c
         else:
             for r in range(3):
                 data[p + r] += M[r, c]
+
+
+@njit(cache=True, inline="always")
+def _transposed_product(X, Y, M):  # pragma: no cover - compiled
+    """``M = X' Y`` for 3x3 ``X``, ``Y`` (sums in the order ``m = 0, 1, 2``)."""
+    for r0 in range(3):
+        for c0 in range(3):
+            acc = 0.0
+            for m in range(3):
+                acc += X[m, r0] * Y[m, c0]
+            M[r0, c0] = acc
+
+
+@njit(cache=True, inline="always")
+def _add_transposed_product(X, v, out, base):  # pragma: no cover - compiled
+    """``out[base:base + 3] += X' v`` for 3x3 ``X`` and 3-vector ``v``."""
+    for r0 in range(3):
+        acc = 0.0
+        for m in range(3):
+            acc += X[m, r0] * v[m]
+        out[base + r0] += acc
 
 
 @njit(cache=True)
@@ -280,11 +305,7 @@ def accumulate_normal_equations(
         j = ej[k]
         edge_linearize(poses, i, j, meas[k, 0], meas[k, 1], meas[k, 2], chart, e, A, B)
         s = mahalanobis(e, info, k)
-        if robust[k]:
-            r, w = rho_weight(s, kernel, scale)
-        else:
-            r = s
-            w = 1.0
+        r, w = _edge_rho_weight(s, robust[k], kernel, scale)
         total += r
         p = node_index[i]
         q = node_index[j]
@@ -304,46 +325,20 @@ def accumulate_normal_equations(
                     sb += wrm * B[m, c0]
                 WA[r0, c0] = sa
                 WB[r0, c0] = sb
-        if p >= 0:
-            for r0 in range(3):
-                acc = 0.0
-                for m in range(3):
-                    acc += A[m, r0] * We[m]
-                rhs[3 * p + r0] += acc
-                for c0 in range(3):
-                    acc = 0.0
-                    for m in range(3):
-                        acc += A[m, r0] * WA[m, c0]
-                    M[r0, c0] = acc
+        if p >= 0:  # gradient J_i' W e and diagonal block A' W A
+            _add_transposed_product(A, We, rhs, 3 * p)
+            _transposed_product(A, WA, M)
             _add_block(data, colptr, 3 * p, diag_base[p], M, True)
-        if q >= 0:
-            for r0 in range(3):
-                acc = 0.0
-                for m in range(3):
-                    acc += B[m, r0] * We[m]
-                rhs[3 * q + r0] += acc
-                for c0 in range(3):
-                    acc = 0.0
-                    for m in range(3):
-                        acc += B[m, r0] * WB[m, c0]
-                    M[r0, c0] = acc
+        if q >= 0:  # gradient J_j' W e and diagonal block B' W B
+            _add_transposed_product(B, We, rhs, 3 * q)
+            _transposed_product(B, WB, M)
             _add_block(data, colptr, 3 * q, diag_base[q], M, True)
         if p >= 0 and q >= 0 and p != q:
             if p < q:  # block (p, q) = A' W B
-                for r0 in range(3):
-                    for c0 in range(3):
-                        acc = 0.0
-                        for m in range(3):
-                            acc += A[m, r0] * WB[m, c0]
-                        M[r0, c0] = acc
+                _transposed_product(A, WB, M)
                 _add_block(data, colptr, 3 * q, edge_base[k], M, False)
             else:  # block (q, p) = B' W A
-                for r0 in range(3):
-                    for c0 in range(3):
-                        acc = 0.0
-                        for m in range(3):
-                            acc += B[m, r0] * WA[m, c0]
-                        M[r0, c0] = acc
+                _transposed_product(B, WA, M)
                 _add_block(data, colptr, 3 * p, edge_base[k], M, False)
     return 0.5 * total
 

@@ -119,7 +119,7 @@ def _ellipse_distances(strip, mean, cov) -> np.ndarray:
 
 
 def test_ekf_recording_shows_robot_measurements_landmarks_and_truth(tmp_path):
-    ds = simulate_landmarks(15, 80, seed=3)
+    ds = simulate_landmarks(15, 80, seed=3, max_range=4.0)  # 20 steps with measurements
     rrd = tmp_path / "ekf.rrd"
     with LiveView("probmap test", save=rrd) as view:
         observer = LandmarkSlamObserver(view, ds.measurement_model, every=5, interval=0.0)
@@ -128,14 +128,14 @@ def test_ekf_recording_shows_robot_measurements_landmarks_and_truth(tmp_path):
     plain = run_landmark_slam(_ekf(ds), ds)
     np.testing.assert_array_equal(result.trajectory, plain.trajectory)  # watching changes nothing
     steps = list(ds)
-    shown = range(0, len(steps), 5)
+    shown = [i for i in range(len(steps)) if i % 5 == 0 or len(steps[i].z)]
     with_z = [i for i in shown if len(steps[i].z)]
     # the reference of the observer: the filter stepped by hand, its map at the shown steps
     ekf, maps = _ekf(ds), {}
     for i, step in enumerate(steps):
         ekf.predict(step.control, step.dt)
         ekf.update(step.z, step.ids)
-        if i % 5 == 0 and len(ekf.landmarks()[0]):
+        if i in shown and len(ekf.landmarks()[0]):
             maps[i] = ekf.landmarks()
     assert len(maps) > len(shown) // 2  # the filter maps what it sees
     counts = read_recording(rrd)
@@ -149,10 +149,12 @@ def test_ekf_recording_shows_robot_measurements_landmarks_and_truth(tmp_path):
         "/world/landmarks/ellipses": len(maps) + 1,
         "/world/landmark_truth": 1,
     }
-    # the rays of step 10 end where the inverse model puts its measurements
-    rays = dict(rows_of(rrd, "/world/measurements", "LineStrips2D:strips"))[10]
-    pose = result.trajectory[10, 1:]
-    ends = [ds.measurement_model.inverse(pose, z)[0] for z in steps[10].z]
+    assert 0 < len(with_z) < len(steps) and len(shown) > len(with_z)
+    # the rays of a step end where the inverse model puts its measurements
+    k = with_z[len(with_z) // 2]
+    rays = dict(rows_of(rrd, "/world/measurements", "LineStrips2D:strips"))[k]
+    pose = result.trajectory[k, 1:]
+    ends = [ds.measurement_model.inverse(pose, z)[0] for z in steps[k].z]
     np.testing.assert_allclose(np.asarray(rays)[:, 1], ends, atol=1e-4)
     np.testing.assert_allclose(np.asarray(rays)[:, 0], np.tile(pose[:2], (len(ends), 1)), atol=1e-4)
     # the final trajectory, reference and landmarks are the run's
@@ -173,6 +175,24 @@ def test_ekf_recording_shows_robot_measurements_landmarks_and_truth(tmp_path):
         np.testing.assert_allclose(during[i], xy, atol=1e-4)
 
 
+def test_reference_from_a_ground_truth_trajectory(tmp_path):
+    """Steps without a gt_pose: the observer draws the reference up to each step's time."""
+    from dataclasses import replace
+
+    ds = simulate_landmarks(10, 40, seed=5)
+    ds = replace(ds, steps=[replace(s, gt_pose=None) for s in ds])
+    rrd = tmp_path / "ref.rrd"
+    with LiveView("probmap test", save=rrd) as view:
+        obs = LandmarkSlamObserver(
+            view, ds.measurement_model, every=10, interval=0.0, reference=ds.gt_trajectory
+        )
+        run_landmark_slam(_ekf(ds), ds, observer=obs)
+    steps = list(ds)
+    for t, (strip,) in rows_of(rrd, "/world/reference", "LineStrips2D:strips"):
+        gt = ds.gt_trajectory
+        np.testing.assert_allclose(strip, gt[gt[:, 0] <= steps[t].time, 1:3], atol=1e-5)
+
+
 def _first_steps(ds, k: int):
     from dataclasses import replace
 
@@ -191,7 +211,8 @@ def test_watching_a_seif_does_not_change_it(tmp_path):
     plain = run_landmark_slam(build_seif(ds, SeifConfig(max_active=4)), ds)
     np.testing.assert_array_equal(watched.trajectory, plain.trajectory)
     np.testing.assert_array_equal(watched.landmark_xy, plain.landmark_xy)
-    assert read_recording(rrd)["/world/landmarks/ellipses"] == 20
+    shown = [i for i, step in enumerate(ds) if i % 4 == 0 or len(step.z)]
+    assert read_recording(rrd)["/world/landmarks/ellipses"] == len(shown)  # a map from step 0
 
 
 def test_graphslam_shows_its_final_solve(tmp_path):

@@ -238,7 +238,8 @@ def run_and_report(
     if view is not None:
         from probmap.viz.live import LandmarkSlamObserver
 
-        observer = LandmarkSlamObserver(view, dataset.measurement_model)
+        gt = getattr(dataset, "gt_trajectory", None)
+        observer = LandmarkSlamObserver(view, dataset.measurement_model, reference=gt)
     # the time so far outside the phases: imports (numba kernels loaded), checks, the viewer
     watch.phases = {"setup": watch.total - sum(watch.phases.values()), **watch.phases}
     try:

@@ -26,6 +26,7 @@ SLAM.
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 import re
@@ -338,13 +339,12 @@ class MappingObserver:
             v.path("world/trajectory", np.asarray(result.trajectory)[:, :2])
 
 
-def _landmark_estimate(estimator: Any) -> tuple[NDArray, NDArray]:
-    """Means (n, 2) and covariances (n, 2, 2) of the mapped landmarks, read from a copy:
-    ``landmarks()`` may change an estimator (SEIF stores the mean it recovers), and watching
-    must not change the run."""
-    import copy
-
-    _, xy, cov = copy.deepcopy(estimator).landmarks()
+def _landmark_estimate(estimator: Any, copy_first: bool = True) -> tuple[NDArray, NDArray]:
+    """Means (n, 2) and covariances (n, 2, 2) of the mapped landmarks, read from a copy
+    (``copy_first``): ``landmarks()`` may change an estimator (SEIF stores the mean it
+    recovers), and watching must not change the run."""
+    source = copy.deepcopy(estimator) if copy_first else estimator
+    _, xy, cov = source.landmarks()
     return np.asarray(xy, np.float64).reshape(-1, 2), np.asarray(cov, np.float64).reshape(-1, 2, 2)
 
 
@@ -352,17 +352,19 @@ class LandmarkSlamObserver:
     """Streams landmark SLAM (:func:`probmap.pipelines.landmark_slam.run_landmark_slam`) to a
     :class:`LiveView`.
 
-    Called as ``observer(index, step, estimator)`` after every step. Every ``every`` steps it
-    logs the robot (``world/robot``, its pose as a point and a heading segment
+    Called as ``observer(index, step, estimator)`` after every step. Every ``every`` steps, and
+    at every step with measurements, it logs the robot (``world/robot``, its pose as a point and a heading segment
     ``world/robot/heading``) and the step's measurements as rays from the robot to where they
     put their landmarks (``world/measurements``; none logged for a step without any); at most
     once per ``interval`` seconds of wall time also the trajectory (``world/trajectory``), the
     reference so far (``world/reference``: ground truth of the records, when they carry it) and
     the map: landmark means (``world/landmarks``) and their 2-sigma ellipses
     (``world/landmarks/ellipses``; EKF and SEIF marginals, FastSLAM's heaviest particle).
-    A batch smoother (GraphSLAM, which has ``smooth()``) has no estimate before its solve: it
-    shows the measurements at the dead-reckoned start only through :meth:`finish`, which logs
-    the final solve like every estimator's final state.
+    The map is read from a deep copy of the estimator, so that watching cannot change the run
+    (SEIF's ``landmarks()`` stores the mean it recovers); an estimator that cannot be copied is
+    asked directly (EKF and FastSLAM read without changing anything). A batch smoother
+    (GraphSLAM, which has ``smooth()``) has no estimate before its solve: it shows only
+    through :meth:`finish`, which logs the final solve like every estimator's final state.
 
     Parameters
     ----------
@@ -370,14 +372,23 @@ class LandmarkSlamObserver:
     measurement_model : object
         The dataset's range-bearing model (``inverse(pose, z) -> (landmark, ...)``).
     every : int
-        Steps between updates of the robot and measurements.
+        Steps between updates of the robot (also shown at every step with measurements).
     interval : float
         Least wall time (seconds) between updates of the trajectory and map (0: at every
-        ``every``-th step).
+        update of the robot).
+    reference : array_like, shape (K, 4), optional
+        Ground truth as ``time, x, y, theta`` rows (a dataset's ``gt_trajectory``), drawn up
+        to the current step's time when the steps carry no ``gt_pose`` of their own.
     """
 
     def __init__(
-        self, view: LiveView, measurement_model: Any, *, every: int = 5, interval: float = 1.0
+        self,
+        view: LiveView,
+        measurement_model: Any,
+        *,
+        every: int = 5,
+        interval: float = 1.0,
+        reference: ArrayLike | None = None,
     ) -> None:
         if every < 1:
             raise ValueError(f"every must be >= 1, got {every}")
@@ -390,6 +401,8 @@ class LandmarkSlamObserver:
         self._last = -math.inf
         self._poses: list[NDArray] = []
         self._truth: list[NDArray] = []
+        self._copyable = True  # False once a copy failed (state holding a module, a lock)
+        self.reference = None if reference is None else np.asarray(reference, np.float64)
 
     def _robot(self, pose: NDArray) -> None:
         v = self.view
@@ -404,12 +417,12 @@ class LandmarkSlamObserver:
         self._poses.append(pose)
         if step.gt_pose is not None:
             self._truth.append(np.asarray(step.gt_pose, dtype=np.float64)[:2])
-        if index % self.every:
+        z = np.asarray(step.z, dtype=np.float64).reshape(-1, 2)
+        if index % self.every and not z.shape[0]:
             return
         v = self.view
         v.step(index)
         self._robot(pose)
-        z = np.asarray(step.z, dtype=np.float64).reshape(-1, 2)
         if z.shape[0]:
             ends = np.array([self.model.inverse(pose, zi)[0] for zi in z])
             v.segments("world/measurements", np.repeat(pose[None, :2], len(ends), 0), ends)
@@ -420,7 +433,16 @@ class LandmarkSlamObserver:
         v.path("world/trajectory", np.asarray(self._poses)[:, :2])
         if self._truth:
             v.path("world/reference", np.asarray(self._truth), color=(120, 120, 120))
-        xy, cov = _landmark_estimate(estimator)
+        elif self.reference is not None:
+            ref = self.reference[self.reference[:, 0] <= step.time, 1:3]
+            if len(ref) >= 2:
+                v.path("world/reference", ref, color=(120, 120, 120))
+        try:
+            xy, cov = _landmark_estimate(estimator, self._copyable)
+        except (TypeError, copy.Error):
+            # no copy: ask the estimator itself (EKF and FastSLAM read without changing)
+            self._copyable = False
+            xy, cov = _landmark_estimate(estimator, False)
         if len(xy):
             v.points("world/landmarks", xy, color=(240, 140, 0), radius=0.08)
             v.ellipses("world/landmarks/ellipses", xy, cov)

@@ -215,6 +215,27 @@ def test_watching_a_seif_does_not_change_it(tmp_path):
     assert read_recording(rrd)["/world/landmarks/ellipses"] == len(shown)  # a map from step 0
 
 
+def test_watching_fastslam_does_not_change_it(tmp_path):
+    """The heaviest particle's map, read during the run, leaves the particles as they were."""
+    from probmap.slam.fastslam import FastSLAM, FastSLAMConfig
+
+    ds = simulate_landmarks(10, 60, seed=6)
+
+    def fresh() -> FastSLAM:
+        cfg = FastSLAMConfig(n_particles=8, seed=2)
+        return FastSLAM(ds.motion_model, ds.measurement_model, ds.initial_pose, cfg)
+
+    rrd = tmp_path / "fastslam.rrd"
+    with LiveView("probmap test", save=rrd) as view:
+        observer = LandmarkSlamObserver(view, ds.measurement_model, every=3, interval=0.0)
+        watched = run_landmark_slam(fresh(), ds, observer=observer)
+    plain = run_landmark_slam(fresh(), ds)
+    np.testing.assert_array_equal(watched.trajectory, plain.trajectory)
+    np.testing.assert_array_equal(watched.landmark_xy, plain.landmark_xy)
+    _, means = rows_of(rrd, "/world/landmarks", "Points2D:positions")[-1]
+    assert len(means) > 0
+
+
 def test_graphslam_shows_its_final_solve(tmp_path):
     from probmap.slam.graphslam import build_graphslam
 

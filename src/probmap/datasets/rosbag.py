@@ -44,6 +44,7 @@ from probmap._typing import FloatArray
 from probmap.datasets.records import LaserScan, Odometry, ScanBatch, stack_beams
 from probmap.datasets.validate import PoseLimits, PoseTracker, ReadingReport, validate_ranges
 from probmap.errors import BadLinesWarning, BagError, MissingExtraError
+from probmap.geometry.se2 import compose, inverse, wrap_angle
 
 __all__ = [
     "BagMap",
@@ -96,31 +97,6 @@ def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
     0.5
     """
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-
-def _wrap(a: FloatArray) -> FloatArray:
-    return (a + np.pi) % (2.0 * np.pi) - np.pi
-
-
-def _compose(a: FloatArray, b: FloatArray) -> FloatArray:
-    """``a (+) b`` for poses of shape (..., 3): ``b`` expressed in ``a``'s frame."""
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack(
-        (
-            a[..., 0] + c * b[..., 0] - s * b[..., 1],
-            a[..., 1] + s * b[..., 0] + c * b[..., 1],
-            _wrap(a[..., 2] + b[..., 2]),
-        ),
-        axis=-1,
-    )
-
-
-def _inverse(a: FloatArray) -> FloatArray:
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack(
-        (-c * a[..., 0] - s * a[..., 1], s * a[..., 0] - c * a[..., 1], _wrap(-a[..., 2])),
-        axis=-1,
-    )
 
 
 # ---------------------------------------------------------------------------- tf buffer
@@ -263,14 +239,14 @@ class TfBuffer:
         out = np.empty((len(times), 3))
         for k in range(3):
             out[:, k] = np.interp(times, t, p[:, k])
-        out[:, 2] = _wrap(out[:, 2])
+        out[:, 2] = wrap_angle(out[:, 2])
         return out
 
     def _to_root(self, chain: list[str], times: FloatArray) -> FloatArray:
         """Pose of ``chain[0]`` in ``chain[-1]`` at each time, shape (N, 3)."""
         pose = np.zeros((len(times), 3))
         for child in chain[:-1]:
-            pose = _compose(self._edge_at(child, times), pose)
+            pose = compose(self._edge_at(child, times), pose)
         return pose
 
     def lookup(self, target: str, source: str, times: Sequence[float] | FloatArray) -> FloatArray:
@@ -310,7 +286,7 @@ class TfBuffer:
             )
         a = self._to_root(up_s[: up_s.index(common) + 1], t)
         b = self._to_root(up_t[: up_t.index(common) + 1], t)
-        return _compose(_inverse(b), a)
+        return compose(inverse(b), a)
 
 
 # ---------------------------------------------------------------------------- opening bags

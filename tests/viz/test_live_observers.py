@@ -107,6 +107,18 @@ def test_map_log_stops_when_asked(tmp_path, sim_log):
 
 
 # ----------------------------------------------------------------------- landmark SLAM
+def shown_steps(steps, every: int) -> list[int]:
+    """The steps the observer shows: at most one per ``every``, the first with measurements
+    once ``every`` have passed, or one after ``2 * every`` without any."""
+    out: list[int] = []
+    last = -math.inf
+    for i, step in enumerate(steps):
+        if i - last >= every and (len(step.z) or i - last >= 2 * every):
+            out.append(i)
+            last = i
+    return out
+
+
 def _ekf(ds):
     from probmap.slam.ekf import EKFSLAM
 
@@ -128,7 +140,7 @@ def test_ekf_recording_shows_robot_measurements_landmarks_and_truth(tmp_path):
     plain = run_landmark_slam(_ekf(ds), ds)
     np.testing.assert_array_equal(result.trajectory, plain.trajectory)  # watching changes nothing
     steps = list(ds)
-    shown = [i for i in range(len(steps)) if i % 5 == 0 or len(steps[i].z)]
+    shown = shown_steps(steps, 5)
     with_z = [i for i in shown if len(steps[i].z)]
     # the reference of the observer: the filter stepped by hand, its map at the shown steps
     ekf, maps = _ekf(ds), {}
@@ -149,7 +161,8 @@ def test_ekf_recording_shows_robot_measurements_landmarks_and_truth(tmp_path):
         "/world/landmarks/ellipses": len(maps) + 1,
         "/world/landmark_truth": 1,
     }
-    assert 0 < len(with_z) < len(steps) and len(shown) > len(with_z)
+    assert 0 < len(with_z) < len(shown)  # both kinds of update
+    assert all(b - a >= 5 for a, b in zip(shown, shown[1:], strict=False))
     # the rays of a step end where the inverse model puts its measurements
     k = with_z[len(with_z) // 2]
     rays = dict(rows_of(rrd, "/world/measurements", "LineStrips2D:strips"))[k]
@@ -211,7 +224,7 @@ def test_watching_a_seif_does_not_change_it(tmp_path):
     plain = run_landmark_slam(build_seif(ds, SeifConfig(max_active=4)), ds)
     np.testing.assert_array_equal(watched.trajectory, plain.trajectory)
     np.testing.assert_array_equal(watched.landmark_xy, plain.landmark_xy)
-    shown = [i for i, step in enumerate(ds) if i % 4 == 0 or len(step.z)]
+    shown = shown_steps(list(ds), 4)
     assert read_recording(rrd)["/world/landmarks/ellipses"] == len(shown)  # a map from step 0
 
 

@@ -352,8 +352,9 @@ class LandmarkSlamObserver:
     """Streams landmark SLAM (:func:`probmap.pipelines.landmark_slam.run_landmark_slam`) to a
     :class:`LiveView`.
 
-    Called as ``observer(index, step, estimator)`` after every step. Every ``every`` steps, and
-    at every step with measurements, it logs the robot (``world/robot``, its pose as a point and a heading segment
+    Called as ``observer(index, step, estimator)`` after every step. At most once per
+    ``every`` steps (at the first step with measurements once ``every`` steps have passed, or
+    after ``2 * every`` steps without any) it logs the robot (``world/robot``, its pose as a point and a heading segment
     ``world/robot/heading``) and the step's measurements as rays from the robot to where they
     put their landmarks (``world/measurements``; none logged for a step without any); at most
     once per ``interval`` seconds of wall time also the trajectory (``world/trajectory``), the
@@ -372,7 +373,7 @@ class LandmarkSlamObserver:
     measurement_model : object
         The dataset's range-bearing model (``inverse(pose, z) -> (landmark, ...)``).
     every : int
-        Steps between updates of the robot (also shown at every step with measurements).
+        Least steps between updates of the robot and measurements.
     interval : float
         Least wall time (seconds) between updates of the trajectory and map (0: at every
         update of the robot).
@@ -402,6 +403,7 @@ class LandmarkSlamObserver:
         self._poses: list[NDArray] = []
         self._truth: list[NDArray] = []
         self._copyable = True  # False once a copy failed (state holding a module, a lock)
+        self._shown: float = -math.inf  # the step last shown
         self.reference = None if reference is None else np.asarray(reference, np.float64)
 
     def _robot(self, pose: NDArray) -> None:
@@ -418,8 +420,12 @@ class LandmarkSlamObserver:
         if step.gt_pose is not None:
             self._truth.append(np.asarray(step.gt_pose, dtype=np.float64)[:2])
         z = np.asarray(step.z, dtype=np.float64).reshape(-1, 2)
-        if index % self.every and not z.shape[0]:
+        # at most one update per `every` steps: the first step with measurements once `every`
+        # steps have passed, else the robot alone after `every` steps without any
+        due = index - self._shown >= self.every
+        if not (due and (z.shape[0] or index - self._shown >= 2 * self.every)):
             return
+        self._shown = index
         v = self.view
         v.step(index)
         self._robot(pose)

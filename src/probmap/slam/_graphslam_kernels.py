@@ -394,3 +394,209 @@ def block_tridiagonal_inverse(D, U, P_node, P_cross):  # pragma: no cover - comp
                 P_node[k, q, m] = v
                 P_node[k, m, q] = v
     return True
+
+
+@njit(cache=True)
+def _range_bearing_one(x, off, m0, m1, zh, Hx, Hm):  # pragma: no cover - compiled
+    """Range-bearing prediction of landmark ``(m0, m1)`` from pose ``x`` with the sensor at
+    ``off = (dx, dy, dth)`` in the robot frame, and its Jacobians (as
+    ``RangeBearingModel.predict``). Returns False at zero range."""
+    c = math.cos(x[2])
+    s = math.sin(x[2])
+    sx = x[0] + c * off[0] - s * off[1]
+    sy = x[1] + s * off[0] + c * off[1]
+    dsx = -s * off[0] - c * off[1]
+    dsy = c * off[0] - s * off[1]
+    d0 = m0 - sx
+    d1 = m1 - sy
+    q = d0 * d0 + d1 * d1
+    if q <= 1e-18:
+        return False
+    r = math.sqrt(q)
+    zh[0] = r
+    zh[1] = wrap(math.atan2(d1, d0) - x[2] - off[2])
+    Hm[0, 0] = d0 / r
+    Hm[0, 1] = d1 / r
+    Hm[1, 0] = -d1 / q
+    Hm[1, 1] = d0 / q
+    for a in range(2):
+        Hx[a, 0] = -Hm[a, 0]
+        Hx[a, 1] = -Hm[a, 1]
+        Hx[a, 2] = -(Hm[a, 0] * dsx + Hm[a, 1] * dsy)
+    Hx[1, 2] -= 1.0
+    return True
+
+
+@njit(cache=True)
+def associate_front_end(
+    x0, P0, d, Sig, obs_ptr, z, off, Q, gate, new_gate, reach, slot, X, Lm, Pm
+):  # pragma: no cover - compiled
+    """The GraphSLAM front end (``graphslam.graphslam_associate``) for the range-bearing model.
+
+    Walks the nodes along the segment increments ``d (K-1, 3)`` with noise ``Sig (K-1, 3, 3)``
+    (both in the start node's frame); at node ``s`` associates observations
+    ``obs_ptr[s] .. obs_ptr[s + 1] - 1`` of ``z`` by maximum likelihood with mutual exclusion
+    against the landmarks within ``reach`` (the arithmetic of ``association.associate_ml``),
+    corrects the pose and the matched landmarks in one EKF update and starts a landmark for each
+    observation beyond ``new_gate``. Writes ``slot`` (-1: left out), ``X`` and the first ``L``
+    rows of ``Lm``, ``Pm``; returns ``L``, or -1 at a zero range.
+    """
+    K = X.shape[0]
+    x = x0.copy()
+    P = P0.copy()
+    L = 0
+    zh = np.empty(2)
+    Hx = np.empty((2, 3))
+    Hm = np.empty((2, 2))
+    F = np.eye(3)
+    Rw = np.eye(3)
+    n_max = 0
+    for s in range(K):
+        n_max = max(n_max, obs_ptr[s + 1] - obs_ptr[s])
+    cand = np.empty(Lm.shape[0], dtype=np.int64)
+    for s in range(K):
+        if s > 0:
+            c = math.cos(x[2])
+            sn = math.sin(x[2])
+            dx = d[s - 1, 0]
+            dy = d[s - 1, 1]
+            F[0, 2] = -sn * dx - c * dy
+            F[1, 2] = c * dx - sn * dy
+            Rw[0, 0] = c
+            Rw[0, 1] = -sn
+            Rw[1, 0] = sn
+            Rw[1, 1] = c
+            x[0] = x[0] + c * dx - sn * dy
+            x[1] = x[1] + sn * dx + c * dy
+            x[2] = wrap(x[2] + d[s - 1, 2])
+            P = F @ P @ F.T + Rw @ Sig[s - 1] @ Rw.T
+        a = obs_ptr[s]
+        k = obs_ptr[s + 1] - a
+        if k > 0:
+            nc = 0
+            for j in range(L):
+                if math.hypot(Lm[j, 0] - x[0], Lm[j, 1] - x[1]) < reach:
+                    cand[nc] = j
+                    nc += 1
+            D2 = np.empty((k, nc))
+            cost = np.full((k, nc), np.inf)
+            for q in range(nc):
+                j = cand[q]
+                if not _range_bearing_one(x, off, Lm[j, 0], Lm[j, 1], zh, Hx, Hm):
+                    return -1
+                S = Hx @ P @ Hx.T + Hm @ Pm[j] @ Hm.T + Q
+                det = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
+                for i in range(k):
+                    n0 = z[a + i, 0] - zh[0]
+                    n1 = wrap(z[a + i, 1] - zh[1])
+                    v = (
+                        S[1, 1] * n0 * n0 - (S[0, 1] + S[1, 0]) * n0 * n1 + S[0, 0] * n1 * n1
+                    ) / det
+                    D2[i, q] = v
+                    if v < gate:
+                        cost[i, q] = v + math.log(det)
+            match = np.full(k, -2, dtype=np.int64)
+            done = np.zeros(k, dtype=np.bool_)
+            taken = np.zeros(nc, dtype=np.bool_)
+            if nc > 0:
+                order = np.argsort(cost.ravel())
+                for f in order:
+                    i = f // nc
+                    q = f % nc
+                    if not math.isfinite(cost[i, q]):
+                        break
+                    if done[i] or taken[q]:
+                        continue
+                    match[i] = q
+                    done[i] = True
+                    taken[q] = True
+            for i in range(k):
+                nearest = np.inf
+                for q in range(nc):
+                    nearest = min(nearest, D2[i, q])
+                if not done[i] and nearest > new_gate:
+                    match[i] = -1
+            m = 0
+            for i in range(k):
+                if match[i] >= 0:
+                    m += 1
+            if m > 0:  # one EKF update of the pose and the m matched landmarks
+                n = 3 + 2 * m
+                mu = np.empty(n)
+                C = np.zeros((n, n))
+                H = np.zeros((2 * m, n))
+                nu = np.empty(2 * m)
+                js = np.empty(m, dtype=np.int64)
+                for r in range(3):
+                    mu[r] = x[r]
+                    for t in range(3):
+                        C[r, t] = P[r, t]
+                p = 0
+                for i in range(k):
+                    if match[i] < 0:
+                        continue
+                    j = cand[match[i]]
+                    js[p] = j
+                    mu[3 + 2 * p] = Lm[j, 0]
+                    mu[4 + 2 * p] = Lm[j, 1]
+                    for r in range(2):
+                        for t in range(2):
+                            C[3 + 2 * p + r, 3 + 2 * p + t] = Pm[j, r, t]
+                    _range_bearing_one(x, off, Lm[j, 0], Lm[j, 1], zh, Hx, Hm)
+                    for r in range(2):
+                        for t in range(3):
+                            H[2 * p + r, t] = Hx[r, t]
+                        for t in range(2):
+                            H[2 * p + r, 3 + 2 * p + t] = Hm[r, t]
+                    nu[2 * p] = z[a + i, 0] - zh[0]
+                    nu[2 * p + 1] = wrap(z[a + i, 1] - zh[1])
+                    slot[a + i] = j
+                    p += 1
+                HC = H @ C
+                Sf = HC @ H.T
+                for p in range(m):
+                    for r in range(2):
+                        for t in range(2):
+                            Sf[2 * p + r, 2 * p + t] += Q[r, t]
+                Kt = np.linalg.solve(Sf, HC)  # K^T
+                mu += Kt.T @ nu
+                C -= Kt.T @ HC
+                x[0] = mu[0]
+                x[1] = mu[1]
+                x[2] = wrap(mu[2])
+                for r in range(3):
+                    for t in range(3):
+                        P[r, t] = 0.5 * (C[r, t] + C[t, r])
+                for p in range(m):
+                    j = js[p]
+                    Lm[j, 0] = mu[3 + 2 * p]
+                    Lm[j, 1] = mu[4 + 2 * p]
+                    for r in range(2):
+                        for t in range(2):
+                            Pm[j, r, t] = 0.5 * (
+                                C[3 + 2 * p + r, 3 + 2 * p + t] + C[3 + 2 * p + t, 3 + 2 * p + r]
+                            )
+            for i in range(k):
+                if match[i] != -1:
+                    continue
+                # a new landmark through the inverse measurement model
+                c = math.cos(x[2])
+                sn = math.sin(x[2])
+                sx = x[0] + c * off[0] - sn * off[1]
+                sy = x[1] + sn * off[0] + c * off[1]
+                dsx = -sn * off[0] - c * off[1]
+                dsy = c * off[0] - sn * off[1]
+                rr = z[a + i, 0]
+                ang = x[2] + off[2] + z[a + i, 1]
+                ca = math.cos(ang)
+                sa = math.sin(ang)
+                Lm[L, 0] = sx + rr * ca
+                Lm[L, 1] = sy + rr * sa
+                Jx = np.array([[1.0, 0.0, dsx - rr * sa], [0.0, 1.0, dsy + rr * ca]])
+                Jz = np.array([[ca, -rr * sa], [sa, rr * ca]])
+                Pm[L] = Jx @ P @ Jx.T + Jz @ Q @ Jz.T
+                slot[a + i] = L
+                L += 1
+        for r in range(3):
+            X[s, r] = x[r]
+    return L

@@ -83,6 +83,9 @@ __all__ = [
     "graphslam_correspondence_test",
     "landmark_joint_covariance",
     "optimize_graphslam_unknown",
+    "optimize_graphslam_front_end",
+    "graphslam_associate",
+    "landmark_pair_covariances",
     "marginal_covariances",
     "optimize_graphslam",
     "segment_log",
@@ -144,6 +147,13 @@ class GraphSLAMConfig:
     correspondence_probability : float
         Unknown correspondences (ids -1): chi-square gate (2 dof) of the correspondence test
         under which two landmark hypotheses are merged (Tables 11.8-11.9).
+    association_probability, new_landmark_probability : float
+        Unknown correspondences: the chi-square gates (2 dof) of the front end's
+        maximum-likelihood association and of a new landmark (:func:`graphslam_associate`).
+    min_observations : int
+        Unknown correspondences: landmarks seen fewer times are dropped at the end.
+    merge_radius : float
+        Unknown correspondences: landmark pairs closer than this (m) are tested (Table 11.8).
     """
 
     max_iterations: int = 50
@@ -160,6 +170,10 @@ class GraphSLAMConfig:
     min_range: float = 0.0
     covariances: bool = True
     correspondence_probability: float = 0.99
+    association_probability: float = 0.99
+    new_landmark_probability: float = 0.9999
+    min_observations: int = 3
+    merge_radius: float = 5.0
 
     def __post_init__(self) -> None:
         mi = self.max_iterations
@@ -216,6 +230,20 @@ class GraphSLAMConfig:
             )
         if not (_finite_number(self.min_range) and self.min_range >= 0):
             raise ValueError(f"min_range must be a finite number >= 0, got {self.min_range}")
+        if not (
+            _finite_number(self.association_probability)
+            and _finite_number(self.new_landmark_probability)
+            and 0 < self.association_probability <= self.new_landmark_probability < 1
+        ):
+            raise ValueError(
+                "need 0 < association_probability <= new_landmark_probability < 1, got "
+                f"{self.association_probability} and {self.new_landmark_probability}"
+            )
+        mo = self.min_observations
+        if isinstance(mo, bool) or not isinstance(mo, (int, np.integer)) or mo < 1:
+            raise ValueError(f"min_observations must be an integer >= 1, got {mo!r}")
+        if not (_finite_number(self.merge_radius) and self.merge_radius > 0):
+            raise ValueError(f"merge_radius must be a positive number, got {self.merge_radius}")
 
     @property
     def scale(self) -> float:
@@ -491,10 +519,8 @@ class _Pattern:
         self.indices = r[order].astype(np.int32)
         self.indptr = np.searchsorted(c[order], np.arange(n + 1)).astype(np.int32)
         self.n = n
-        self.diag = np.empty(n, dtype=np.int64)
-        for j in range(n):  # position of (j, j) in the data
-            a, b = self.indptr[j], self.indptr[j + 1]
-            self.diag[j] = a + int(np.searchsorted(self.indices[a:b], j))
+        # position of (j, j) in the data (every diagonal entry is in the pattern)
+        self.diag = rank[np.searchsorted(uniq, np.arange(n, dtype=np.int64) * (n + 1))]
 
     def matrix(self, values: FloatArray) -> sp.csc_matrix:
         data = np.bincount(self.pos, weights=values, minlength=self.nnz)
@@ -1287,7 +1313,8 @@ def optimize_graphslam_unknown(
     hypotheses).
 
     Returns the final result and the problem with its merged landmark slots. More than
-    ``max_hypotheses`` hypotheses raise ``ValueError`` (Victoria Park has 48,000).
+    ``max_hypotheses`` hypotheses raise ``ValueError`` (Victoria Park has 48,000): large logs
+    take :func:`optimize_graphslam_front_end` instead (what :class:`GraphSLAM` runs).
     """
     cfg = config if config is not None else GraphSLAMConfig()
     if problem.n_landmarks > max_hypotheses:
@@ -1317,6 +1344,390 @@ def optimize_graphslam_unknown(
         )
         res = optimize_graphslam(problem, cfg, initial=(res.nodes, Lm))
     return res, problem
+
+
+# --------------------------------------------------------------- unknown correspondences
+def _body_increments(
+    problem: GraphSLAMProblem, floor: tuple[float, float, float]
+) -> tuple[FloatArray, FloatArray]:
+    """Every segment's motion ``d (S, 3)`` and its noise ``Sigma (S, 3, 3)`` in the frame of its
+    start node (the models move in the robot frame, so these do not depend on the start pose)."""
+    K = problem.n_nodes
+    ch = motion_chain(problem, np.zeros((K, 3)), floor)
+    end = problem.seg_ptr[1:] - 1
+    return ch.xbar[end], ch.Sig[end]
+
+
+def graphslam_associate(
+    problem: GraphSLAMProblem,
+    *,
+    gate_probability: float = 0.99,
+    new_landmark_probability: float = 0.9999,
+    floor: tuple[float, float, float] = (1e-6, 1e-6, 1e-8),
+) -> tuple[IntArray, FloatArray, FloatArray]:
+    """Initial correspondences for GraphSLAM (the front end of Table 11.9's loop).
+
+    The poses are walked in order along the odometry (the segments' motion and noise); at each
+    pose its observations are associated by maximum likelihood with Mahalanobis gating
+    (:func:`~probmap.slam.association.associate_ml`, Table 10.2 lines 16-18) against the
+    landmarks mapped so far, with ``S = H_x P H_x^T + H_m P_m H_m^T + Q`` from the pose's and each
+    landmark's own covariance. The matched ones correct the pose and those landmarks together
+    (one EKF update of the pose and the few landmarks involved, Table 10.1 lines 12-18, their
+    cross-covariances with everything else ignored, which keeps a step O(1) in the map size);
+    an observation beyond the ``new_landmark_probability`` gate of every landmark starts a new
+    one (inverse measurement model), and one between the gates is left out. Ignoring the
+    cross-covariances makes the estimate overconfident after a long loop, so a revisited tree
+    may come back as a second landmark: the correspondence test of Table 11.8 merges those
+    after the batch solve (:func:`optimize_graphslam_unknown`).
+
+    Parameters
+    ----------
+    problem : GraphSLAMProblem
+        Its ``obs_landmark`` is ignored.
+    gate_probability, new_landmark_probability : float
+        Chi-square probabilities (2 dof) of the acceptance and new-landmark gates.
+    floor : (3,) float
+        The motion noise floor (variance per second), as in :class:`GraphSLAMConfig`.
+
+    Returns
+    -------
+    slot : ndarray of int64, shape (k,)
+        Landmark of every observation, or -1 for one left out.
+    X : ndarray, shape (K, 3)
+        The front end's pose of every node.
+    Lm : ndarray, shape (L, 2)
+        Its landmarks (``L = slot.max() + 1``).
+    """
+    from probmap.slam.association import chi2_gate
+
+    if not 0 < gate_probability <= new_landmark_probability < 1:
+        raise ValueError("need 0 < gate_probability <= new_landmark_probability < 1")
+    gate = chi2_gate(gate_probability)
+    new_gate = chi2_gate(new_landmark_probability)
+    K = problem.n_nodes
+    model = problem.measurement_model
+    if K > 1:
+        d, Sig = _body_increments(problem, floor)
+    else:
+        d, Sig = np.zeros((0, 3)), np.zeros((0, 3, 3))
+    if type(model) is not RangeBearingModel:
+        return _associate_python(problem, gate, new_gate, d, Sig)
+    n_obs = problem.z.shape[0]
+    slot = np.full(n_obs, -1, dtype=np.int64)
+    X = np.zeros((K, 3))
+    Lm = np.zeros((max(n_obs, 1), 2))
+    Pm = np.zeros((max(n_obs, 1), 2, 2))
+    L = _k.associate_front_end(
+        np.asarray(problem.prior_mean, dtype=np.float64).copy(),
+        np.linalg.inv(problem.prior_information),
+        np.ascontiguousarray(d),
+        np.ascontiguousarray(Sig),
+        np.searchsorted(problem.obs_node, np.arange(K + 1)).astype(np.int64),
+        np.ascontiguousarray(problem.z, dtype=np.float64),
+        np.asarray(model.sensor_offset, dtype=np.float64),
+        np.ascontiguousarray(model.R, dtype=np.float64),
+        float(gate),
+        float(new_gate),
+        _reach(problem),
+        slot,
+        X,
+        Lm,
+        Pm,
+    )
+    if L < 0:
+        raise ValueError("a landmark coincides with the sensor position (zero range)")
+    return slot, X, Lm[:L].copy()
+
+
+def _reach(problem: GraphSLAMProblem) -> float:
+    """Landmarks farther than this from the robot (m) are not candidates for association."""
+    return float(problem.z[:, 0].max()) + 5.0 if problem.z.shape[0] else 0.0
+
+
+def _associate_python(
+    problem: GraphSLAMProblem, gate: float, new_gate: float, d: FloatArray, Sig: FloatArray
+) -> tuple[IntArray, FloatArray, FloatArray]:
+    """:func:`graphslam_associate` for any measurement model with ``predict_many`` and
+    ``inverse`` (and the reference of its compiled kernel in the tests)."""
+    from probmap.slam.association import NEW, associate_ml
+
+    K = problem.n_nodes
+    model = problem.measurement_model
+    Q = np.asarray(model.R, dtype=np.float64)
+    n_obs = problem.z.shape[0]
+    slot = np.full(n_obs, -1, dtype=np.int64)
+    X = np.zeros((K, 3))
+    Lm = np.zeros((max(n_obs, 1), 2))
+    Pm = np.zeros((max(n_obs, 1), 2, 2))
+    L = 0
+    x = np.asarray(problem.prior_mean, dtype=np.float64).copy()
+    P = np.linalg.inv(problem.prior_information)
+    obs_ptr = np.searchsorted(problem.obs_node, np.arange(K + 1))
+    reach = _reach(problem)
+    for s in range(K):
+        if s > 0:  # predict along the segment: x <- x (+) d, P <- F P F^T + Rt^T Sigma Rt
+            c, sn = math.cos(x[2]), math.sin(x[2])
+            dx, dy = d[s - 1, 0], d[s - 1, 1]
+            F = np.eye(3)
+            F[0, 2] = -sn * dx - c * dy
+            F[1, 2] = c * dx - sn * dy
+            Rw = np.array([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]])
+            x = np.array([x[0] + c * dx - sn * dy, x[1] + sn * dx + c * dy, x[2] + d[s - 1, 2]])
+            x[2] = wrap_angle(x[2])
+            P = F @ P @ F.T + Rw @ Sig[s - 1] @ Rw.T
+        a, b = int(obs_ptr[s]), int(obs_ptr[s + 1])
+        if b > a:
+            z = problem.z[a:b]
+            k = b - a
+            if L:
+                near = np.flatnonzero(np.hypot(Lm[:L, 0] - x[0], Lm[:L, 1] - x[1]) < reach)
+            else:
+                near = np.zeros(0, dtype=np.int64)
+            if near.size:
+                zh, Hx, Hm = _measurements(
+                    model, x[None, :], Lm[near], np.zeros(near.size, np.int64), np.arange(near.size)
+                )
+                S = Hx @ P @ Hx.transpose(0, 2, 1) + Hm @ Pm[near] @ Hm.transpose(0, 2, 1) + Q
+                match = associate_ml(z, zh, S, gate=gate, new_gate=new_gate).match
+            else:
+                match = np.full(k, NEW, dtype=np.int64)
+            hit = np.flatnonzero(match >= 0)
+            if hit.size:  # one EKF update of the pose and the matched landmarks
+                js = near[match[hit]]
+                m = hit.size
+                n = 3 + 2 * m
+                mu = np.concatenate([x, Lm[js].ravel()])
+                C = np.zeros((n, n))
+                C[:3, :3] = P
+                for q, j in enumerate(js):
+                    C[3 + 2 * q : 5 + 2 * q, 3 + 2 * q : 5 + 2 * q] = Pm[j]
+                zh, Hx, Hm = _measurements(
+                    model, x[None, :], Lm[js], np.zeros(m, np.int64), np.arange(m)
+                )
+                H = np.zeros((2 * m, n))
+                for q in range(m):
+                    H[2 * q : 2 * q + 2, :3] = Hx[q]
+                    H[2 * q : 2 * q + 2, 3 + 2 * q : 5 + 2 * q] = Hm[q]
+                nu = z[hit] - zh
+                nu[:, 1] = wrap_angle(nu[:, 1])
+                HC = H @ C
+                Sfull = HC @ H.T + np.kron(np.eye(m), Q)
+                Kg = np.linalg.solve(Sfull, HC).T
+                mu = mu + Kg @ nu.ravel()
+                C = C - Kg @ HC
+                C = 0.5 * (C + C.T)
+                x = mu[:3].copy()
+                x[2] = wrap_angle(x[2])
+                P = C[:3, :3].copy()
+                Lm[js] = mu[3:].reshape(m, 2)
+                for q, j in enumerate(js):
+                    Pm[j] = C[3 + 2 * q : 5 + 2 * q, 3 + 2 * q : 5 + 2 * q]
+                slot[a + hit] = js
+            for i in np.flatnonzero(match == NEW):
+                xy, Jx, Jz = model.inverse(x, z[i])
+                Lm[L] = xy
+                Pm[L] = Jx @ P @ Jx.T + Jz @ Q @ Jz.T
+                slot[a + i] = L
+                L += 1
+        X[s] = x
+    return slot, X, Lm[:L].copy()
+
+
+def landmark_pair_covariances(H: sp.spmatrix, n_pose_vars: int, landmarks: IntArray) -> FloatArray:
+    """The joint marginal covariance of a few landmarks (the rows and columns of ``H^-1`` for
+    ``landmarks``): one sparse factorization of ``H`` and ``2 m`` solves, so it scales to large
+    maps where :func:`landmark_joint_covariance` (all ``2L`` columns) does not.
+
+    Parameters
+    ----------
+    H : scipy.sparse matrix, shape (n, n)
+        The information matrix at the solution.
+    n_pose_vars : int
+    landmarks : ndarray of int, shape (m,)
+        Landmark slots.
+
+    Returns
+    -------
+    ndarray, shape (2m, 2m)
+        ``Cov(m_landmarks[0], m_landmarks[1], ...)``, landmark ``i`` at rows ``2i, 2i + 1``.
+    """
+    lm = np.asarray(landmarks, dtype=np.int64).reshape(-1)
+    if lm.size == 0:
+        return np.zeros((0, 0))
+    Hc = sp.csc_matrix(H)
+    n = Hc.shape[0]
+    rows = (n_pose_vars + 2 * lm[:, None] + np.arange(2)).ravel()
+    try:
+        lu = splu(
+            Hc, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
+        )
+    except RuntimeError as exc:
+        raise ValueError(f"the information matrix is singular ({exc})") from exc
+    E = np.zeros((n, rows.size))
+    E[rows, np.arange(rows.size)] = 1.0
+    C = np.asarray(lu.solve(E), dtype=np.float64)[rows]
+    return 0.5 * (C + C.T)
+
+
+def _merge_candidates(
+    problem: GraphSLAMProblem,
+    Lm: FloatArray,
+    H: sp.spmatrix,
+    n_pose_vars: int,
+    gate: float,
+    radius: float,
+) -> IntArray | None:
+    """Table 11.9's merges at scale: candidate pairs are the landmarks closer than ``radius``
+    (a KD-tree), tested with :func:`graphslam_correspondence_test` on the joint covariance of
+    the landmarks involved (:func:`landmark_pair_covariances`), and joined most likely first
+    unless the two were seen from one pose. Returns the new slot of every landmark, or None."""
+    from scipy.spatial import cKDTree
+
+    L = Lm.shape[0]
+    if L < 2:
+        return None
+    pairs = np.array(sorted(cKDTree(Lm).query_pairs(radius)), dtype=np.int64).reshape(-1, 2)
+    if pairs.size == 0:
+        return None
+    # two landmarks seen from one pose are two trees: no test needed
+    order = np.argsort(problem.obs_landmark, kind="stable")
+    ptr = np.searchsorted(problem.obs_landmark[order], np.arange(L + 1))
+    nodes = [problem.obs_node[order[ptr[j] : ptr[j + 1]]] for j in range(L)]
+    apart = np.array([np.intersect1d(nodes[a], nodes[b]).size == 0 for a, b in pairs], dtype=bool)
+    pairs = pairs[apart]
+    if pairs.size == 0:
+        return None
+    used, inv = np.unique(pairs, return_inverse=True)
+    C = landmark_pair_covariances(H, n_pose_vars, used)
+    d2, _ = graphslam_correspondence_test(Lm[used], C, inv.reshape(-1, 2))
+    ok = d2 < gate
+    pairs, d2 = pairs[ok], d2[ok]
+    if pairs.size == 0:
+        return None
+    sets = [set(int(v) for v in nodes[j]) for j in range(L)]
+    parent = np.arange(L)
+
+    def root(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = int(parent[a])
+        return a
+
+    merged = False
+    for a, b in pairs[np.argsort(d2)]:
+        ra, rb = root(int(a)), root(int(b))
+        if ra == rb or sets[ra] & sets[rb]:
+            continue
+        parent[rb] = ra
+        sets[ra] |= sets[rb]
+        merged = True
+    if not merged:
+        return None
+    roots = np.array([root(i) for i in range(L)])
+    _, slot = np.unique(roots, return_inverse=True)
+    return slot.astype(np.int64)
+
+
+def _relabel(
+    problem: GraphSLAMProblem, slot: IntArray, keep_obs: BoolArray | None = None
+) -> GraphSLAMProblem:
+    """``problem`` with observation ``i`` on landmark ``slot[obs_landmark[i]]`` (slots 0..n-1),
+    keeping only ``keep_obs``."""
+    from dataclasses import replace
+
+    lm = slot[problem.obs_landmark]
+    keep = np.ones(lm.size, dtype=bool) if keep_obs is None else keep_obs
+    n = int(slot.max()) + 1 if slot.size else 0
+    return replace(
+        problem,
+        obs_node=problem.obs_node[keep],
+        z=problem.z[keep],
+        obs_landmark=lm[keep].astype(np.int64),
+        landmark_ids=np.arange(n, dtype=np.int64),
+    )
+
+
+def _mean_by_slot(Lm: FloatArray, slot: IntArray) -> FloatArray:
+    n = int(slot.max()) + 1
+    out = np.zeros((n, 2))
+    np.add.at(out, slot, Lm)
+    return out / np.bincount(slot, minlength=n)[:, None]
+
+
+def optimize_graphslam_front_end(
+    problem: GraphSLAMProblem,
+    config: GraphSLAMConfig | None = None,
+    *,
+    max_rounds: int = 10,
+) -> tuple[GraphSLAMResult, GraphSLAMProblem]:
+    """GraphSLAM with unknown correspondences on large logs (Table 11.9 from a front end).
+
+    1. Initial correspondences and a starting point from :func:`graphslam_associate`
+       (incremental maximum-likelihood association along the odometry, gates
+       ``config.association_probability`` and ``config.new_landmark_probability``).
+    2. The sparse batch solve (:func:`optimize_graphslam`, with the robust kernel and outlier
+       rejection of ``config``).
+    3. The correspondence test of Table 11.8 on the pairs of landmarks closer than
+       ``config.merge_radius`` (a KD-tree, so the number of tests grows with the map, not its
+       square; their joint covariance from :func:`landmark_pair_covariances`), merging those
+       under the ``config.correspondence_probability`` gate; back to 2 until nothing merges
+       (at most ``max_rounds`` times).
+    4. Landmarks seen fewer than ``config.min_observations`` times are dropped with their
+       observations (a landmark seen once is fitted exactly and tells nothing about the path;
+       the EKF likewise reports a landmark only after ``accept_hits`` sightings) and the log is
+       solved a last time, with covariances if ``config`` asks for them.
+
+    Parameters
+    ----------
+    problem : GraphSLAMProblem
+        Its ``obs_landmark`` and ``landmark_ids`` are ignored.
+    config : GraphSLAMConfig, optional
+    max_rounds : int
+        Most merge rounds.
+
+    Returns
+    -------
+    result : GraphSLAMResult
+    problem : GraphSLAMProblem
+        ``problem`` with the observations kept and their final landmark slots.
+    """
+    cfg = config if config is not None else GraphSLAMConfig()
+    gate = _chi2_gate_2dof(cfg.correspondence_probability)
+    slot, X, Lm = graphslam_associate(
+        problem,
+        gate_probability=cfg.association_probability,
+        new_landmark_probability=cfg.new_landmark_probability,
+        floor=cfg.motion_noise_floor,
+    )
+    from dataclasses import replace
+
+    seen = slot >= 0
+    prob = replace(problem, obs_landmark=np.maximum(slot, 0))
+    prob = _relabel(prob, np.arange(Lm.shape[0], dtype=np.int64), seen)
+    inner = _replace_cfg(cfg, covariances=False)
+    res = optimize_graphslam(prob, inner, initial=(X, Lm))
+    for _ in range(max_rounds):
+        lin = _Linearizer(prob, inner)
+        sysm = lin.linearize(res.nodes, res.landmarks)
+        new = _merge_candidates(
+            prob, res.landmarks, sysm.H, sysm.n_pose_vars, gate, cfg.merge_radius
+        )
+        if new is None:
+            break
+        Lm = _mean_by_slot(res.landmarks, new)
+        prob = _relabel(prob, new)
+        res = optimize_graphslam(prob, inner, initial=(res.nodes, Lm))
+    count = np.bincount(prob.obs_landmark, minlength=prob.n_landmarks)
+    strong = count >= int(cfg.min_observations)
+    if not strong.all():
+        new = np.cumsum(strong) - 1
+        keep = strong[prob.obs_landmark]
+        Lm = res.landmarks[strong]
+        prob = _relabel(prob, new, keep)
+    else:
+        Lm = res.landmarks
+    res = optimize_graphslam(prob, cfg, initial=(res.nodes, Lm))
+    return res, prob
 
 
 # ------------------------------------------------------------------------------ the class
@@ -1448,10 +1859,8 @@ class GraphSLAM:
         if self._result is None:
             self._problem = self.problem()
             if self._unknown:
-                self._result, self._problem = optimize_graphslam_unknown(
-                    self._problem,
-                    self.config,
-                    correspondence_probability=self.config.correspondence_probability,
+                self._result, self._problem = optimize_graphslam_front_end(
+                    self._problem, self.config
                 )
             else:
                 self._result = optimize_graphslam(self._problem, self.config)

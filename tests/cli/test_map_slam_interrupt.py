@@ -179,3 +179,30 @@ def test_demo_config(tmp_path):
         app, ["demo", "--localize", "-o", str(tmp_path / "e"), "--config", str(cfg)]
     )
     assert bad.exit_code == 1 and "--config sets the mapping demo" in bad.output
+
+
+def test_slam_ctrl_c_while_writing_leaves_nothing(tmp_path, monkeypatch, capsys):
+    """The outputs are all or none: Ctrl-C while they are written removes them."""
+    import typer
+
+    import probmap.pipelines.landmark_slam as pipeline
+    from probmap.cli.slam import run_and_report
+    from probmap.datasets.simulation import simulate_landmarks
+    from probmap.slam.ekf import EKFSLAM
+
+    real = pipeline.write_slam_outputs
+
+    def write_then_ctrl_c(*args, **kwargs):
+        files = real(*args, **kwargs)
+        signal.raise_signal(signal.SIGINT)
+        return files
+
+    monkeypatch.setattr(pipeline, "write_slam_outputs", write_then_ctrl_c)
+    ds = simulate_landmarks(10, 50, seed=0)
+    ekf = EKFSLAM(ds.motion_model, ds.measurement_model, ds.initial_pose, ds.initial_covariance)
+    out = tmp_path / "out"
+    with pytest.raises(typer.Exit) as exit_:
+        run_and_report(ekf, ds, out, "EKF SLAM", plot=False)
+    assert exit_.value.exit_code == 130
+    assert "interrupted: nothing written" in capsys.readouterr().err
+    assert not out.exists()

@@ -297,9 +297,11 @@ def run_and_report(
                             output / "slam.png", result, dataset, title=title, metrics=metrics
                         )
                     )
-        except BaseException:
+        except BaseException as exc:
             if view is not None:
                 view.close(keep=False)
+            if isinstance(exc, KeyboardInterrupt):  # the outputs are all or none: none
+                interrupted_exit(0, 0, "steps", wrote=False)
             raise
         if view is not None:
             view.close()

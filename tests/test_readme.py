@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import functools
 import re
 import shutil
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 
@@ -37,3 +39,131 @@ def test_api_example_runs_and_matches_the_cli(shared_data, tmp_path, monkeypatch
     np.testing.assert_allclose(crop.spec.origin, cli.spec.origin)
     np.testing.assert_array_equal(crop.log_odds, cli.log_odds)
     assert namespace["p"].shape == grid.spec.shape
+
+
+# ----------------------------------------------------------------------------- command table
+def command_table() -> list[str]:
+    """The first cell of every row of the table under '## Command line', ``\\|`` unescaped."""
+    text = README.read_text(encoding="utf-8")
+    section = text.split("## Command line", 1)[1].split("\n\n", 2)[1]
+    rows = [line for line in section.splitlines() if line.startswith("| `")]
+    cells = [row.replace("\\|", "\0").split("|")[1].replace("\0", "|") for row in rows]
+    return cells
+
+
+def quoted_commands(cell: str) -> list[str]:
+    return [m for m in re.findall(r"`([^`]*)`", cell) if m.startswith("probmap")]
+
+
+def resolve(group, words: list[str]):
+    """The click commands a README command line names (``slam ekf|seif`` names two) and the
+    number of words the subcommand path took."""
+    commands, used = [group], 0
+    while words[used:] and all(hasattr(c, "commands") for c in commands):
+        names = words[used].split("|")
+        if not all(n in c.commands for c in commands for n in names):
+            break
+        commands = [c.commands[n] for c in commands for n in names]
+        used += 1
+    return commands, used
+
+
+@functools.cache
+def cli_tree():
+    """The CLI app with its commands registered, and its click command tree (built once)."""
+    import typer
+
+    from probmap.cli import register
+    from probmap.cli.app import app
+
+    register(app)
+    return app, typer.main.get_command(app)
+
+
+def leaf_paths(command, path=()):
+    if not hasattr(command, "commands"):
+        return [path]
+    return [p for name, c in command.commands.items() for p in leaf_paths(c, (*path, name))]
+
+
+def split_line(root, line: str):
+    """The commands a README command line names, their paths and the rest of the line."""
+    words = line.split()[1:]
+    commands, used = resolve(root, [w.strip("[]") for w in words])
+    paths: list[tuple[str, ...]] = [()]
+    for alternatives in (w.split("|") for w in words[:used]):
+        paths = [(*p, a) for p in paths for a in alternatives]
+    return commands, paths, " ".join(words[used:])
+
+
+@functools.cache
+def help_text(path: tuple[str, ...]) -> str:
+    from typer.testing import CliRunner
+
+    app, _ = cli_tree()
+    res = CliRunner().invoke(app, [*path, "--help"], env={"COLUMNS": "200"})
+    assert res.exit_code == 0, (path, res.output)
+    return res.output
+
+
+COMMAND_LINES = [q for cell in command_table() for q in quoted_commands(cell)]
+
+
+def test_the_table_lists_every_command():
+    _, root = cli_tree()
+    assert len(COMMAND_LINES) >= 15, COMMAND_LINES  # the table was found and read
+    named = {path for line in COMMAND_LINES for path in split_line(root, line)[1]}
+    missing = [" ".join(p) for p in leaf_paths(root) if p not in named]
+    assert not missing, f"commands missing from the README's command table: {missing}"
+
+
+@pytest.mark.parametrize("line", COMMAND_LINES)
+def test_command_line_in_the_table_parses(line):
+    _, root = cli_tree()
+    commands, paths, rest = split_line(root, line)
+    options = re.findall(r"(?<![\w-])(--?[a-zA-Z][\w-]*)", rest)
+    for command, path in zip(commands, paths, strict=True):
+        # a group (probmap, probmap slam) only with --help or --version
+        if hasattr(command, "commands"):
+            assert options and set(options) <= {"--help", "--version"}, (
+                f"README: {line!r} names no command of the CLI after {path}"
+            )
+        declared = {"--help"}
+        for param in command.params:
+            declared.update(param.opts)
+            declared.update(param.secondary_opts)
+        listed = set(re.findall(r"(?<![\w-])(--?[a-zA-Z][\w-]*)", help_text(path)))
+        for option in options:
+            assert option in declared, f"README: {line!r}: {option} is no option of {path}"
+            assert option in listed, f"README: {line!r}: `--help` of {path} lacks {option}"
+        # a choice the README spells out (--poses corrected|odometry) is in the help text
+        for option, choices in re.findall(r"(--[\w-]+) ([a-z][\w-]*(?:\|[a-z][\w-]*)+)", rest):
+            for choice in choices.split("|"):
+                assert re.search(rf"(?<![\w-]){re.escape(choice)}(?![\w-])", help_text(path)), (
+                    f"README: {line!r}: {choice} of {option} is not in `--help` of {path}"
+                )
+
+
+def test_resolve_reads_alternatives_and_stops_at_arguments():
+    _, root = cli_tree()
+    commands, used = resolve(root, ["slam", "ekf|seif", "DATASET", "-o", "DIR"])
+    assert [c.name for c in commands] == ["ekf", "seif"] and used == 2
+    commands, used = resolve(root, ["map", "LOG", "--config", "FILE.yaml"])
+    assert [c.name for c in commands] == ["map"] and used == 1
+    commands, used = resolve(root, ["slam", "nosuch", "DATASET"])
+    assert [c.name for c in commands] == ["slam"] and used == 1
+
+
+# ----------------------------------------------------------------------------- pictures
+def test_every_linked_picture_exists():
+    text = README.read_text(encoding="utf-8")
+    linked = re.findall(r"\]\((docs/[^)\s]+)\)", text)
+    named = re.findall(r"(?<![\w/])(docs/[\w./-]+\.png)", text)
+    assert len(linked) >= 5, linked  # the links were found
+    root = README.parent
+    for rel in sorted(set(linked) | set(named)):
+        path = root / rel
+        assert path.is_file(), f"README links {rel}, which does not exist"
+        if rel.endswith(".png"):
+            with open(path, "rb") as f:
+                assert f.read(8) == b"\x89PNG\r\n\x1a\n", f"{rel} is not a PNG file"

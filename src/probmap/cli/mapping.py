@@ -23,6 +23,7 @@ from probmap.cli.common import (
     scan_topic_option,
     skip_bad_lines_option,
 )
+from probmap.cli.watch import save_partial_option, viz_option, viz_save_option
 
 
 def _fmt(v: object) -> str:
@@ -98,20 +99,9 @@ def map_command(
     allow_partial: bool = typer.Option(
         False, "--allow-partial", help="Dask: write the map of the readable logs when some fail."
     ),
-    viz: bool = typer.Option(
-        False, "--viz", help="Watch the map grow in the rerun viewer (extra 'viz')."
-    ),
-    viz_save: Path | None = typer.Option(
-        None,
-        "--viz-save",
-        help="Record the live view into FILE.rrd (open it later with 'rerun FILE.rrd').",
-    ),
-    save_partial: bool = typer.Option(
-        True,
-        "--save-partial/--no-save-partial",
-        help="On Ctrl-C, stop and write the map of the scans so far (exit 130); a second "
-        "Ctrl-C aborts without writing.",
-    ),
+    viz: bool = viz_option(),
+    viz_save: Path | None = viz_save_option(),
+    save_partial: bool = save_partial_option(),
 ) -> None:
     """Build an occupancy grid map from a laser log with known poses."""
     watch = Stopwatch()
@@ -239,8 +229,7 @@ def _map_one(
 
     from probmap._atomic import atomic_outputs
     from probmap.cli.common import progress_bar
-    from probmap.cli.gridslam import _stop_on_ctrl_c
-    from probmap.cli.slam import interrupted_exit, open_view
+    from probmap.cli.watch import interrupted_exit, open_view, stop_on_ctrl_c
     from probmap.datasets.carmen import BadLinesWarning
     from probmap.pipelines import map_log, write_map
 
@@ -254,7 +243,7 @@ def _map_one(
         with (
             progress_bar(unit="scans") as bar,
             warnings.catch_warnings(),
-            _stop_on_ctrl_c(save_partial) as stop,
+            stop_on_ctrl_c(save_partial, "chunk of scans") as stop,
         ):
             # the summary table reports skipped lines; no Python warning text on the terminal
             warnings.simplefilter("ignore", BadLinesWarning)

@@ -14,6 +14,14 @@ from typing import Any
 import typer
 
 from probmap.cli.common import CliError, Stopwatch, cli_errors, print_summary
+from probmap.cli.watch import (
+    interrupted_exit,
+    open_view,
+    save_partial_option,
+    stop_on_ctrl_c,
+    viz_option,
+    viz_save_option,
+)
 
 slam_app = typer.Typer(
     help="Landmark SLAM on feature datasets (EKF; SEIF; GraphSLAM).", no_args_is_help=True
@@ -58,52 +66,6 @@ def tum_option() -> Any:
         "--tum",
         help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
     )
-
-
-def viz_option() -> Any:
-    return typer.Option(False, "--viz", help="Watch the run in the rerun viewer (extra 'viz').")
-
-
-def viz_save_option() -> Any:
-    return typer.Option(
-        None,
-        "--viz-save",
-        help="Record the live view into FILE.rrd (open it later with 'rerun FILE.rrd').",
-    )
-
-
-def save_partial_option() -> Any:
-    return typer.Option(
-        True,
-        "--save-partial/--no-save-partial",
-        help="On Ctrl-C, stop after the current step and write the results of the steps so far "
-        "(exit 130); a second Ctrl-C aborts without writing.",
-    )
-
-
-def open_view(title: str, viz: bool, viz_save: Path | None) -> Any:
-    """The live view of ``--viz`` / ``--viz-save`` (None without either), the recording's
-    name and folder checked before any work."""
-    if not viz and viz_save is None:
-        return None
-    from probmap.pipelines import check_output_folder
-    from probmap.viz.live import LiveView
-
-    if viz_save is not None:
-        if viz_save.suffix != ".rrd":
-            raise ValueError(f"--viz-save {viz_save}: a recording is saved as FILE.rrd")
-        check_output_folder(viz_save.parent if str(viz_save.parent) else Path("."))
-    return LiveView(title, save=viz_save, spawn=viz)
-
-
-def interrupted_exit(done: int, total: int, unit: str, wrote: bool) -> None:
-    """After a Ctrl-C: one line on stderr saying what was written, and exit code 130."""
-    if wrote:
-        msg = f"interrupted: wrote the results of the first {done:,} of {total:,} {unit}"
-    else:
-        msg = "interrupted: nothing written (--no-save-partial, or Ctrl-C twice)"
-    typer.echo(msg, err=True)
-    raise typer.Exit(130)
 
 
 def limit_threads(threads: int) -> None:
@@ -227,7 +189,6 @@ def run_and_report(
 
     from probmap._atomic import atomic_outputs
     from probmap.cli.common import progress_bar
-    from probmap.cli.gridslam import _stop_on_ctrl_c
     from probmap.pipelines import check_output_folder
     from probmap.pipelines.landmark_slam import evaluate, run_landmark_slam, write_slam_outputs
 
@@ -244,7 +205,7 @@ def run_and_report(
     watch.phases = {"setup": watch.total - sum(watch.phases.values()), **watch.phases}
     try:
         with watch("compute"):
-            with progress_bar(title, unit="steps") as bar, _stop_on_ctrl_c(save_partial) as stop:
+            with progress_bar(title, unit="steps") as bar, stop_on_ctrl_c(save_partial) as stop:
                 task = bar.add_task(title, total=len(dataset))
                 result = run_landmark_slam(
                     estimator,

@@ -1,0 +1,100 @@
+"""Watching and stopping a long run: ``--viz`` / ``--viz-save`` (the rerun live view) and
+Ctrl-C that stops cleanly (``--save-partial``), shared by ``probmap map`` and landmark SLAM."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import typer
+
+
+def viz_option() -> Any:
+    """``--viz``: the same option on every command with a live view."""
+    return typer.Option(False, "--viz", help="Watch the run in the rerun viewer (extra 'viz').")
+
+
+def viz_save_option() -> Any:
+    """``--viz-save FILE.rrd``."""
+    return typer.Option(
+        None,
+        "--viz-save",
+        help="Record the live view into FILE.rrd (open it later with 'rerun FILE.rrd').",
+    )
+
+
+def save_partial_option() -> Any:
+    """``--save-partial/--no-save-partial`` (default on)."""
+    return typer.Option(
+        True,
+        "--save-partial/--no-save-partial",
+        help="On Ctrl-C, stop and write the results of the part run so far (exit 130); a "
+        "second Ctrl-C aborts without writing.",
+    )
+
+
+def open_view(title: str, viz: bool, viz_save: Path | None) -> Any:
+    """The :class:`~probmap.viz.live.LiveView` of ``--viz`` / ``--viz-save`` (None without
+    either); the recording's name and folder are checked before any work.
+
+    Raises
+    ------
+    ValueError
+        ``viz_save`` does not end in ``.rrd``.
+    probmap.errors.MissingExtraError
+        rerun is not installed (the message names the ``viz`` extra).
+    """
+    if not viz and viz_save is None:
+        return None
+    from probmap.pipelines import check_output_folder
+    from probmap.viz.live import LiveView
+
+    if viz_save is not None:
+        if viz_save.suffix != ".rrd":
+            raise ValueError(f"--viz-save {viz_save}: a recording is saved as FILE.rrd")
+        check_output_folder(viz_save.parent if str(viz_save.parent) else Path("."))
+    return LiveView(title, save=viz_save, spawn=viz)
+
+
+@contextmanager
+def stop_on_ctrl_c(enabled: bool, unit: str = "step") -> Iterator[Callable[[], bool] | None]:
+    """While active, the first Ctrl-C (SIGINT) asks the run to stop after the current
+    ``unit`` (the yielded callable then returns True) and says so on stderr; a second one
+    raises KeyboardInterrupt as usual. Disabled, or off the main thread, it yields None and
+    changes nothing. The previous handler is restored on exit."""
+    import signal
+    import threading
+
+    if not enabled or threading.current_thread() is not threading.main_thread():
+        yield None
+        return
+    asked = [False]
+
+    def handler(signum: int, frame: Any) -> None:
+        if asked[0]:
+            raise KeyboardInterrupt
+        asked[0] = True
+        print(
+            f"\nCtrl-C: stopping after this {unit} and writing the results so far "
+            "(Ctrl-C again to abort)",
+            file=sys.stderr,
+        )
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield lambda: asked[0]
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def interrupted_exit(done: int, total: int, unit: str, wrote: bool) -> None:
+    """After a Ctrl-C: one line on stderr saying what was written, then exit code 130."""
+    if wrote:
+        msg = f"interrupted: wrote the results of the first {done:,} of {total:,} {unit}"
+    else:
+        msg = "interrupted: nothing written"
+    typer.echo(msg, err=True)
+    raise typer.Exit(130)

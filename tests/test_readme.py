@@ -167,3 +167,22 @@ def test_every_linked_picture_exists():
         if rel.endswith(".png"):
             with open(path, "rb") as f:
                 assert f.read(8) == b"\x89PNG\r\n\x1a\n", f"{rel} is not a PNG file"
+
+
+# ----------------------------------------------------------------------------- architecture
+def test_every_module_in_the_architecture_tree_exists():
+    """The package tree that docs/architecture.md draws names only files that exist."""
+    text = (README.parent / "docs" / "architecture.md").read_text(encoding="utf-8")
+    m = re.search(r"```\n(src/probmap/.*?)```", text, flags=re.DOTALL)
+    assert m, "no package tree in docs/architecture.md"
+    src = README.parent / "src" / "probmap"
+    package, named = "", []
+    for line in m.group(1).splitlines():
+        head = re.match(r"\s+(\w+)/\s", line)
+        if head:
+            package = head.group(1)
+        for name in re.findall(r"(?<![\w.])(\w+\.py|py\.typed)\b", line):
+            named.append(src / package / name)
+    assert len(named) > 100, named  # the tree was read
+    missing = [str(p.relative_to(src)) for p in named if not p.is_file()]
+    assert not missing, f"docs/architecture.md names modules that do not exist: {missing}"

@@ -57,7 +57,7 @@ def classify_beam(
     ``(tx, ty)`` (``thickness`` metres further; the hit point itself when ``thickness`` is 0),
     2 a max-range reading cleared to ``(ex, ey)`` at ``clear_range``. Adds 1 to ``counts[0]``
     (hits), ``counts[1]`` (max-range readings) or ``counts[2]`` (dropped readings). The one
-    beam rule of :func:`integrate_scans`, :func:`count_scans` and
+    beam rule of :func:`integrate_scans` (grids and update counts) and
     :func:`probmap.grid._semantic_kernels.integrate_labelled_scans`.
     """
     if not (r > 0.0) or not math.isfinite(r):
@@ -80,39 +80,6 @@ def classify_beam(
         ty = (py + (r + thickness) * sn - oy) * inv
         return 1, ex, ey, tx, ty
     return 1, ex, ey, ex, ey
-
-
-@njit(cache=True)
-def integrate_scans(
-    lo,
-    stamp,
-    sid0,
-    ox,
-    oy,
-    res,
-    poses,
-    ranges,
-    angles,
-    angles_shared,
-    max_range,
-    clear_range,
-    thickness,
-    d_hit,
-    d_free,
-    lmin,
-    lmax,
-    counts,
-):  # pragma: no cover - compiled
-    """Integrate scans ``s`` with stamps ``sid0 + s`` into log-odds ``lo`` (in place).
-
-    ``counts`` (int64[4]) accumulates: hits, max-range readings, dropped readings, cell updates.
-    Hits are applied first, then free space, so that within one scan a hit cell is never also
-    freed and every cell changes at most once (the stamp records the last scan that touched it).
-    """
-    _integrate_body(
-        lo, lo, stamp, sid0, ox, oy, res, poses, ranges, angles, angles_shared, max_range,
-        clear_range, thickness, d_hit, d_free, lmin, lmax, counts,
-    )  # fmt: skip
 
 
 # Codes returned by integrate_one_scan; anything but SCAN_OK leaves the grid untouched.
@@ -185,7 +152,7 @@ def integrate_one_scan(lo, stamp, sid, pose, ranges, angles, max_range, params):
     ):
         return SCAN_OUTSIDE, 0, 0, 0, 0
     counts = np.zeros(4, np.int64)
-    _integrate_body(
+    integrate_scans(
         lo, lo, stamp, sid, ox, oy, res, P, R, A, True, max_range, clear_range, thickness,
         params[5], params[6], params[7], params[8], counts,
     )  # fmt: skip
@@ -193,35 +160,7 @@ def integrate_one_scan(lo, stamp, sid, pose, ranges, angles, max_range, params):
 
 
 @njit(cache=True)
-def count_scans(
-    hits,
-    frees,
-    stamp,
-    sid0,
-    ox,
-    oy,
-    res,
-    poses,
-    ranges,
-    angles,
-    angles_shared,
-    max_range,
-    clear_range,
-    thickness,
-    counts,
-):  # pragma: no cover - compiled
-    """Count, per cell, the scans that hit it (``hits += 1``) and that crossed it
-    (``frees += 1``): the same cells, order and once-per-scan rule as :func:`integrate_scans`,
-    without prior or clamping (for summing increments across processes)."""
-    big = np.iinfo(np.int64).max
-    _integrate_body(
-        hits, frees, stamp, sid0, ox, oy, res, poses, ranges, angles, angles_shared, max_range,
-        clear_range, thickness, 1, 1, -big, big, counts,
-    )  # fmt: skip
-
-
-@njit(cache=True, inline="always")
-def _integrate_body(
+def integrate_scans(
     lo_hit,
     lo_free,
     stamp,
@@ -242,8 +181,18 @@ def _integrate_body(
     lmax,
     counts,
 ):  # pragma: no cover - compiled
-    """Body of :func:`integrate_scans`: hits go to ``lo_hit``, free space to ``lo_free`` (the
-    same array for a log-odds grid, two count arrays for :func:`count_scans`)."""
+    """Integrate scans ``s`` with stamps ``sid0 + s`` (in place): hits add ``d_hit`` to
+    ``lo_hit``, free space ``d_free`` to ``lo_free``, each cell clamped to ``[lmin, lmax]``.
+
+    For a log-odds grid ``lo_hit`` and ``lo_free`` are the same array. Passing two count
+    arrays with ``d_hit = d_free = 1`` and unreachable bounds counts, per cell, the scans that
+    hit it and that crossed it, without prior or clamping (for summing increments across
+    processes: :func:`probmap.grid.increments.integrate_increments`).
+
+    ``counts`` (int64[4]) accumulates: hits, max-range readings, dropped readings, cell updates.
+    Hits are applied first, then free space, so that within one scan a hit cell is never also
+    freed and every cell changes at most once (the stamp records the last scan that touched it).
+    """
     n_scans, n_beams = ranges.shape
     inv = 1.0 / res
     end = np.empty((n_beams, 2))

@@ -335,26 +335,13 @@ def integrate_increments(
     frees = np.zeros(shape, dtype=dtype)
     stamp, sid0 = _scratch_stamps(shape, n)
     counts = np.zeros(4, dtype=np.int64)
-    _kernels.count_scans(
-        hits,
-        frees,
-        stamp,
-        sid0,
-        ix0 * res,
-        iy0 * res,
-        res,
-        P,
-        R,
-        A,
-        shared,
-        float(max_range),
-        clear_range,
-        model.thickness,
-        counts,
-    )
-    stats = ScanStats(
-        n, int(R.size), int(counts[0]), int(counts[1]), int(counts[2]), int(counts[3])
-    )
+    # counting is the grid's own integration with unit increments and no clamping
+    big = np.iinfo(np.int64).max
+    _kernels.integrate_scans(
+        hits, frees, stamp, sid0, ix0 * res, iy0 * res, res, P, R, A, shared, float(max_range),
+        clear_range, model.thickness, 1, 1, -big, big, counts,
+    )  # fmt: skip
+    stats = ScanStats.from_counts(n, R.size, counts)
     return IncrementGrid(res, (int(ix0), int(iy0)), hits, frees, stats)
 
 

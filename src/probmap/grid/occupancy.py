@@ -666,6 +666,7 @@ class OccupancyGrid(_ScanGrid):
             s1 = min(s0 + _EPOCH, P.shape[0])
             _kernels.integrate_scans(
                 self._lo,
+                self._lo,
                 self._stamp,
                 self._next_ids(s1 - s0),
                 ox,

@@ -855,11 +855,12 @@ def graphslam_solve_schur(H: sp.spmatrix, b: FloatArray, n_pose_vars: int) -> Fl
     cb = _banded_cholesky(Hc[:npv, :npv])
     if Hc.shape[0] == npv:
         return np.asarray(cho_solve_banded((cb, False), b), dtype=np.float64)
-    B = Hc[:npv, npv:].toarray()
+    Bs = sp.csc_matrix(Hc[:npv, npv:])
     C = Hc[npv:, npv:].toarray()
-    W = cho_solve_banded((cb, False), np.column_stack([B, b[:npv]]))
-    S = C - B.T @ W[:, :-1]
-    rhs = b[npv:] - B.T @ W[:, -1]
+    W = cho_solve_banded((cb, False), np.column_stack([Bs.toarray(), b[:npv]]))
+    BtW = np.asarray(Bs.T @ W)  # B is sparse: a landmark sees few poses
+    S = C - BtW[:, :-1]
+    rhs = b[npv:] - BtW[:, -1]
     try:
         dm = np.linalg.solve(0.5 * (S + S.T), rhs)
     except np.linalg.LinAlgError as exc:
@@ -906,12 +907,12 @@ def marginal_covariances(
         raise ValueError("the pose information matrix is singular")
     Lc = np.zeros((L, 2, 2))
     if L:
-        B = Hc[:npv, npv:].toarray()
+        Bs = sp.csc_matrix(Hc[:npv, npv:])
         C = Hc[npv:, npv:].toarray()
         from scipy.linalg import cho_solve_banded
 
-        W = cho_solve_banded((_banded_cholesky(A), False), B)
-        S = C - B.T @ W
+        W = cho_solve_banded((_banded_cholesky(A), False), Bs.toarray())
+        S = C - np.asarray(Bs.T @ W)  # B is sparse: a landmark sees few poses
         Sm = np.linalg.inv(0.5 * (S + S.T))
         j = np.arange(L)
         Lc = Sm.reshape(L, 2, L, 2)[j, :, j, :]
@@ -1637,7 +1638,7 @@ def _relabel(
 
     lm = slot[problem.obs_landmark]
     keep = np.ones(lm.size, dtype=bool) if keep_obs is None else keep_obs
-    n = int(slot.max()) + 1 if slot.size else 0
+    n = int(lm[keep].max()) + 1 if keep.any() else 0
     return replace(
         problem,
         obs_node=problem.obs_node[keep],
@@ -1703,7 +1704,11 @@ def optimize_graphslam_front_end(
 
     seen = slot >= 0
     prob = replace(problem, obs_landmark=np.maximum(slot, 0))
-    prob = _relabel(prob, np.arange(Lm.shape[0], dtype=np.int64), seen)
+    prob = _relabel(prob, np.arange(max(Lm.shape[0], 1), dtype=np.int64), seen)
+    # the Schur solver's dense (3K, 2L) block is O(K L) memory on a long log with a large map:
+    # the iterations factor the sparse system instead (the same step)
+    solver = "sparse" if cfg.solver == "schur" else cfg.solver
+    cfg = _replace_cfg(cfg, solver=solver)
     inner = _replace_cfg(cfg, covariances=False)
     res = optimize_graphslam(prob, inner, initial=(X, Lm))
     for _ in range(max_rounds):

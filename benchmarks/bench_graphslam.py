@@ -7,8 +7,8 @@ BLAS. Prints one markdown table: robot position RMSE raw (map frame) and SE(2)-a
 RMSE raw and aligned, pose ANEES, wall time of the whole run (GraphSLAM: recording the log plus
 the batch solve), and the GraphSLAM solve's iterations.
 
-Victoria Park is not run: its tree detections carry no ids, and GraphSLAM with unknown
-correspondences (Table 11.8/11.9) is not implemented yet.
+Victoria Park (unknown correspondences: GraphSLAM's front end, batch solve and Table 11.8
+merges) is in ``benchmarks/bench_landmark_family.py`` with the other estimators and GTSAM.
 
 Run: ``PROBMAP_DATA=../shared/data python benchmarks/bench_graphslam.py [--robots 1,2,3]
 [--seeds 20] [--end-time S]``.

@@ -186,3 +186,28 @@ def test_every_module_in_the_architecture_tree_exists():
     assert len(named) > 100, named  # the tree was read
     missing = [str(p.relative_to(src)) for p in named if not p.is_file()]
     assert not missing, f"docs/architecture.md names modules that do not exist: {missing}"
+
+
+# ----------------------------------------------------------------------------- imports
+def readme_imports() -> list[str]:
+    """Every ``from probmap... import ...`` line of the README's Python blocks."""
+    text = README.read_text(encoding="utf-8")
+    lines = set()
+    for block in re.findall(r"```python\n(.*?)```", text, flags=re.DOTALL):
+        for line in block.splitlines():
+            code = line.split("#", 1)[0].strip()
+            if code.startswith(("from probmap", "import probmap")):
+                lines.add(code)
+    return sorted(lines)
+
+
+def test_readme_imports_are_the_new_paths():
+    """The README's imports work and none goes through a deprecation shim (issue 19)."""
+    import warnings
+
+    lines = readme_imports()
+    assert len(lines) >= 20, lines  # the blocks were read
+    for line in lines:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", DeprecationWarning)
+            exec(line, {})  # noqa: S102 - our own README

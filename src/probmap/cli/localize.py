@@ -55,6 +55,43 @@ def _read_reference(
     return ref.times + offset, ref.laser_poses
 
 
+def _laser_offset(
+    log: Path, batch: Any, m: Any, skip_bad_lines: bool, bags: dict[str, Any] | None
+) -> Any:
+    """The laser's mounting pose in the robot frame (3,): a session's own where the log is the
+    session's (its map and poses were built with it), else ``between(robot, laser)`` of the
+    log's poses, else (a corrected log, whose laser poses are not the odometry's) the one its
+    odometry reading composes (CARMEN: PARAM ``robot_frontlaser_offset``)."""
+    import numpy as np
+
+    from probmap.datasets.scans import open_scans
+    from probmap.pipelines.localize import laser_offset_of, match_times
+
+    robot = np.asarray(batch.robot_poses)
+    if m.times is not None and m.odometry is not None:
+        i, j = match_times(batch.times, m.times)
+        if i.size:
+            mount = laser_offset_of(robot[i], m.odometry[j])
+            if mount is not None:
+                return mount
+    mount = laser_offset_of(robot, np.asarray(batch.laser_poses))
+    if mount is None:
+        odo = open_scans(
+            log, poses="odometry", skip_bad_lines=skip_bad_lines, bag_options=bags,
+            require_readings=False,
+        )  # fmt: skip
+        mount = laser_offset_of(odo.robot_poses, odo.laser_poses)
+    return np.zeros(3) if mount is None else mount
+
+
+def _describe_offset(mount: Any) -> str:
+    """``x, y m, theta deg`` of the laser in the robot frame."""
+    import math
+
+    x, y, th = (float(v) for v in mount)
+    return f"{x:.3f}, {y:.3f} m, {math.degrees(th):.1f} deg (laser in the robot frame)"
+
+
 def localize_command(
     first: Path = typer.Argument(
         ...,
@@ -79,7 +116,8 @@ def localize_command(
         ...,
         "-o",
         "--output",
-        help="Output folder (created when missing): trajectory.csv and trajectory.png.",
+        help="Output folder (created when missing): trajectory.csv (the robot's poses) and "
+        "trajectory.png.",
     ),
     particles: int | None = typer.Option(
         None, "--particles", "-n", help="Number of particles [default: 2000]."
@@ -90,8 +128,10 @@ def localize_command(
     reference: Path | None = typer.Option(
         None,
         "--reference",
-        help="Reference trajectory: CSV time,x,y,theta, or the laser poses of a CARMEN log, "
-        "ROS bag or dataset name.",
+        help="Reference trajectory of the laser, compared with the robot's poses composed with "
+        "the laser mounting (from the log's robot and laser poses): CSV time,x,y,theta (as "
+        "slam grid's trajectory.csv), or the laser poses of a CARMEN log, ROS bag or dataset "
+        "name.",
     ),
     reference_offset: float = typer.Option(
         0.0,
@@ -191,8 +231,9 @@ def localize_command(
             m = load_localization_map(map_path)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", BadLinesWarning)  # counted in the summary
+                # the log's own laser poses: beside the robot's they give the mounting
                 batch = open_scans(
-                    log, poses="odometry", skip_bad_lines=skip_bad_lines, bag_options=bags
+                    log, poses="corrected", skip_bad_lines=skip_bad_lines, bag_options=bags
                 )
             odo = np.asarray(batch.robot_poses)
             if odo.shape[0] < 2 or np.all(odo == odo[0]):
@@ -202,6 +243,7 @@ def localize_command(
                 raise CliError(f"{log}: scans with differing beam geometry are not supported")
             if not 0 <= start < len(batch.times):
                 raise CliError(f"--start {start}: the log has {len(batch.times):,} scans")
+            mount = _laser_offset(log, batch, m, skip_bad_lines, bags)
             ref_t = ref_p = None
             ref_name = None
             always = None
@@ -229,8 +271,11 @@ def localize_command(
                 # the session's own, or a part of it); otherwise the odometry frame is taken
                 # for the map frame, as with a map file
                 pose0 = m.pose_at(float(batch.times[start]))
-                if pose0 is not None:
-                    cfg = dataclasses.replace(cfg, initial_pose=tuple(float(v) for v in pose0))
+                if pose0 is not None:  # the session's pose is the laser's: the robot's is behind
+                    from probmap.geometry.se2 import compose, inverse
+
+                    robot0 = compose(pose0, inverse(mount))
+                    cfg = dataclasses.replace(cfg, initial_pose=tuple(float(v) for v in robot0))
 
         observer = None
         if viz or viz_save is not None:
@@ -268,6 +313,7 @@ def localize_command(
                         start=start,
                         stop=stop,
                         always_update=always,
+                        laser_offset=mount,
                         progress=tick,
                         observer=observer,
                     )
@@ -284,7 +330,7 @@ def localize_command(
             )
         errors = None
         if ref_t is not None and ref_p is not None:
-            errors = trajectory_errors(run, ref_t, ref_p)
+            errors = trajectory_errors(run, ref_t, ref_p, laser=True)
             if errors[0].size == 0 and reference is None:
                 errors = None  # a session's scans outside the localized part: no table
             elif errors[0].size == 0:
@@ -326,6 +372,7 @@ def localize_command(
         summary_rows = [
             ("map", f"{map_path} ({m.kind}, {m.spec.shape[1]} x {m.spec.shape[0]} cells)"),
             *input_rows(batch.readings, batch.skipped_lines),
+            ("laser offset", _describe_offset(mount)),
             ("updates", f"{run.times.size:,}"),
             ("final spread", f"{run.spread[-1]:.3f} m" if run.spread.size else "-"),
             *([("lost", run.lost.describe())] if run.lost is not None else []),

@@ -8,6 +8,12 @@ since the last update (between updates scans are skipped, as in ROS amcl), using
 The map is a map_server map or a graph-SLAM session (``probmap slam grid --save-session``):
 :func:`load_localization_map` reads either, and renders a session's occupancy grid at its
 optimized poses.
+
+Frames: the particles are *robot* poses, moved by the robot's odometry; the laser sits at
+``laser_offset`` in the robot frame (its mounting: :func:`laser_offset_of` reads it from a log's
+robot and laser poses), so a scan is weighed from ``compose(particle, laser_offset)``. Maps and
+sessions are built from laser poses, and the run gives both trajectories
+(:attr:`LocalizationRun.poses`, the robot's; :attr:`LocalizationRun.laser_poses`).
 """
 
 from __future__ import annotations
@@ -15,7 +21,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +36,7 @@ __all__ = [
     "LocalizationRun",
     "LocalizeConfig",
     "LostReport",
+    "laser_offset_of",
     "load_localization_map",
     "localize_scans",
     "match_times",
@@ -49,8 +56,8 @@ class LocalizeConfig:
     augmented : bool
         Augmented MCL (random particles, Table 8.3); always on for global localization.
     initial_pose : (x, y, theta) or None
-        Start pose in the map frame; None takes the first odometry pose (the odometry frame
-        is then assumed to coincide with the map frame at the start).
+        Start pose of the robot in the map frame; None takes the first odometry pose (the
+        odometry frame is then assumed to coincide with the map frame at the start).
     initial_std : (float, float, float)
         Standard deviations (m, m, rad) of the initial Gaussian.
     alphas : (float, float, float, float)
@@ -174,7 +181,7 @@ class LocalizationRun:
     times : (T,) ndarray
         Scan timestamps (s).
     poses : (T, 3) ndarray
-        Best-cluster pose estimates in the map frame (m, rad).
+        Best-cluster estimates of the robot pose in the map frame (m, rad).
     spread : (T,) ndarray
         Positional spread ``sqrt(var_x + var_y)`` of the particles (m).
     scan_index : (T,) int ndarray
@@ -182,8 +189,10 @@ class LocalizationRun:
     lost : LostReport or None
         Where the filter lost track (see ``LocalizeConfig.lost_spread``), None if it did not.
     particles : (N, 3) ndarray or None
-        The particle set after the last update (m, rad), for pictures; None when it is not
-        kept.
+        The particle set (robot poses) after the last update (m, rad), for pictures; None
+        when it is not kept.
+    laser_offset : (3,) ndarray
+        The laser's pose in the robot frame (m, rad) the run used.
     """
 
     times: NDArray[np.float64]
@@ -192,6 +201,17 @@ class LocalizationRun:
     scan_index: NDArray[np.int64]
     lost: LostReport | None = None
     particles: NDArray[np.float64] | None = None
+    laser_offset: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+
+    @property
+    def laser_poses(self) -> NDArray[np.float64]:
+        """(T, 3) laser poses in the map frame, ``compose(poses, laser_offset)`` (m, rad): what
+        a session's trajectory or a log's laser poses are compared with."""
+        from probmap.geometry.se2 import compose
+
+        if self.poses.shape[0] == 0:
+            return self.poses.copy()
+        return np.asarray(compose(self.poses, self.laser_offset)).reshape(-1, 3)
 
 
 @dataclass(frozen=True, eq=False)
@@ -216,6 +236,9 @@ class LocalizationMap:
     poses : (S, 3) ndarray or None
         A session's optimized sensor poses at those scans (m, rad), in the map frame: the
         run's own trajectory, which a localization in its map can be compared with.
+    odometry : (S, 3) ndarray or None
+        A session's sensor odometry at those scans (m, rad): the robot's odometry composed
+        with the mounting offset the session was built with (see :func:`laser_offset_of`).
     """
 
     spec: Any
@@ -224,6 +247,7 @@ class LocalizationMap:
     kind: str
     times: NDArray[np.float64] | None = None
     poses: NDArray[np.float64] | None = None
+    odometry: NDArray[np.float64] | None = None
 
     @property
     def observed(self) -> NDArray[np.bool_]:
@@ -312,9 +336,53 @@ def load_localization_map(path: str | os.PathLike[str]) -> LocalizationMap:
     grid = slam.map()
     prob = np.where(grid.observed, grid.probability(), np.nan)
     times, poses = slam.trajectory()
+    odometry = np.asarray(slam.scan_odometry, dtype=np.float64).reshape(-1, 3)
     return LocalizationMap(
-        grid.spec, prob, p, "session", np.asarray(times, dtype=np.float64), poses
+        grid.spec, prob, p, "session", np.asarray(times, dtype=np.float64), poses, odometry
     )
+
+
+def laser_offset_of(
+    robot_poses: ArrayLike,
+    laser_poses: ArrayLike,
+    *,
+    tolerance: tuple[float, float] = (0.01, 0.01),
+) -> NDArray[np.float64] | None:
+    """The laser's mounting pose in the robot frame, ``between(robot_pose, laser_pose)``, from
+    poses logged together (a CARMEN ``ROBOTLASER1`` or ``FLASER`` line has both; the Freiburg
+    hospital's laser sits 0.22 m ahead of the robot).
+
+    Parameters
+    ----------
+    robot_poses, laser_poses : (S, 3) array_like
+        Robot and laser poses at the same scans, one frame (m, rad).
+    tolerance : (float, float)
+        Largest deviation (m, rad) of a scan's offset from the median for the poses to
+        describe one rigid mounting.
+
+    Returns
+    -------
+    (3,) ndarray or None
+        The median offset ``(x, y, theta)`` (m, m, rad); None when the offsets differ by more
+        than ``tolerance`` (laser poses corrected by SLAM next to raw odometry, say), so that
+        they describe no mounting.
+    """
+    from probmap.geometry.se2 import between, wrap_angle
+
+    robot = np.asarray(robot_poses, dtype=np.float64).reshape(-1, 3)
+    laser = np.asarray(laser_poses, dtype=np.float64).reshape(-1, 3)
+    if robot.shape != laser.shape or robot.shape[0] == 0:
+        raise ValueError(
+            f"need robot and laser poses (S, 3) alike, got {robot.shape}, {laser.shape}"
+        )
+    d = np.asarray(between(robot, laser)).reshape(-1, 3)
+    off = np.median(d, axis=0)
+    off[2] = float(wrap_angle(off[2] + np.median(wrap_angle(d[:, 2] - off[2]))))
+    far = np.hypot(d[:, 0] - off[0], d[:, 1] - off[1])
+    turn = np.abs(wrap_angle(d[:, 2] - off[2]))
+    if float(far.max()) > tolerance[0] or float(turn.max()) > tolerance[1]:
+        return None
+    return off
 
 
 def localize_scans(
@@ -331,6 +399,7 @@ def localize_scans(
     stop: int | None = None,
     max_updates: int | None = None,
     always_update: ArrayLike | None = None,
+    laser_offset: ArrayLike = (0.0, 0.0, 0.0),
     progress: Callable[[int, int], None] | None = None,
     observer: Any = None,
 ) -> LocalizationRun:
@@ -347,9 +416,9 @@ def localize_scans(
     ranges : (S, B) array_like
         Ranges (m).
     angles : (B,) array_like
-        Beam angles (rad) in the laser frame (the laser is assumed at the robot centre).
+        Beam angles (rad) in the laser frame.
     odometry : (S, 3) array_like
-        Odometry pose at each scan (odometry frame).
+        The robot's odometry pose at each scan (odometry frame).
     log_max_range : float
         The log's maximum range (m).
     config : LocalizeConfig
@@ -360,6 +429,10 @@ def localize_scans(
     always_update : array_like of int, optional
         Scan indexes where the filter updates whatever the motion (e.g. the scans that have
         a reference pose, so that errors can be measured there).
+    laser_offset : (3,) array_like
+        The laser's pose ``(x, y, theta)`` in the robot frame (m, rad), e.g. from
+        :func:`laser_offset_of`; each particle (a robot pose) sees the scan from
+        ``compose(particle, laser_offset)``. Zero puts the laser at the robot centre.
     progress : callable, optional
         ``progress(done, total)`` in scans.
     observer : callable, optional
@@ -398,6 +471,9 @@ def localize_scans(
         raise ValueError(f"angles must be one (B,) row shared by all scans, got {a.shape}")
     if not np.all(np.isfinite(odo)):
         raise ValueError("the log's odometry holds non-finite poses")
+    mount = np.array(laser_offset, dtype=np.float64)
+    if mount.shape != (3,) or not np.all(np.isfinite(mount)):
+        raise ValueError(f"laser_offset must be 3 finite numbers (m, m, rad), got {mount.tolist()}")
     stop = s_count if stop is None else min(stop, s_count)
     if not 0 <= start < stop:
         raise ValueError(f"empty scan range [{start}, {stop})")
@@ -447,7 +523,7 @@ def localize_scans(
         small = math.hypot(d[0], d[1]) < cfg.update_distance and turn < cfg.update_angle
         if small and not forced[k]:
             continue
-        est = mcl.update_scan(odo[last], odo[k], r[k, sel], beams)
+        est = mcl.update_scan(odo[last], odo[k], r[k, sel], beams, mount)
         last = k
         p = est.best_cluster
         rows.append((t[k], p[0], p[1], p[2], est.spread, k))
@@ -475,7 +551,7 @@ def localize_scans(
     arr = np.array(rows, dtype=np.float64).reshape(-1, 6)
     run = LocalizationRun(
         arr[:, 0], arr[:, 1:4], arr[:, 4], arr[:, 5].astype(np.int64), lost=lost,
-        particles=np.array(mcl.particles),
+        particles=np.array(mcl.particles), laser_offset=mount,
     )  # fmt: skip
     if observer is not None and hasattr(observer, "finish"):
         observer.finish(run)
@@ -505,10 +581,19 @@ def match_times(
 
 
 def trajectory_errors(
-    run: LocalizationRun, ref_times: ArrayLike, ref_poses: ArrayLike, max_dt: float = 0.02
+    run: LocalizationRun,
+    ref_times: ArrayLike,
+    ref_poses: ArrayLike,
+    max_dt: float = 0.02,
+    *,
+    laser: bool = False,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Position and heading errors at the reference poses that have an update within ``max_dt``
     (the nearest update in time when several do).
+
+    The reference is a robot trajectory, compared with ``run.poses``; with ``laser=True`` it
+    is a laser trajectory (a session's, a log's laser poses), compared with
+    ``run.laser_poses``.
 
     Returns
     -------
@@ -536,6 +621,7 @@ def trajectory_errors(
     ok = ok[np.argsort(gap[ok], kind="stable")]
     _, first = np.unique(j[ok], return_index=True)
     ok = np.sort(ok[first])
-    d = run.poses[ok] - rp[j[ok]]
+    est = run.laser_poses if laser else run.poses
+    d = est[ok] - rp[j[ok]]
     heading = np.abs((d[:, 2] + np.pi) % (2 * np.pi) - np.pi)
     return np.hypot(d[:, 0], d[:, 1]), heading

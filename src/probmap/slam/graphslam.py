@@ -639,14 +639,14 @@ class _Linearizer:
             Rt = np.zeros((c.size, 3, 3))
             Rt[:, 0, 0], Rt[:, 0, 1], Rt[:, 1, 0], Rt[:, 1, 1] = c, s, -s, c
             Rt[:, 2, 2] = 1.0
-            em = np.einsum("sij,sj->si", Rt, ew)
+            em = (Rt @ ew[:, :, None])[:, :, 0]
             if S is None:
                 Om = self.body_information
             else:
                 Om = _information(np.einsum("sij,sjk,slk->sil", Rt, S, Rt))
-            cost += float(np.einsum("si,sij,sj->", em, Om, em))
+            cost += float(((Om @ em[:, :, None])[:, :, 0] * em).sum())
             if jacobians:
-                Ji = -np.einsum("sij,sjk->sik", Rt, F)
+                Ji = -(Rt @ F)
                 if self.invariant:
                     Ji[:, 0, 2] += -s * ew[:, 0] + c * ew[:, 1]
                     Ji[:, 1, 2] += -c * ew[:, 0] - s * ew[:, 1]
@@ -656,7 +656,7 @@ class _Linearizer:
             zh, Hx, Hm = _measurements(p.measurement_model, X, Lm, p.obs_node, p.obs_landmark)
             ez = zh - p.z
             ez[:, 1] = wrap_angle(ez[:, 1])
-            chi2 = np.einsum("ki,ij,kj->k", ez, self.R_inv, ez)
+            chi2 = ((ez @ self.R_inv) * ez).sum(axis=1)
             rho, w = _robust(chi2, self.cfg.robust, self.cfg.scale)
             rho = np.where(self.active, rho, 0.0)
             w = np.where(self.active, w, 0.0)
@@ -672,17 +672,17 @@ class _Linearizer:
         b[:3] -= p.prior_information @ r["prior"]
         if "motion" in r:
             em, J, Om = r["motion"]  # J (S, 3, 6): d e / d (x_i, x_j)
-            JtO = np.einsum("sji,sjk->sik", J, Om)  # (S, 6, 3)
-            vals.append(np.einsum("sik,skl->sil", JtO, J).ravel())
-            np.add.at(b, self.idx_motion, -np.einsum("sik,sk->si", JtO, em))
+            JtO = J.transpose(0, 2, 1) @ Om  # (S, 6, 3)
+            vals.append((JtO @ J).ravel())
+            np.add.at(b, self.idx_motion, -(JtO @ em[:, :, None])[:, :, 0])
         chi2 = np.zeros(0)
         w = np.zeros(0)
         if "meas" in r:
             ez, Hx, Hm, chi2, w = r["meas"]
             J = np.concatenate([Hx, Hm], axis=2)  # (k, 2, 5)
-            JtO = np.einsum("kji,jl->kil", J, self.R_inv) * w[:, None, None]
-            vals.append(np.einsum("kil,klm->kim", JtO, J).ravel())
-            np.add.at(b, self.idx_meas, -np.einsum("kil,kl->ki", JtO, ez))
+            JtO = (J.transpose(0, 2, 1) @ self.R_inv) * w[:, None, None]
+            vals.append((JtO @ J).ravel())
+            np.add.at(b, self.idx_meas, -(JtO @ ez[:, :, None])[:, :, 0])
         H = self.pattern.matrix(np.concatenate(vals))
         return LinearizedSystem(H, b, cost, chi2, w, 3 * p.n_nodes)
 
@@ -1564,9 +1564,12 @@ def landmark_pair_covariances(H: sp.spmatrix, n_pose_vars: int, landmarks: IntAr
         )
     except RuntimeError as exc:
         raise ValueError(f"the information matrix is singular ({exc})") from exc
-    E = np.zeros((n, rows.size))
-    E[rows, np.arange(rows.size)] = 1.0
-    C = np.asarray(lu.solve(E), dtype=np.float64)[rows]
+    C = np.empty((rows.size, rows.size))
+    for a in range(0, rows.size, 128):  # columns in chunks: (n, 128) at a time, not (n, 2m)
+        cols = rows[a : a + 128]
+        E = np.zeros((n, cols.size))
+        E[cols, np.arange(cols.size)] = 1.0
+        C[:, a : a + cols.size] = np.asarray(lu.solve(E), dtype=np.float64)[rows]
     return 0.5 * (C + C.T)
 
 

@@ -917,10 +917,10 @@ def marginal_covariances(
         j = np.arange(L)
         Lc = Sm.reshape(L, 2, L, 2)[j, :, j, :]
         Wr = W.reshape(K, 3, 2 * L)
-        WS = Wr @ Sm
-        Pn += np.einsum("kaj,kbj->kab", WS, Wr)
+        WS = (W @ Sm).reshape(K, 3, 2 * L)  # one GEMM, not K small ones
+        Pn += WS @ Wr.transpose(0, 2, 1)
         if K > 1:
-            Pc += np.einsum("kaj,kbj->kab", WS[:-1], Wr[1:])
+            Pc += WS[:-1] @ Wr[1:].transpose(0, 2, 1)
     return Pn, Pc, Lc
 
 
@@ -1399,12 +1399,10 @@ def graphslam_associate(
     Lm : ndarray, shape (L, 2)
         Its landmarks (``L = slot.max() + 1``).
     """
-    from probmap.slam.association import chi2_gate
-
     if not 0 < gate_probability <= new_landmark_probability < 1:
         raise ValueError("need 0 < gate_probability <= new_landmark_probability < 1")
-    gate = chi2_gate(gate_probability)
-    new_gate = chi2_gate(new_landmark_probability)
+    gate = _chi2_gate_2dof(gate_probability)
+    new_gate = _chi2_gate_2dof(new_landmark_probability)
     K = problem.n_nodes
     model = problem.measurement_model
     if K > 1:

@@ -113,7 +113,23 @@ class LiveView:
             self._rec.spawn(connect=False)
             sinks.append(rr.GrpcSink())
         self._rec.set_sinks(*sinks)
-        self._rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Y_UP, static=True)
+        # one 2-D view of the map frame and one plot of the run's numbers; without this
+        # layout the viewer guesses, and a view-coordinates hint on "world" made it add an
+        # empty 3-D view. The map frame is y-up, a 2-D view is y-down: "world" is mirrored
+        # in y under the view's root, so the map reads as in the pictures.
+        import rerun.blueprint as rrb
+
+        self._rec.send_blueprint(
+            rrb.Blueprint(
+                rrb.Horizontal(
+                    rrb.Spatial2DView(origin="/", contents="/world/**", name="map"),
+                    rrb.TimeSeriesView(origin="/stats", name="stats"),
+                    column_shares=[3, 1],
+                ),
+                collapse_panels=True,
+            )
+        )
+        self._rec.log("world", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
 
     # ----------------------------------------------------------------- primitives
     def step(self, scan: int) -> None:
@@ -272,7 +288,10 @@ class GraphSlamObserver:
         while self._submaps < len(slam.submaps) and slam.submaps[self._submaps].finished:
             sm = slam.submaps[self._submaps]
             v.points(
-                f"world/submaps/{sm.index}", sm.occupied_points(), color=(20, 20, 20), radius=0.03
+                f"world/submaps/{sm.index}",
+                sm.occupied_points(),
+                color=(215, 215, 215),
+                radius=0.03,
             )
             v.frame(f"world/submaps/{sm.index}", poses[sm.anchor])
             self._submaps += 1

@@ -64,6 +64,32 @@ def test_recording_round_trip_and_all_or_nothing(tmp_path):
         LiveView("probmap test")
 
 
+def test_recording_carries_a_2d_layout_and_a_y_up_map_frame(tmp_path):
+    """The recording brings its own layout: one 2-D view and one time-series plot, no 3-D
+    view; and ``world`` is mirrored in y (a 2-D view is y-down, the map frame y-up)."""
+    from rerun.chunk import RrdReader
+
+    rrd = tmp_path / "run.rrd"
+    with LiveView("probmap test", save=rrd) as view:
+        view.step(0)
+        view.points("world/scan", [[0.0, 1.0]])
+    reader = RrdReader(rrd)
+    (blueprint,) = reader.blueprints()
+    kinds = []
+    for chunk in reader.store(store=blueprint).stream():
+        table = chunk.to_record_batch()
+        if "ViewBlueprint:class_identifier" in table.schema.names:
+            kinds += [k for row in table.column("ViewBlueprint:class_identifier").to_pylist()
+                      for k in row]  # fmt: skip
+    assert sorted(kinds) == ["2D", "TimeSeries"]
+    scales = []
+    for chunk in reader.store().stream():
+        table = chunk.to_record_batch()
+        if chunk.entity_path == "/world" and "Transform3D:scale" in table.schema.names:
+            scales += table.column("Transform3D:scale").to_pylist()
+    assert scales and np.allclose(np.asarray(scales[-1]).ravel(), [1.0, -1.0, 1.0])
+
+
 def test_ellipse_is_the_two_sigma_contour():
     cov = np.array([[0.09, 0.03], [0.03, 0.04]])
     pts = _ellipse(np.array([1.0, -2.0]), cov)

@@ -4,6 +4,7 @@ bad inputs."""
 
 from __future__ import annotations
 
+import json
 import math
 import warnings
 
@@ -157,3 +158,32 @@ def test_compare_runs_fastslam_beside_the_ekf(monkeypatch):
     )
     assert res.exit_code == 0, res.output
     assert "EKF" in res.output and "FastSLAM" in res.output
+
+
+def test_cli_unknown_ids_writes_a_map_and_records_p0(monkeypatch, tmp_path):
+    """probmap slam fastslam simulation --unknown --p0 0.01: landmarks chosen by association,
+    p0 recorded in config.yaml."""
+    from dataclasses import replace
+
+    from typer.testing import CliRunner
+
+    from probmap.cli import register
+    from probmap.cli.app import app
+    from probmap.datasets import registry
+
+    register(app)
+    small = replace(registry.DATASETS["simulation"], options={"n_landmarks": 15, "n_steps": 80})
+    monkeypatch.setitem(registry.DATASETS, "simulation", small)
+    out = tmp_path / "fs"
+    res = CliRunner().invoke(
+        app,
+        ["slam", "fastslam", "simulation", "-o", str(out), "--unknown", "--p0", "0.01",
+         "-n", "20", "--no-plot"],
+        env={"COLUMNS": "200"},
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert "new_landmark_likelihood: 0.01" in (out / "config.yaml").read_text()
+    rows = (out / "landmarks.csv").read_text().strip().splitlines()
+    assert len(rows) > 1  # a header and the mapped landmarks
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["landmarks"]["matched_by"] == "nearest"  # no ids reached the filter

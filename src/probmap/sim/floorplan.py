@@ -68,14 +68,21 @@ def floor_plan(
 
 def floor_plan_route(size: tuple[float, float] = (20.0, 12.0)) -> NDArray[np.float64]:
     """Waypoints (N, 2) of a tour of :func:`floor_plan`: along the corridor, into every room
-    through its door and back, from the west end of the corridor to its east end (metres)."""
-    w_m, _ = size
+    through its door and back, from the west end of the corridor to its east end (metres).
+    Rooms above the corridor less than 3 m deep (``size[1] < 10``) are left out."""
+    w_m, h_m = size
+    # the corridor lies between y = 5 and 7 m whatever the size: the rooms above it are
+    # h_m - 7 m deep, and the tour enters them only when they are deep enough to turn in
+    # (3 m; 5 m at the default size), so that it never crosses the outer wall
+    upper = h_m - 7.0 >= 3.0
     pts: list[tuple[float, float]] = [(0.8, 6.0)]
     x = 0.0
     while x < w_m - 1e-9:
         door_x = x + 2.0
         pts += [(door_x, 6.0), (door_x, 3.0), (x + 1.2, 1.5), (x + 3.0, 1.5), (door_x, 3.0)]
-        pts += [(door_x, 6.0), (door_x, 9.0), (x + 3.0, 10.8), (x + 1.2, 10.8), (door_x, 9.0)]
+        if upper:
+            top = h_m - 1.2
+            pts += [(door_x, 6.0), (door_x, 9.0), (x + 3.0, top), (x + 1.2, top), (door_x, 9.0)]
         pts += [(door_x, 6.0)]
         x += 4.0
     pts.append((w_m - 0.8, 6.0))

@@ -919,16 +919,20 @@ def marginal_covariances(
         C = Hc[npv:, npv:].toarray()
         from scipy.linalg import cho_solve_banded
 
-        W = cho_solve_banded((_banded_cholesky(A), False), Bs.toarray())
+        W = cho_solve_banded((_banded_cholesky(A), False), Bs.toarray(), overwrite_b=True)
         S = C - np.asarray(Bs.T @ W)  # B is sparse: a landmark sees few poses
         Sm = np.linalg.inv(0.5 * (S + S.T))
         j = np.arange(L)
         Lc = Sm.reshape(L, 2, L, 2)[j, :, j, :]
         Wr = W.reshape(K, 3, 2 * L)
-        WS = (W @ Sm).reshape(K, 3, 2 * L)  # one GEMM, not K small ones
-        Pn += WS @ Wr.transpose(0, 2, 1)
-        if K > 1:
-            Pc += WS[:-1] @ Wr[1:].transpose(0, 2, 1)
+        step = 1024  # nodes per GEMM: large products, and no second (3K, 2L) array
+        for a in range(0, K, step):
+            e = min(K, a + step) - a
+            WS = (W[3 * a : 3 * (a + e)] @ Sm).reshape(e, 3, 2 * L)
+            Pn[a : a + e] += WS[:e] @ Wr[a : a + e].transpose(0, 2, 1)
+            n_cross = min(e, K - 1 - a)
+            if n_cross > 0:
+                Pc[a : a + n_cross] += WS[:n_cross] @ Wr[a + 1 : a + 1 + n_cross].transpose(0, 2, 1)
     return Pn, Pc, Lc
 
 

@@ -107,9 +107,15 @@ def dump_config(cfg: Any) -> str:
     return text
 
 
-def write_config(path: str | os.PathLike[str], cfg: Any) -> Path:
-    """Write :func:`dump_config` of ``cfg`` to ``path`` atomically; returns the path."""
+def write_config(path: str | os.PathLike[str], cfg: Any, *, command: str | None = None) -> Path:
+    """Write :func:`dump_config` of ``cfg`` to ``path`` atomically; returns the path.
+
+    ``command`` (the command line that made the outputs, on one line) is recorded on a comment
+    line at the top, ``# command: ...``, which loading ignores."""
     text = dump_config(cfg)
+    if command is not None:
+        one_line = command.replace("\r", "\\r").replace("\n", "\\n")
+        text = f"# command: {one_line}\n" + text
     with atomic_write(path, "w", encoding="utf-8") as f:
         f.write(text)
     return Path(path)

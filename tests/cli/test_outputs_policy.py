@@ -248,7 +248,10 @@ COMMANDS = [
         prefix=False,
     ),
     Command(
-        "demo", lambda i, o, f: ["demo", "-o", o], tuple(f"map{s}" for s in MAPPED), prefix=False
+        "demo",
+        lambda i, o, f: ["demo", "-o", o],
+        (*(f"map{s}" for s in MAPPED), "map.config.yaml"),
+        prefix=False,
     ),
     Command(
         "demo --semantic",

@@ -35,13 +35,9 @@ def write_run_config(path: str | os.PathLike[str], cfg: Any) -> Path:
     """Write the frozen config dataclass ``cfg`` as YAML to ``path`` atomically (inside the
     command's :func:`probmap._atomic.atomic_outputs` block, with its other outputs), preceded
     by a ``# command: ...`` comment line; returns the path."""
-    from probmap._atomic import atomic_write
-    from probmap.config import dump_config
+    from probmap.config import write_config
 
-    text = f"# command: {command_line()}\n" + dump_config(cfg)
-    with atomic_write(path, "w", encoding="utf-8") as f:
-        f.write(text)
-    return Path(path)
+    return write_config(path, cfg, command=command_line())
 
 
 def config_over(base: Any, path: Any = None, overrides: dict[str, Any] | None = None) -> Any:

@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
+from probmap.cli._provenance import command_line
+
 if TYPE_CHECKING:
     from probmap.pipelines import MappingConfig
     from probmap.pipelines.distributed import DistributedMappingResult
@@ -71,7 +73,7 @@ def run_map_method_distributed(
     except DistributedMappingError as exc:
         raise CliError(str(exc)) from None
     with atomic_outputs() as outputs:  # the map files and the bag: all or none
-        mapping = write_map(output, result, config)
+        mapping = write_map(output, result, config, command=command_line())
         rows = mapping_rows(mapping)
         if to_bag is not None:
             rows.append(("wrote", str(write_bag(outputs, to_bag, log, mapping, bag_options))))
@@ -129,7 +131,7 @@ def run_map_distributed(
             _inputs_table(exc.result)
         raise CliError(f"{exc} (no map written; --allow-partial writes the others)") from None
     with atomic_outputs() as outputs:  # the map files and the bag: all or none
-        mapping = write_map(output, result.as_mapping_result(), config)
+        mapping = write_map(output, result.as_mapping_result(), config, command=command_line())
         rows = mapping_rows(mapping)
         if to_bag is not None:
             rows.append(("wrote", str(write_bag(outputs, to_bag, logs[0], mapping, bag_options))))

@@ -10,6 +10,7 @@ from typing import Any
 
 import typer
 
+from probmap.cli._provenance import command_line
 from probmap.cli.common import (
     bag_options_of,
     cli_errors,
@@ -252,7 +253,7 @@ def _graph(
     try:
         with watch("write"), atomic_outputs():  # every file or none
             files = write_graph_slam(prefix, run)
-            files.append(write_config(f"{prefix}.config.yaml", cfg))
+            files.append(write_config(f"{prefix}.config.yaml", cfg, command=command_line()))
             if save_session is not None and part is not None:
                 from probmap._atomic import atomic_write
 
@@ -407,7 +408,7 @@ def _rbpf(
     with watch("write"), atomic_outputs():  # every file or none; a missing folder is created
         files = save_map(prefix, result.grid)
         traj = write_trajectory(f"{prefix}.trajectory.csv", result.times, result.poses)
-        written = write_config(f"{prefix}.config.yaml", cfg)
+        written = write_config(f"{prefix}.config.yaml", cfg, command=command_line())
         extra: list[Path] = []
         if tum:
             from probmap.datasets.tum import write_tum

@@ -61,7 +61,9 @@ def run_map_method(
             )
 
         result = map_log_map(log, config, tick, map_config=mcfg, bag_options=bag_options)
-    result = write_map(output, result, config)
+    from probmap.cli._provenance import command_line
+
+    result = write_map(output, result, config, command=command_line())
     ex = result.extra
     # the pipeline times its own phases; the total is the whole command's
     watch.phases.update(

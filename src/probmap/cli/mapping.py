@@ -9,6 +9,7 @@ from typing import Any
 
 import typer
 
+from probmap.cli._provenance import command_line
 from probmap.cli.common import (
     Stopwatch,
     bag_options_of,
@@ -262,7 +263,7 @@ def _map_one(
         with watch("write"), progress_bar(unit="maps") as bar:
             bar.add_task(f"writing {prefix.name}.*", total=1)
             with atomic_outputs() as outputs:  # the map files and the bag: all or none
-                result = write_map(prefix, result, cfg)
+                result = write_map(prefix, result, cfg, command=command_line())
                 files = [str(f) for f in result.files]
                 if to_bag is not None:
                     from probmap.datasets.rosbag import RosBag, write_map_to_bag
@@ -345,7 +346,7 @@ def demo_command(
         with progress_bar(unit="runs") as bar:
             bar.add_task("simulating, mapping and writing the demo", total=1)
             setup = watch.total  # imports, checks
-            demo = run_mapping_demo(prefix, seed=seed, config=cfg)
+            demo = run_mapping_demo(prefix, seed=seed, config=cfg, command=command_line())
         m = demo.mapping
         # the pipeline times its phases; the stopwatch's total covers the whole command
         watch.phases.update(

@@ -13,6 +13,7 @@ from typing import Any
 
 import typer
 
+from probmap.cli._provenance import command_line
 from probmap.cli.common import CliError, Stopwatch, cli_errors, print_summary
 from probmap.cli.watch import (
     interrupted_exit,
@@ -242,7 +243,9 @@ def run_and_report(
                 if dataclasses.is_dataclass(cfg) and not isinstance(cfg, type):
                     from probmap.config import write_config
 
-                    files.append(write_config(output / "config.yaml", cfg))  # exact, loadable
+                    files.append(  # exact, loadable
+                        write_config(output / "config.yaml", cfg, command=command_line())
+                    )
                 bar.advance(task, 2)
                 if tum:
                     from probmap.datasets.tum import write_tum

@@ -279,12 +279,16 @@ def _without_padding(stats: ScanStats, batch: Any, scans: int | None = None) -> 
 
 
 def write_map(
-    prefix: str | os.PathLike[str], result: MappingResult, config: Any = None
+    prefix: str | os.PathLike[str],
+    result: MappingResult,
+    config: Any = None,
+    *,
+    command: str | None = None,
 ) -> MappingResult:
     """Write ``PREFIX.yaml``, ``.pgm``, ``.npz``, ``.png`` and the picture ``PREFIX.plot.png``
     (axes in metres, a scale bar, the input's name, the trajectory), and with ``config`` (the
     :class:`MappingConfig` the map was built with) ``PREFIX.config.yaml`` (with the probmap
-    version), all-or-nothing (creating a missing folder); returns the result with the files and
+    version, and ``command``, the command line, on its first line), all-or-nothing (creating a missing folder); returns the result with the files and
     the write time filled in."""
     from dataclasses import replace
 
@@ -304,7 +308,7 @@ def write_map(
         if config is not None:
             from probmap.config import write_config
 
-            files.append(write_config(f"{prefix}.config.yaml", config))
+            files.append(write_config(f"{prefix}.config.yaml", config, command=command))
     return replace(
         result, files=tuple(Path(f) for f in files), write_seconds=time.perf_counter() - t0
     )
@@ -326,13 +330,15 @@ def run_mapping_demo(
     seed: int = 0,
     resolution: float = 0.05,
     config: MappingConfig | None = None,
+    command: str | None = None,
 ) -> DemoResult:
     """Map the simulated floor plan (range noise, dropped beams) and score it against the truth.
 
     Accuracy is the fraction of observed cells whose trinary class at p = 0.5 matches the true
     map (see :func:`probmap.grid.simworld.map_accuracy`). ``config`` (a :class:`MappingConfig`:
-    resolution, inverse sensor model, prior, clamp) replaces ``resolution`` and is recorded as
-    ``PREFIX.config.yaml``; its log-reading fields (``max_range``, ``poses``,
+    resolution, inverse sensor model, prior, clamp) replaces ``resolution``; the configuration
+    used (``MappingConfig(resolution=resolution)`` without one) is recorded as
+    ``PREFIX.config.yaml`` with ``command`` on its first line; its log-reading fields (``max_range``, ``poses``,
     ``skip_bad_lines``) do not apply to the simulation.
     """
     from probmap.metrics.map import map_accuracy
@@ -341,7 +347,9 @@ def run_mapping_demo(
     t0 = time.perf_counter()
     world = simulate_laser_world(seed=seed, resolution=0.05, range_noise=0.02, dropout=0.01)
     t1 = time.perf_counter()
-    grid = (config if config is not None else MappingConfig(resolution=resolution)).make_grid()
+    if config is None:
+        config = MappingConfig(resolution=resolution)
+    grid = config.make_grid()
     stats = grid.integrate_scans(world.poses, world.ranges, world.angles, max_range=world.max_range)
     t2 = time.perf_counter()
     acc, n = map_accuracy(grid.classify(0.5, 0.5), grid.spec, world.truth, world.spec)
@@ -350,7 +358,7 @@ def run_mapping_demo(
         source="probmap demo: simulated floor plan",
     )  # fmt: skip
     if prefix is not None:
-        result = write_map(prefix, result, config)
+        result = write_map(prefix, result, config, command=command)
     return DemoResult(result, acc, n, len(world.poses))
 
 

@@ -49,7 +49,7 @@ def test_slam_grid_graph_on_intel_writes_every_file(shared_data, tmp_path):
     prefix = tmp_path / "intel"
     res = run("slam", "grid", log, "-o", prefix, "--end-time", "200")
     assert res.exit_code == 0, res.output
-    suffixes = (".yaml", ".pgm", ".npz", ".png", ".trajectory.csv", ".g2o", ".slam.png")
+    suffixes = (".yaml", ".pgm", ".npz", ".png", ".trajectory.csv", ".g2o", ".plot.png")
     suffixes += (".config.yaml",)  # the resolved configuration, with the probmap version
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(f"intel{s}" for s in suffixes)
     assert len(re.findall(r"^\s*wrote\s", res.output, flags=re.MULTILINE)) == len(suffixes)

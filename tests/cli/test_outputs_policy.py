@@ -188,13 +188,13 @@ COMMANDS = [
     Command(
         "slam grid",
         lambda i, o, f: ["slam", "grid", str(i["log"]), "-o", o],
-        (*MAP, ".trajectory.csv", ".g2o", ".slam.png", ".config.yaml"),
+        (*MAP, ".trajectory.csv", ".g2o", ".plot.png", ".config.yaml"),
         default="slam",
     ),
     Command(
         "slam grid --method rbpf",
         lambda i, o, f: ["slam", "grid", str(i["log"]), "-o", o, "--method", "rbpf", "-n", "5"],
-        (*MAP, ".trajectory.csv", ".config.yaml"),
+        (*MAP, ".trajectory.csv", ".plot.png", ".config.yaml"),
         default="slam",
     ),
     Command(

@@ -112,7 +112,7 @@ def grid_command(
 ) -> None:
     """Grid SLAM from a raw log or ROS bag: writes the map (PREFIX.yaml/.pgm/.npz/.png, as
     'probmap map'), PREFIX.trajectory.csv (robot pose at every scan time) and, for the graph
-    method, the pose graph PREFIX.g2o and PREFIX.slam.png (map, trajectory, loop closures), and
+    method, the pose graph PREFIX.g2o and PREFIX.plot.png (map, trajectory, loop closures), and
     PREFIX.config.yaml (the configuration used, with the probmap version); with --tum also
     PREFIX.tum, the trajectory in the TUM format that evo reads."""
     from probmap.cli.common import Stopwatch
@@ -409,7 +409,13 @@ def _rbpf(
         files = save_map(prefix, result.grid)
         traj = write_trajectory(f"{prefix}.trajectory.csv", result.times, result.poses)
         written = write_config(f"{prefix}.config.yaml", cfg, command=command_line())
-        extra: list[Path] = []
+        from probmap.viz.maps import save_map_figure
+
+        extra: list[Path] = [
+            save_map_figure(
+                f"{prefix}.plot.png", result.grid, trajectory=result.poses, title=log.name
+            )
+        ]
         if tum:
             from probmap.datasets.tum import write_tum
 

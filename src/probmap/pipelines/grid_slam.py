@@ -337,7 +337,7 @@ def write_trajectory(path: str | os.PathLike[str], times: ArrayLike, poses: Arra
 def write_graph_slam(prefix: str | os.PathLike[str], run: GraphSlamRun) -> list[Path]:
     """Write ``PREFIX.yaml/.pgm/.npz/.png`` (the map), ``PREFIX.trajectory.csv`` (robot pose
     at every scan time), ``PREFIX.g2o`` (the optimized pose graph, laser poses) and
-    ``PREFIX.slam.png`` (map, trajectory and accepted closures, axes in metres),
+    ``PREFIX.plot.png`` (map, trajectory and accepted closures, axes in metres),
     all-or-nothing (a missing folder is created). Returns the paths written."""
     from probmap.grid.io import save_map
     from probmap.viz.grid_slam import save_graph_slam_figure
@@ -347,5 +347,5 @@ def write_graph_slam(prefix: str | os.PathLike[str], run: GraphSlamRun) -> list[
         files = list(save_map(prefix, run.grid))
         files.append(write_trajectory(f"{prefix}.trajectory.csv", run.times, run.poses))
         files.append(run.slam.write_g2o(f"{prefix}.g2o"))
-        files.append(save_graph_slam_figure(f"{prefix}.slam.png", run, title=prefix.name))
+        files.append(save_graph_slam_figure(f"{prefix}.plot.png", run, title=prefix.name))
     return files

@@ -99,3 +99,18 @@ def test_stopwatch_row_covers_the_phases():
     name, value = watch.row()
     assert name == "time" and "read 0.0 s" in value and "write 0.0 s" in value
     assert watch.total >= sum(watch.phases.values()) > 0.015
+
+
+def test_first_stopwatch_of_a_console_run_counts_the_start_up():
+    import time
+
+    from probmap.cli.common import Stopwatch, mark_process_start
+
+    t0 = time.perf_counter()
+    time.sleep(0.02)
+    mark_process_start(t0)  # as the console script does
+    first = Stopwatch()
+    assert first.phases["start-up"] >= 0.02 and first.total >= first.phases["start-up"]
+    assert "start-up" in first.row()[1]
+    second = Stopwatch()  # a later one in the same process times from its own start
+    assert "start-up" not in second.phases and second.total < first.total

@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
-import typer
+import time as _time
+
+# when the command line package was first imported: the start of a ``probmap`` process, up to
+# the interpreter's own start-up (see :func:`probmap.cli.common.mark_process_start`)
+IMPORTED_AT = _time.perf_counter()
+
+import typer  # noqa: E402
 
 
 def register(app: typer.Typer) -> None:

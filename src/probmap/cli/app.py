@@ -37,7 +37,9 @@ def _root(
 
 def main() -> None:
     """Console-script entry point."""
-    from probmap.cli import register
+    from probmap.cli import IMPORTED_AT, register
+    from probmap.cli.common import mark_process_start
 
+    mark_process_start(IMPORTED_AT)
     register(app)
     app()

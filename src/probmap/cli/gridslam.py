@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +23,7 @@ from probmap.cli.common import (
     skip_bad_lines_option,
 )
 from probmap.cli.slam import slam_app
+from probmap.cli.watch import stop_on_ctrl_c
 
 
 @slam_app.command("grid")
@@ -237,7 +236,7 @@ def _graph(
             os.close(fd)
             part = Path(name)
         try:
-            with _stop_on_ctrl_c(save_partial) as stop:
+            with stop_on_ctrl_c(save_partial, unit="scan") as stop:
                 run = run_graph_slam(
                     batch, None if session is not None else cfg, progress=tick,
                     observer=observer, stop=stop, resume=session, save_session=part,
@@ -312,36 +311,6 @@ def _time_row(watch: Any, duration: float, seconds: float) -> tuple[str, str]:
     if duration > 0:
         return name, f"{value}, SLAM {duration / max(seconds, 1e-9):.1f}x real time"
     return name, f"{value} (the log has no timestamps: no real-time factor)"
-
-
-@contextmanager
-def _stop_on_ctrl_c(enabled: bool) -> Iterator[Callable[[], bool] | None]:
-    """While active, the first Ctrl-C (SIGINT) asks the run to stop after the current scan
-    (the yielded callable then returns True) and says so; a second one raises
-    KeyboardInterrupt as usual. Disabled, or off the main thread, it changes nothing."""
-    import signal
-    import threading
-
-    if not enabled or threading.current_thread() is not threading.main_thread():
-        yield None
-        return
-    asked = [False]
-
-    def handler(signum: int, frame: Any) -> None:
-        if asked[0]:
-            raise KeyboardInterrupt
-        asked[0] = True
-        print(
-            "\nCtrl-C: stopping after this scan and writing what was mapped "
-            "(Ctrl-C again to abort)",
-            file=sys.stderr,
-        )
-
-    previous = signal.signal(signal.SIGINT, handler)
-    try:
-        yield lambda: asked[0]
-    finally:
-        signal.signal(signal.SIGINT, previous)
 
 
 def _rbpf(

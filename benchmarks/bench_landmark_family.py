@@ -247,7 +247,7 @@ def graphslam_against_gtsam(end_time: float | None) -> list[str]:
         "|---|---:|---:|---:|---:|---:|",
     ]
     for name, secs, its, X, Lm in (
-        ("GraphSLAM (GN/LM, sparse LU)", t_ours, ours.iterations, ours.nodes, ours.landmarks),
+        ("GraphSLAM (GN/LM, sparse Cholesky)", t_ours, ours.iterations, ours.nodes, ours.landmarks),
         ("GTSAM LevenbergMarquardtOptimizer", t_gtsam, opt.iterations(), X_g, L_g),
     ):
         cost = lin.residuals(X, Lm, False)[0]

@@ -600,3 +600,108 @@ def associate_front_end(
         for r in range(3):
             X[s, r] = x[r]
     return L
+
+
+@njit(cache=True)
+def cholesky_symbolic(n, Ap, Ai):  # pragma: no cover - compiled
+    """Pattern of the Cholesky factor ``L`` of a sparse symmetric matrix given by its lower
+    triangle ``Ap, Ai`` (CSC, rows sorted, diagonal present): column ``j`` of ``L`` is column
+    ``j`` of ``A`` joined with the columns of its children in the elimination tree (without
+    their own diagonal). Returns ``Lp, Li`` (CSC, rows sorted, diagonal first) and, for the
+    left-looking numeric phase, the rows of ``L`` (``Rp``; ``Rk`` the column and ``Rpos`` the
+    position in ``Li`` of every strictly lower entry)."""
+    head = np.full(n, -1, dtype=np.int64)  # children of each column (linked list)
+    nxt = np.full(n, -1, dtype=np.int64)
+    mark = np.full(n, -1, dtype=np.int64)
+    cap = max(2 * Ap[n], 16)
+    Li = np.empty(cap, dtype=np.int64)
+    Lp = np.zeros(n + 1, dtype=np.int64)
+    buf = np.empty(n, dtype=np.int64)
+    for j in range(n):
+        m = 0
+        for q in range(Ap[j], Ap[j + 1]):
+            r = Ai[q]
+            if r >= j and mark[r] != j:
+                mark[r] = j
+                buf[m] = r
+                m += 1
+        c = head[j]
+        while c != -1:
+            for q in range(Lp[c] + 1, Lp[c + 1]):
+                r = Li[q]
+                if mark[r] != j:
+                    mark[r] = j
+                    buf[m] = r
+                    m += 1
+            c = nxt[c]
+        rows = np.sort(buf[:m])
+        if Lp[j] + m > cap:
+            while Lp[j] + m > cap:
+                cap *= 2
+            grown = np.empty(cap, dtype=np.int64)
+            grown[: Lp[j]] = Li[: Lp[j]]
+            Li = grown
+        Li[Lp[j] : Lp[j] + m] = rows
+        Lp[j + 1] = Lp[j] + m
+        if m > 1:  # parent: the first row below the diagonal
+            p = rows[1]
+            nxt[j] = head[p]
+            head[p] = j
+    nnz = Lp[n]
+    Li = Li[:nnz].copy()
+    cnt = np.zeros(n + 1, dtype=np.int64)
+    for k in range(n):
+        for q in range(Lp[k] + 1, Lp[k + 1]):
+            cnt[Li[q] + 1] += 1
+    Rp = np.cumsum(cnt)
+    fill = Rp[:-1].copy()
+    Rk = np.empty(Rp[n], dtype=np.int64)
+    Rpos = np.empty(Rp[n], dtype=np.int64)
+    for k in range(n):  # columns in order: every row's entries sorted by column
+        for q in range(Lp[k] + 1, Lp[k + 1]):
+            r = Li[q]
+            Rk[fill[r]] = k
+            Rpos[fill[r]] = q
+            fill[r] += 1
+    return Lp, Li, Rp, Rk, Rpos
+
+
+@njit(cache=True)
+def cholesky_numeric(n, Ap, Ai, Ax, Lp, Li, Rp, Rk, Rpos, Lx):  # pragma: no cover - compiled
+    """Left-looking sparse Cholesky ``A = L L^T`` into ``Lx`` on the pattern of
+    :func:`cholesky_symbolic`. Returns False if ``A`` is not positive definite."""
+    w = np.zeros(n)
+    for j in range(n):
+        for q in range(Ap[j], Ap[j + 1]):
+            w[Ai[q]] = Ax[q]
+        for t in range(Rp[j], Rp[j + 1]):  # columns k < j with L[j, k] != 0
+            k = Rk[t]
+            pos = Rpos[t]
+            ljk = Lx[pos]
+            for q in range(pos, Lp[k + 1]):
+                w[Li[q]] -= Lx[q] * ljk
+        d = w[j]
+        if not d > 0.0:
+            return False
+        d = math.sqrt(d)
+        Lx[Lp[j]] = d
+        w[j] = 0.0
+        for q in range(Lp[j] + 1, Lp[j + 1]):
+            Lx[q] = w[Li[q]] / d
+            w[Li[q]] = 0.0
+    return True
+
+
+@njit(cache=True)
+def cholesky_solve(n, Lp, Li, Lx, b):  # pragma: no cover - compiled
+    """``(L L^T)^-1 b`` in place (forward, then backward substitution)."""
+    for j in range(n):
+        b[j] /= Lx[Lp[j]]
+        for q in range(Lp[j] + 1, Lp[j + 1]):
+            b[Li[q]] -= Lx[q] * b[j]
+    for j in range(n - 1, -1, -1):
+        acc = b[j]
+        for q in range(Lp[j] + 1, Lp[j + 1]):
+            acc -= Lx[q] * b[Li[q]]
+        b[j] = acc / Lx[Lp[j]]
+    return b

@@ -513,22 +513,18 @@ class _Pattern:
     """The fixed sparsity pattern of ``H``: factor blocks scattered into CSC data by index."""
 
     def __init__(self, rows: IntArray, cols: IntArray, n: int) -> None:
-        key = rows * n + cols
+        # column-major keys: sorted keys are CSC order (columns sorted, rows sorted inside)
+        key = cols * n + rows
         uniq, pos = np.unique(key, return_inverse=True)
-        self.pos = pos.astype(np.int64)
+        self.pos = pos.astype(np.int64).reshape(-1)
         self.nnz = int(uniq.size)
-        r = uniq // n
-        c = uniq % n
-        # CSC with columns sorted, rows sorted inside: order of uniq by (c, r)
-        order = np.lexsort((r, c))
-        rank = np.empty_like(order)
-        rank[order] = np.arange(order.size)
-        self.pos = rank[self.pos]
-        self.indices = r[order].astype(np.int32)
-        self.indptr = np.searchsorted(c[order], np.arange(n + 1)).astype(np.int32)
+        r = uniq % n
+        c = uniq // n
+        self.indices = r.astype(np.int32)
+        self.indptr = np.searchsorted(c, np.arange(n + 1)).astype(np.int32)
         self.n = n
         # position of (j, j) in the data (every diagonal entry is in the pattern)
-        self.diag = rank[np.searchsorted(uniq, np.arange(n, dtype=np.int64) * (n + 1))]
+        self.diag = np.searchsorted(uniq, np.arange(n, dtype=np.int64) * (n + 1))
 
     def matrix(self, values: FloatArray) -> sp.csc_matrix:
         data = np.bincount(self.pos, weights=values, minlength=self.nnz)
@@ -824,6 +820,72 @@ def _sparse_solve(H: sp.spmatrix, b: FloatArray) -> FloatArray:
     return x
 
 
+class _SparseCholesky:
+    """Sparse Cholesky solves of a sequence of systems with one sparsity pattern (the
+    Gauss-Newton iterations of one problem): the fill-reducing ordering (SuperLU's minimum
+    degree on ``H + H^T``) and the symbolic factorization (the pattern of ``L``) are computed
+    once, and each iteration runs only the numeric factorization (left-looking, numba) and two
+    triangular solves. SuperLU refactors from scratch every time (ordering, symbolic, LU of a
+    symmetric matrix), which is what dominated GraphSLAM's iterations on Victoria Park."""
+
+    def __init__(self) -> None:
+        self.indptr: IntArray | None = None
+        self.indices: IntArray | None = None
+
+    def _analyze(self, H: sp.csc_matrix) -> Any:
+        n = H.shape[0]
+        lu = splu(
+            H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
+        )
+        pinv = np.asarray(lu.perm_c, dtype=np.int64)  # old index -> new
+        self.perm = np.argsort(pinv)  # new index -> old
+        cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(H.indptr))
+        a, c = pinv[H.indices], pinv[cols]
+        t = np.flatnonzero(a >= c)  # the lower triangle of the permuted matrix
+        order = np.lexsort((a[t], c[t]))
+        self.tmap = t[order]
+        self.Ai = a[self.tmap]
+        self.Ap = np.searchsorted(c[self.tmap], np.arange(n + 1)).astype(np.int64)
+        self.Lp, self.Li, self.Rp, self.Rk, self.Rpos = _k.cholesky_symbolic(n, self.Ap, self.Ai)
+        self.indptr, self.indices = H.indptr.copy(), H.indices.copy()
+        return lu
+
+    def solve(self, H: sp.spmatrix, b: FloatArray) -> FloatArray:
+        Hc = sp.csc_matrix(H)
+        Hc.sort_indices()
+        n = Hc.shape[0]
+        if n == 0:
+            return np.zeros(0)
+        if not (
+            self.indptr is not None
+            and self.indices is not None
+            and np.array_equal(self.indptr, Hc.indptr)
+            and np.array_equal(self.indices, Hc.indices)
+        ):
+            try:
+                lu = self._analyze(Hc)
+            except RuntimeError as exc:  # "Factor is exactly singular"
+                raise ValueError(f"the information matrix is singular ({exc})") from exc
+            x = np.asarray(lu.solve(b), dtype=np.float64)  # the ordering's LU solves this one
+            if not np.all(np.isfinite(x)):
+                raise ValueError("the information matrix is singular (non-finite solution)")
+            return x
+        Lx = np.empty(self.Li.size)
+        Ax = np.ascontiguousarray(Hc.data[self.tmap], dtype=np.float64)
+        ok = _k.cholesky_numeric(
+            n, self.Ap, self.Ai, Ax, self.Lp, self.Li, self.Rp, self.Rk, self.Rpos, Lx
+        )
+        if not ok:  # not positive definite to working precision: the general LU decides
+            return _sparse_solve(Hc, b)
+        y = np.ascontiguousarray(b[self.perm], dtype=np.float64)
+        _k.cholesky_solve(n, self.Lp, self.Li, Lx, y)
+        x = np.empty(n)
+        x[self.perm] = y
+        if not np.all(np.isfinite(x)):
+            raise ValueError("the information matrix is singular (non-finite solution)")
+        return x
+
+
 def _pose_band(A: sp.spmatrix) -> FloatArray:
     """Upper band storage (``scipy.linalg.cholesky_banded``, 5 superdiagonals) of the pose
     block, which is block tridiagonal with 3x3 blocks (a chain of motion factors)."""
@@ -998,22 +1060,30 @@ def _gauss_newton(
     lam = cfg.initial_lambda
     its = 0
     converged = False
+    chol = _SparseCholesky()
     while its < cfg.max_iterations:
         its += 1
         accepted = False
         while True:
-            Hd = sysm.H if lam == 0 else sysm.H + sp.diags(lam * dscale, format="csc")
+            Hd = sysm.H
+            if lam != 0:  # on the diagonal entries of the fixed pattern (no explicit zero drops)
+                Hd = sysm.H.copy()
+                Hd.data[lin.pattern.diag] += lam * dscale
             if cfg.solver == "reduced":
                 delta = graphslam_solve_reduced(Hd, sysm.b, sysm.n_pose_vars)
             elif cfg.solver == "schur":
                 delta = graphslam_solve_schur(Hd, sysm.b, sysm.n_pose_vars)
             else:
-                delta = _sparse_solve(Hd, sysm.b)
+                delta = chol.solve(Hd, sysm.b)
             Xn, Ln = _apply(X, Lm, delta)
+            # linearize at the trial point at once: steps are mostly accepted, and then the
+            # next iteration needs exactly this system (one residual evaluation, not two)
+            trial: LinearizedSystem | None
             try:
-                new_cost, _ = lin.residuals(Xn, Ln, False)
+                trial = lin.linearize(Xn, Ln)
+                new_cost = trial.cost
             except ValueError:  # e.g. a landmark moved onto a sensor: reject the step
-                new_cost = np.inf
+                trial, new_cost = None, np.inf
             if new_cost <= sysm.cost:
                 accepted = True
                 break
@@ -1026,7 +1096,8 @@ def _gauss_newton(
         drop = sysm.cost - new_cost
         X, Lm = Xn, Ln
         lam = lam / 10.0
-        sysm = lin.linearize(X, Lm)
+        assert trial is not None  # accepted steps have a finite cost
+        sysm = trial
         dscale = np.maximum(sysm.H.diagonal(), 1e-12)
         if (
             drop <= cfg.relative_tolerance * max(sysm.cost, 1e-300)

@@ -215,17 +215,23 @@ def compare_command(
                 v = v[k]
             return f"{v:.3f}"
 
-        columns: list[tuple[str, tuple[str, ...]]] = [
-            ("robot m", ("ate", "translation_m", "rmse")),
-            ("robot al. m", ("ate_aligned", "translation_m", "rmse")),
-            ("landmark m", ("landmarks", "error_m", "rmse")),
-            ("landmark al. m", ("landmarks_aligned", "error_m", "rmse")),
-            ("GPS m", ("gps", "rmse_m")),
-            ("ANEES", ("pose_nees", "mean")),
-        ]
+        # (header, metrics keys, what the footnote says of it); only columns some run fills
+        columns: list[tuple[str, tuple[str, ...], str]] = [
+            ("robot", ("ate", "translation_m", "rmse"), "robot position RMSE, map frame"),
+            ("robot al", ("ate_aligned", "translation_m", "rmse"),
+             "the same after the SE(2) fit of the trajectory onto the reference"),
+            ("lm", ("landmarks", "error_m", "rmse"), "landmark RMSE, map frame"),
+            ("lm al", ("landmarks_aligned", "error_m", "rmse"),
+             "the same after the SE(2) fit of the landmarks onto the truth"),
+            ("GPS al", ("gps", "rmse_m"),
+             "RMSE against GPS after the SE(2) fit of the trajectory onto the fixes"),
+            ("ANEES", ("pose_nees", "mean"),
+             "pose ANEES, the mean NEES over the steps: 3 (the pose's dof) when consistent, "
+             "larger = overconfident"),
+        ]  # fmt: skip
         columns = [c for c in columns if any(get(m, *c[1]) != "-" for _, m, _, _ in runs)]
         table.add_column("estimator", no_wrap=True)
-        for col in ["ms/step", "median", "state MiB", "map"] + [c[0] for c in columns]:
+        for col in ["ms/step", "median", "MiB", "map"] + [c[0] for c in columns]:
             table.add_column(col, justify="right")
         for name, m, est, _ in runs:
             table.add_row(
@@ -236,16 +242,20 @@ def compare_command(
                 f"{m['landmarks_mapped']:,}",
                 *[get(m, *c[1]) for c in columns],
             )
-        Console().print(table)
-        Console().print(
-            "ms/step: mean (median) wall time of predict + update; map: landmarks mapped; robot m, "
-            "landmark m, GPS m: RMSE against ground truth / landmark truth / GPS (aligned)."
-        )
+        console = Console()
+        if not console.is_terminal:  # piped: no terminal width to respect, never cut a figure
+            console = Console(width=160)
+        console.print(table)
+        notes = [
+            "ms/step: mean wall time of predict + update; median: its median",
+            "MiB: the estimator's state (mean and covariance or information)",
+            "map: landmarks mapped",
+            *(f"{c[0]}: {c[2]}" for c in columns if c[0] != "ANEES"),
+            *(c[2] for c in columns if c[0] == "ANEES"),
+        ]
         peak = max(r.peak_rss_bytes for _, _, _, r in runs)
-        Console().print(
-            f"process peak RSS {peak / 2**20:.1f} MiB (all runs). pose ANEES = mean NEES over "
-            "the steps: 3 (the pose's dof) for a consistent filter, larger = overconfident."
-        )
+        notes.append(f"errors in metres; process peak RSS {peak / 2**20:.1f} MiB (all runs)")
+        Console().print(".\n".join(notes) + ".")
         name, value = watch.row()
         Console().print(f"{name} {value}")
 

@@ -1,0 +1,44 @@
+"""``probmap slam compare``'s table and footnote (issue 21: the footnote named columns that were
+not in the table and called an unaligned RMSE "aligned")."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+from typer.testing import CliRunner
+
+import probmap.cli.seif
+from probmap.cli import register
+from probmap.cli.app import app
+
+register(app)
+
+
+@pytest.fixture
+def small(monkeypatch):
+    from probmap.datasets.simulation import simulate_landmarks
+
+    ds = simulate_landmarks(30, 40, seed=3)
+    monkeypatch.setattr(probmap.cli.seif, "open_landmark_dataset", lambda *args: ds)
+
+
+def test_footnote_explains_exactly_the_columns_shown(small):
+    res = CliRunner().invoke(app, ["slam", "compare", "simulation", "--methods", "ekf,seif"])
+    assert res.exit_code == 0, res.output
+    lines = res.output.splitlines()
+    head = next(ln for ln in lines if "estimator" in ln)
+    headers = [h.strip() for h in re.split(r"[┃│]", head) if h.strip()]
+    assert headers[:5] == ["estimator", "ms/step", "median", "MiB", "map"]
+    errors = headers[5:]
+    assert errors == ["robot", "robot al", "lm", "lm al", "ANEES"]  # no GPS in a simulation
+    notes = {ln.split(":", 1)[0] for ln in lines if re.match(r"^[\w/ ]+: ", ln)}
+    for col in errors[:-1]:
+        assert col in notes, (col, notes)
+    assert "GPS al" not in notes and "GPS" not in res.output.split("┘")[-1]
+    unaligned = next(ln for ln in lines if ln.startswith("robot: "))
+    aligned = next(ln for ln in lines if ln.startswith("robot al: "))
+    assert "fit" not in unaligned and "SE(2) fit" in aligned
+    for row in ("EKF", "SEIF-10"):  # no figure cut short
+        cells = next(ln for ln in lines if ln.strip("│ ").startswith(row))
+        assert "…" not in cells

@@ -24,9 +24,10 @@ How the book's tables map onto this module:
   diagonal because no factor joins two landmarks), :func:`graphslam_solve_reduced` solves for
   the poses and recovers each landmark from its own block (Table 11.4 line 6). This is an exact
   reformulation of the full sparse solve (``GraphSLAMConfig(solver="reduced")``; a test checks
-  both agree); the default ``solver="sparse"`` factors the whole system with a fill-reducing
-  sparse LU (SuperLU in symmetric mode) instead, which never forms the reduced pose matrix (it
-  fills in wherever poses share a landmark).
+  both agree); ``solver="sparse"`` factors the whole system by sparse Cholesky with a
+  fill-reducing ordering instead (SuperLU's minimum degree; ordering and symbolic factorization
+  once per problem), which never forms the reduced pose matrix (it fills in wherever poses share
+  a landmark).
 * Table 11.5 (the known-correspondence loop): :func:`optimize_graphslam`, Gauss-Newton with
   Levenberg-Marquardt damping, repeated linearization until the cost stops falling.
 * Tables 11.8-11.9 (unknown correspondences): :func:`graphslam_correspondence_test` is the
@@ -142,8 +143,9 @@ class GraphSLAMConfig:
     solver : {"schur", "sparse", "reduced"}
         The linear solve of each iteration: ``"schur"`` (default) eliminates the poses, a
         banded chain, by banded Cholesky and solves the landmarks' dense Schur complement;
-        ``"sparse"`` factors the whole system with SuperLU; ``"reduced"`` is the book's
-        reduction onto the poses (Tables 11.3-11.4). All three give the same step.
+        ``"sparse"`` factors the whole system by sparse Cholesky (ordering and symbolic
+        factorization once per problem, a numeric factor per iteration); ``"reduced"`` is the
+        book's reduction onto the poses (Tables 11.3-11.4). All three give the same step.
     initialization : {"incremental", "dead_reckoning"}
         Start from Table 11.1's dead reckoning, or (default) from growing prefixes of the log
         solved one after the other, each extended by dead reckoning (see

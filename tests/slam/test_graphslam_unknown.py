@@ -363,3 +363,29 @@ def test_sparse_cholesky_falls_back_on_an_indefinite_matrix():
     chol.solve(H, b)
     Hi = sp.csc_matrix(np.array([[2.0, 1.0, 0.0], [1.0, -3.0, 1.0], [0.0, 1.0, 4.0]]))
     np.testing.assert_allclose(chol.solve(Hi, b), np.linalg.solve(Hi.toarray(), b), atol=1e-12)
+
+
+# ------------------------------------------------------------------------------ real data
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_victoria_park_first_200_s(shared_data):
+    """Victoria Park's first 200 s (ids unknown): GraphSLAM's front end, batch solve and merges
+    track the GPS about as well as the EKF (within 15 %) and far better than dead reckoning."""
+    from probmap.datasets.victoria_park import VictoriaPark
+    from probmap.pipelines.landmark_slam import default_ekf_config
+    from probmap.slam.ekf import EKFSLAM
+
+    ds = VictoriaPark(shared_data("victoria-park"), end_time=200.0)
+    gs = evaluate(run_landmark_slam(build_graphslam(ds, GraphSLAMConfig()), ds), ds)
+    ekf = EKFSLAM(
+        ds.motion_model,
+        ds.measurement_model,
+        ds.initial_pose,
+        ds.initial_covariance,
+        default_ekf_config(ds),
+    )
+    me = evaluate(run_landmark_slam(ekf, ds), ds, with_dead_reckoning=False)
+    g, e = gs["gps"]["rmse_m"], me["gps"]["rmse_m"]
+    assert g < 1.15 * e
+    assert g < 0.5 * gs["dead_reckoning_gps"]["rmse_m"]
+    assert 20 <= gs["landmarks_mapped"] <= 2 * me["landmarks_mapped"]

@@ -200,6 +200,33 @@ def test_merge_joins_a_split_landmark_and_never_two_seen_together():
     assert slot2 is None or slot2[target] != slot2[L]
 
 
+def test_negative_evidence_drops_a_landmark_seen_once_then_missed():
+    """The EKF's provisional-landmark rule replayed on the smoothed path: on a simulation that
+    sees every landmark in range and field of view, the landmarks keep their confirmation,
+    while one whose later sightings are removed (seen once, then in view and not seen) goes."""
+    from probmap.slam.graphslam import _confirmed_before_misses
+
+    sim = _sim(3, True, n=10, steps=120)
+    cfg = GraphSLAMConfig(
+        covariances=False, visibility_range=10.0, visibility_fov=math.pi, max_misses=3
+    )
+    prob = _record(build_graphslam(sim, cfg), sim).problem()
+    res = optimize_graphslam(prob, cfg)
+    ok = _confirmed_before_misses(prob, res.nodes, res.landmarks, cfg)
+    assert ok.mean() >= 0.9
+    counts = np.bincount(prob.obs_landmark)
+    j = int(counts.argmax())
+    first = int(np.flatnonzero(prob.obs_landmark == j)[0])
+    keep = (prob.obs_landmark != j) | (np.arange(prob.z.shape[0]) == first)
+    thinned = replace(
+        prob, obs_node=prob.obs_node[keep], obs_landmark=prob.obs_landmark[keep], z=prob.z[keep]
+    )
+    ok2 = _confirmed_before_misses(thinned, res.nodes, res.landmarks, cfg)
+    assert not ok2[j]
+    others = np.arange(prob.n_landmarks) != j
+    np.testing.assert_array_equal(ok2[others], ok[others])
+
+
 # ------------------------------------------------------------------------------ GTSAM
 def test_batch_solve_equals_gtsam_on_a_small_landmark_graph():
     """The same cost in GTSAM (the prior and odometry residuals of GraphSLAM as custom factors,

@@ -162,6 +162,12 @@ class GraphSLAMConfig:
         maximum-likelihood association and of a new landmark (:func:`graphslam_associate`).
     min_observations : int
         Unknown correspondences: landmarks seen fewer times are dropped at the end.
+    visibility_range, visibility_fov, max_misses
+        Unknown correspondences, negative evidence (the EKF's rule for provisional landmarks,
+        section 10.3.3, applied on the smoothed path): a landmark that is within
+        ``visibility_range`` (m) and the field of view ``visibility_fov`` (rad, centred on the
+        sensor's heading) of more than ``max_misses`` poses that do not see it before it has
+        been seen ``min_observations`` times is dropped. None (default) turns it off.
     merge_radius : float
         Unknown correspondences: landmark pairs closer than this (m) are tested (Table 11.8).
     """
@@ -184,6 +190,9 @@ class GraphSLAMConfig:
     new_landmark_probability: float = 0.9999
     min_observations: int = 3
     merge_radius: float = 5.0
+    visibility_range: float | None = None
+    visibility_fov: float = 2 * math.pi
+    max_misses: int = 3
 
     def __post_init__(self) -> None:
         mi = self.max_iterations
@@ -254,6 +263,17 @@ class GraphSLAMConfig:
             raise ValueError(f"min_observations must be an integer >= 1, got {mo!r}")
         if not (_finite_number(self.merge_radius) and self.merge_radius > 0):
             raise ValueError(f"merge_radius must be a positive number, got {self.merge_radius}")
+        if self.visibility_range is not None and not (
+            _finite_number(self.visibility_range) and self.visibility_range > 0
+        ):
+            raise ValueError(
+                f"visibility_range must be a positive number or None, got {self.visibility_range}"
+            )
+        if not (_finite_number(self.visibility_fov) and self.visibility_fov > 0):
+            raise ValueError(f"visibility_fov must be a positive number, got {self.visibility_fov}")
+        mm = self.max_misses
+        if isinstance(mm, bool) or not isinstance(mm, (int, np.integer)) or mm < 0:
+            raise ValueError(f"max_misses must be an integer >= 0, got {mm!r}")
 
     @property
     def scale(self) -> float:
@@ -1741,6 +1761,53 @@ def _mean_by_slot(Lm: FloatArray, slot: IntArray) -> FloatArray:
     return out / np.bincount(slot, minlength=n)[:, None]
 
 
+def _confirmed_before_misses(
+    problem: GraphSLAMProblem, X: FloatArray, Lm: FloatArray, cfg: GraphSLAMConfig
+) -> BoolArray:
+    """Which landmarks reach ``min_observations`` sightings before more than ``max_misses``
+    poses (after their first sighting) had them in view without seeing them: the EKF's
+    provisional-landmark rule (section 10.3.3) replayed on the smoothed path. Only poses that
+    observed something count (the scans)."""
+    from scipy.spatial import cKDTree
+
+    assert cfg.visibility_range is not None
+    L = Lm.shape[0]
+    ok = np.ones(L, dtype=bool)
+    if L == 0:
+        return ok
+    scans = np.unique(problem.obs_node)
+    dx, dy, dth = problem.measurement_model.sensor_offset
+    c, s = np.cos(X[scans, 2]), np.sin(X[scans, 2])
+    sensor = np.column_stack([X[scans, 0] + c * dx - s * dy, X[scans, 1] + s * dx + c * dy])
+    near = cKDTree(sensor).query_ball_tree(cKDTree(Lm), float(cfg.visibility_range))
+    node = np.repeat(scans, [len(v) for v in near])
+    lm = np.fromiter((j for v in near for j in v), dtype=np.int64, count=node.size)
+    d = Lm[lm] - sensor[np.searchsorted(scans, node)]
+    bearing = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - X[node, 2] - dth)
+    vis = np.abs(bearing) <= 0.5 * cfg.visibility_fov
+    node, lm = node[vis], lm[vis]
+    seen = set(zip(problem.obs_node.tolist(), problem.obs_landmark.tolist(), strict=True))
+    first = np.full(L, np.iinfo(np.int64).max)
+    np.minimum.at(first, problem.obs_landmark, problem.obs_node)
+    # every (node, landmark) event after the first sighting, in time order: hit or miss
+    after = node >= first[lm]
+    node, lm = node[after], lm[after]
+    hit = np.array(
+        [(n, j) in seen for n, j in zip(node.tolist(), lm.tolist(), strict=True)], dtype=np.int64
+    )
+    order = np.lexsort((node, lm))
+    lm, hit = lm[order], hit[order]
+    need = int(cfg.min_observations)
+    bounds = np.searchsorted(lm, np.arange(L + 1))
+    for j in range(L):
+        h = hit[bounds[j] : bounds[j + 1]]
+        confirmed_at = np.flatnonzero(np.cumsum(h) >= need)
+        stop = int(confirmed_at[0]) if confirmed_at.size else h.size
+        if int((1 - h[:stop]).sum()) > cfg.max_misses:
+            ok[j] = False
+    return ok
+
+
 def optimize_graphslam_front_end(
     problem: GraphSLAMProblem,
     config: GraphSLAMConfig | None = None,
@@ -1810,6 +1877,8 @@ def optimize_graphslam_front_end(
         res = optimize_graphslam(prob, inner, initial=(res.nodes, Lm))
     count = np.bincount(prob.obs_landmark, minlength=prob.n_landmarks)
     strong = count >= int(cfg.min_observations)
+    if cfg.visibility_range is not None:
+        strong &= _confirmed_before_misses(prob, res.nodes, res.landmarks, cfg)
     if not strong.all():
         new = np.cumsum(strong) - 1
         keep = strong[prob.obs_landmark]

@@ -183,9 +183,13 @@ def compare_command(
             elif method == "seif":
                 estimators.append((seif_name, _seif(ds, seif_cfg)))
             elif method == "fastslam":
+                from probmap.pipelines.landmark_slam import default_fastslam_config
                 from probmap.slam.fastslam import FastSLAM
 
-                fs = FastSLAM(ds.motion_model, ds.measurement_model, ds.initial_pose)
+                fs = FastSLAM(
+                    ds.motion_model, ds.measurement_model, ds.initial_pose,
+                    default_fastslam_config(ds),
+                )  # fmt: skip
                 estimators.append(("FastSLAM-2.0", fs))
             else:
                 from probmap.pipelines.landmark_slam import default_graphslam_config

@@ -445,12 +445,10 @@ def fastslam_command(
         check_output_folder(output)
         with watch("read"):
             ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
-        if config is None and type(ds).__name__ == "VictoriaPark":
-            import dataclasses
-            import math
+        if config is None:  # a file gives every field; without one, the dataset's defaults
+            from probmap.pipelines.landmark_slam import default_fastslam_config
 
-            # trees are expected within 25 m ahead, as the EKF's miss counting assumes
-            cfg = dataclasses.replace(cfg, visibility_range=25.0, visibility_fov=math.pi)
+            cfg = default_fastslam_config(ds, cfg)
         slam = FastSLAM(ds.motion_model, ds.measurement_model, ds.initial_pose, cfg)
         title = f"FastSLAM {cfg.version}.0 ({cfg.n_particles} particles)"
         run_and_report(

@@ -393,6 +393,24 @@ def default_graphslam_config(dataset: object) -> Any:
     return GraphSLAMConfig()
 
 
+def default_fastslam_config(dataset: object, config: Any = None) -> Any:
+    """FastSLAM settings suited to a dataset, mirroring :func:`default_ekf_config`: ``config``
+    (a :class:`~probmap.slam.fastslam.FastSLAMConfig`, default its defaults) with the dataset's
+    fields set.
+
+    * Victoria Park: trees are expected within 25 m ahead (half plane), for the counter that
+      removes spurious landmarks (Table 13.2), as the EKF's miss counting assumes.
+    """
+    import dataclasses
+
+    from probmap.slam.fastslam import FastSLAMConfig
+
+    cfg = config if config is not None else FastSLAMConfig()
+    if type(dataset).__name__ == "VictoriaPark":
+        return dataclasses.replace(cfg, visibility_range=25.0, visibility_fov=float(np.pi))
+    return cfg
+
+
 def _atomic_text(path: Path, text: str) -> Path:
     return atomic_save(path, lambda f: f.write(text), mode="w")
 

@@ -56,6 +56,32 @@ def _seif_config(config: Path | None, max_active: int | None, context_hops: int 
     return dataclasses.replace(cfg, max_active=None) if max_active == 0 else cfg
 
 
+COMPARED = ("ekf", "seif", "graphslam", "fastslam")
+
+
+def _sections(config: Path | None) -> dict[str, str] | None:
+    """``slam compare --config``: ``{method: YAML text of its section}`` when the file's top
+    level holds only method names (``ekf:``, ``seif:``, ``graphslam:``, ``fastslam:``); None
+    when it is a plain SeifConfig file (or there is no file)."""
+    if config is None:
+        return None
+    import yaml
+
+    try:
+        data = yaml.safe_load(Path(config).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return None  # load_config reports it, naming the file
+    if not (isinstance(data, dict) and data and set(data) <= set(COMPARED)):
+        return None
+    return {k: yaml.safe_dump(v if v is not None else {}) for k, v in data.items()}
+
+
+def _section_config(cls: type, sections: dict[str, str], method: str, config: Path | None) -> Any:
+    from probmap.config import load_config
+
+    return load_config(cls, sections[method], source=f"{config}: {method}")
+
+
 def _seif(ds: Any, cfg: Any) -> Any:
     from probmap.slam.seif import build_seif
 
@@ -130,7 +156,12 @@ def compare_command(
         None, "--context-hops", help=CONTEXT_HELP + " [default: 0]"
     ),
     config: Path | None = typer.Option(
-        None, "--config", help=CONFIG_HELP.replace("SeifConfig fields", "SEIF's SeifConfig fields")
+        None,
+        "--config",
+        help="A YAML file with one section per method (ekf: EKFConfig, seif: SeifConfig, "
+        "graphslam: GraphSLAMConfig, fastslam: FastSLAMConfig fields; a section replaces that "
+        "method's dataset defaults), or SEIF's SeifConfig fields alone; --max-active and "
+        "--context-hops override SEIF's.",
     ),
     data_dir: Path | None = data_dir_option(),
     robot: int = robot_option(),
@@ -159,10 +190,23 @@ def compare_command(
         from probmap.slam.ekf import EKFSLAM
 
         chosen = [m.strip().lower() for m in methods.split(",") if m.strip()]
-        known = ("ekf", "seif", "graphslam", "fastslam")
-        if not chosen or any(m not in known for m in chosen):
-            raise ValueError(f"--methods takes a list of {', '.join(known)}, got {methods!r}")
-        seif_cfg = _seif_config(config, max_active, context_hops)
+        if not chosen or any(m not in COMPARED for m in chosen):
+            raise ValueError(f"--methods takes a list of {', '.join(COMPARED)}, got {methods!r}")
+        sections = _sections(config)
+        if sections is None:
+            seif_cfg = _seif_config(config, max_active, context_hops)
+        else:
+            seif_cfg = _seif_config(None, max_active, context_hops)
+            if "seif" in sections:
+                import dataclasses
+
+                base = _section_config(type(seif_cfg), sections, "seif", config)
+                options = {"max_active": max_active, "context_hops": context_hops}
+                set_: dict[str, Any] = {k: v for k, v in options.items() if v is not None}
+                if set_.get("max_active") == 0:
+                    set_["max_active"] = None
+                seif_cfg = dataclasses.replace(base, **set_)
+        own = sections or {}
         with watch("read"):
             ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
         runs = []
@@ -172,30 +216,41 @@ def compare_command(
         estimators: list[tuple[str, Any]] = []
         for method in dict.fromkeys(chosen):
             if method == "ekf":
+                from probmap.slam.ekf import EKFConfig
+
                 est: Any = EKFSLAM(
                     ds.motion_model,
                     ds.measurement_model,
                     ds.initial_pose,
                     ds.initial_covariance,
-                    default_ekf_config(ds),
+                    _section_config(EKFConfig, own, "ekf", config)
+                    if "ekf" in own
+                    else default_ekf_config(ds),
                 )
                 estimators.append(("EKF", est))
             elif method == "seif":
                 estimators.append((seif_name, _seif(ds, seif_cfg)))
             elif method == "fastslam":
                 from probmap.pipelines.landmark_slam import default_fastslam_config
-                from probmap.slam.fastslam import FastSLAM
+                from probmap.slam.fastslam import FastSLAM, FastSLAMConfig
 
-                fs = FastSLAM(
-                    ds.motion_model, ds.measurement_model, ds.initial_pose,
-                    default_fastslam_config(ds),
-                )  # fmt: skip
-                estimators.append(("FastSLAM-2.0", fs))
+                fs_cfg = (
+                    _section_config(FastSLAMConfig, own, "fastslam", config)
+                    if "fastslam" in own
+                    else default_fastslam_config(ds)
+                )
+                fs = FastSLAM(ds.motion_model, ds.measurement_model, ds.initial_pose, fs_cfg)
+                estimators.append((f"FastSLAM-{fs_cfg.version}.0", fs))
             else:
                 from probmap.pipelines.landmark_slam import default_graphslam_config
-                from probmap.slam.graphslam import build_graphslam
+                from probmap.slam.graphslam import GraphSLAMConfig, build_graphslam
 
-                estimators.append(("GraphSLAM", build_graphslam(ds, default_graphslam_config(ds))))
+                gs_cfg = (
+                    _section_config(GraphSLAMConfig, own, "graphslam", config)
+                    if "graphslam" in own
+                    else default_graphslam_config(ds)
+                )
+                estimators.append(("GraphSLAM", build_graphslam(ds, gs_cfg)))
         for k, (name, est) in enumerate(estimators, start=1):
             label = f"{name} ({k}/{len(estimators)})"
             with watch("compute"):

@@ -26,3 +26,14 @@ def test_other_datasets_keep_the_given_configuration():
     base = FastSLAMConfig(seed=3)
     assert default_fastslam_config(object(), base) is base
     assert default_fastslam_config(object()) == FastSLAMConfig()
+
+
+def test_graphslam_on_victoria_park_uses_the_ekfs_landmark_rule():
+    from probmap.pipelines.landmark_slam import default_graphslam_config
+
+    ekf = default_ekf_config(VictoriaPark())
+    cfg = default_graphslam_config(VictoriaPark())
+    assert cfg.visibility_range == ekf.visibility_range
+    assert math.isclose(cfg.visibility_fov, ekf.visibility_fov)
+    assert cfg.max_misses == ekf.max_misses
+    assert default_graphslam_config(object()).visibility_range is None

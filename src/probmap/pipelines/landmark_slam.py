@@ -385,11 +385,17 @@ def default_graphslam_config(dataset: object) -> Any:
 
     * MRCLAM: measurements beyond the 0.9999 chi-square gate (barcode misreads) are dropped
       and the log is solved again, as the EKF rejects them.
+    * Victoria Park: trees are expected within 25 m ahead (half plane); a landmark in view of
+      more than 3 poses that do not see it before its third sighting is dropped, the EKF's
+      rule for spurious landmarks (:func:`default_ekf_config`).
     """
     from probmap.slam.graphslam import GraphSLAMConfig
 
-    if type(dataset).__name__ == "MRCLAM":
+    kind = type(dataset).__name__
+    if kind == "MRCLAM":
         return GraphSLAMConfig(outlier_probability=0.9999)
+    if kind == "VictoriaPark":
+        return GraphSLAMConfig(visibility_range=25.0, visibility_fov=float(np.pi), max_misses=3)
     return GraphSLAMConfig()
 
 

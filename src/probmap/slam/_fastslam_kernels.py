@@ -79,6 +79,16 @@ def tree_incref(refc, nodes):  # pragma: no cover - compiled
             refc[nodes[i]] += 1
 
 
+@njit(cache=True, inline="always")
+def _copy_gaussian(dst_mean, dst_cov, src_mean, src_cov):  # pragma: no cover - compiled
+    """Copy one landmark filter: mean (2,) and covariance (2, 2)."""
+    dst_mean[0] = src_mean[0]
+    dst_mean[1] = src_mean[1]
+    for i in range(2):
+        for j in range(2):
+            dst_cov[i, j] = src_cov[i, j]
+
+
 @njit(cache=True)
 def tree_gather(
     child, mean, cov, count, roots, cols, depth, out_mean, out_cov, out_count, out_found
@@ -98,11 +108,7 @@ def tree_gather(
         if x == 0:
             continue
         out_found[m] = True
-        out_mean[m, 0] = mean[x, 0]
-        out_mean[m, 1] = mean[x, 1]
-        for i in range(2):
-            for j in range(2):
-                out_cov[m, i, j] = cov[x, i, j]
+        _copy_gaussian(out_mean[m], out_cov[m], mean[x], cov[x])
         out_count[m] = count[x]
 
 
@@ -135,11 +141,7 @@ def _writable_path(
                     child[y, b] = child[x, b]
                     if child[x, b] != 0:
                         refc[child[x, b]] += 1
-                mean[y, 0] = mean[x, 0]
-                mean[y, 1] = mean[x, 1]
-                for i in range(2):
-                    for j in range(2):
-                        cov[y, i, j] = cov[x, i, j]
+                _copy_gaussian(mean[y], cov[y], mean[x], cov[x])
                 count[y] = count[x]
                 refc[x] -= 1  # the copy replaces it on this path (still held elsewhere)
             if parent < 0:
@@ -168,11 +170,7 @@ def tree_scatter(
             continue
         leaf, _ = _writable_path(child, refc, mean, cov, count, free, top, roots, m, c, depth,
                                  copied)  # fmt: skip
-        mean[leaf, 0] = new_mean[m, 0]
-        mean[leaf, 1] = new_mean[m, 1]
-        for i in range(2):
-            for j in range(2):
-                cov[leaf, i, j] = new_cov[m, i, j]
+        _copy_gaussian(mean[leaf], cov[leaf], new_mean[m], new_cov[m])
         count[leaf] = new_count[m]
 
 
@@ -231,11 +229,7 @@ def tree_dense(
             if lev == 0:
                 if c < n_cols:
                     out_found[m, c] = True
-                    out_mean[m, c, 0] = mean[x, 0]
-                    out_mean[m, c, 1] = mean[x, 1]
-                    for i in range(2):
-                        for j in range(2):
-                            out_cov[m, c, i, j] = cov[x, i, j]
+                    _copy_gaussian(out_mean[m, c], out_cov[m, c], mean[x], cov[x])
                     out_count[m, c] = count[x]
                 continue
             for b in range(1, -1, -1):

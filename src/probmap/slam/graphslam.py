@@ -1381,7 +1381,18 @@ def _merge_pass(
     nodes: list[set[int]] = [set() for _ in range(L)]
     for n, j in zip(problem.obs_node, problem.obs_landmark, strict=True):
         nodes[int(j)].add(int(n))
-    parent = np.arange(L)
+    return _join_most_likely_first(pairs, d2, nodes)
+
+
+def _join_most_likely_first(
+    pairs: IntArray, d2: FloatArray, nodes: list[set[int]]
+) -> IntArray | None:
+    """Join the landmark ``pairs`` (P, 2) that passed the correspondence test, smallest
+    Mahalanobis distance ``d2`` first (union-find), unless the two groups were seen from one
+    pose (``nodes[j]``: the poses that observed landmark ``j``; two observations at one time
+    are two landmarks). Returns the new slot of each of the ``len(nodes)`` landmarks, or None
+    when nothing was joined. ``nodes`` is updated in place."""
+    parent = np.arange(len(nodes))
 
     def root(a: int) -> int:
         while parent[a] != a:
@@ -1399,7 +1410,7 @@ def _merge_pass(
         merged = True
     if not merged:
         return None
-    roots = np.array([root(i) for i in range(L)])
+    roots = np.array([root(i) for i in range(len(nodes))])
     _, slot = np.unique(roots, return_inverse=True)
     return slot.astype(np.int64)
 
@@ -1711,28 +1722,7 @@ def _merge_candidates(
     pairs, d2 = pairs[ok], d2[ok]
     if pairs.size == 0:
         return None
-    sets = [set(int(v) for v in nodes[j]) for j in range(L)]
-    parent = np.arange(L)
-
-    def root(a: int) -> int:
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = int(parent[a])
-        return a
-
-    merged = False
-    for a, b in pairs[np.argsort(d2)]:
-        ra, rb = root(int(a)), root(int(b))
-        if ra == rb or sets[ra] & sets[rb]:
-            continue
-        parent[rb] = ra
-        sets[ra] |= sets[rb]
-        merged = True
-    if not merged:
-        return None
-    roots = np.array([root(i) for i in range(L)])
-    _, slot = np.unique(roots, return_inverse=True)
-    return slot.astype(np.int64)
+    return _join_most_likely_first(pairs, d2, [set(int(v) for v in nodes[j]) for j in range(L)])
 
 
 def _relabel(

@@ -20,11 +20,15 @@ to first order only: the table gives each solution's cost under both, and its GP
 process is pinned to one core (``sched_setaffinity``), so GTSAM's threads run single-threaded
 as GraphSLAM does.
 
-Part 3 is the row for FastSLAM 2.0 per step at 1,000 landmarks against the EKF:
-:func:`fastslam_vs_ekf_at_1000_landmarks` (filled by the FastSLAM work of the same issue).
+Part 3 is FastSLAM 2.0 per step at 1,000 landmarks against the EKF
+(:func:`fastslam_vs_ekf_at_1000_landmarks`, the world of ``bench_fastslam.py``).
+
+``--dataset mrclam7 --robot N`` runs part 1 on an MRCLAM robot (known ids; the table then has
+the robot and landmark RMSE after the SE(2) fit); ``fastslam1`` is FastSLAM 1.0.
 
 Run: ``PROBMAP_DATA=../shared/data python benchmarks/bench_landmark_family.py
-[--end-time S] [--methods ekf,seif,graphslam,fastslam] [--no-gtsam]``.
+[--end-time S] [--methods ekf,seif,graphslam,fastslam,fastslam1] [--dataset NAME --robot N]
+[--no-gtsam] [--no-fastslam-speed]``.
 """
 
 from __future__ import annotations
@@ -42,10 +46,13 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 
 
-def _dataset(end_time: float | None) -> Any:
+def _dataset(end_time: float | None, name: str = "victoria-park", robot: int | None = None) -> Any:
     from probmap.datasets import registry
 
-    return registry.load("victoria-park", end_time=end_time)
+    options: dict[str, Any] = {"end_time": end_time}
+    if robot is not None:
+        options["robot"] = robot
+    return registry.load(name, **options)
 
 
 def _estimator(method: str, ds: Any) -> Any:
@@ -69,18 +76,26 @@ def _estimator(method: str, ds: Any) -> Any:
         from probmap.slam.graphslam import build_graphslam
 
         return build_graphslam(ds, default_graphslam_config(ds))
-    if method == "fastslam":
+    if method in ("fastslam", "fastslam1"):
+        import dataclasses
+
+        from probmap.pipelines.landmark_slam import default_fastslam_config
         from probmap.slam.fastslam import FastSLAM
 
-        return FastSLAM(ds.motion_model, ds.measurement_model, ds.initial_pose)
+        cfg = default_fastslam_config(ds)
+        if method == "fastslam1":
+            cfg = dataclasses.replace(cfg, version=1)
+        return FastSLAM(ds.motion_model, ds.measurement_model, ds.initial_pose, cfg)
     raise ValueError(f"unknown method {method!r}")
 
 
-def _run_method(method: str, end_time: float | None) -> dict[str, float]:
+def _run_method(
+    method: str, end_time: float | None, name: str = "victoria-park", robot: int | None = None
+) -> dict[str, float]:
     """One method on the log, in its own process (peak RSS is this process's)."""
     from probmap.pipelines.landmark_slam import evaluate, run_landmark_slam
 
-    ds = _dataset(end_time)
+    ds = _dataset(end_time, name, robot)
     est = _estimator(method, ds)
     t0 = time.perf_counter()
     res = run_landmark_slam(est, ds)
@@ -93,13 +108,21 @@ def _run_method(method: str, end_time: float | None) -> dict[str, float]:
         "peak_mib": m["peak_rss_mb"],
         "landmarks": float(m["landmarks_mapped"]),
         "gps": float(m.get("gps", {}).get("rmse_m", float("nan"))),
+        "ate_aligned": float(
+            m.get("ate_aligned", {}).get("translation_m", {}).get("rmse", float("nan"))
+        ),
+        "landmarks_aligned": float(
+            m.get("landmarks_aligned", {}).get("error_m", {}).get("rmse", float("nan"))
+        ),
     }
 
 
-def _in_process(method: str, end_time: float | None) -> dict[str, float]:
+def _in_process(
+    method: str, end_time: float | None, name: str = "victoria-park", robot: int | None = None
+) -> dict[str, float]:
     ctx = mp.get_context("spawn")
     with ctx.Pool(1) as pool:
-        return pool.apply(_run_method, (method, end_time))
+        return pool.apply(_run_method, (method, end_time, name, robot))
 
 
 # ------------------------------------------------------------------------------ GTSAM
@@ -260,38 +283,70 @@ def graphslam_against_gtsam(end_time: float | None) -> list[str]:
 
 
 # ------------------------------------------------------------------------------ FastSLAM slot
-def fastslam_vs_ekf_at_1000_landmarks() -> list[str] | None:
-    """Part 3 (the FastSLAM work of issue 22 fills this in): FastSLAM 2.0 with 100 particles
-    against the EKF, time per step with 1,000 landmarks in the map. Returns markdown rows, or
-    None while it is not written."""
-    return None
+def fastslam_vs_ekf_at_1000_landmarks(steps: int = 300) -> list[str] | None:
+    """Part 3: FastSLAM 2.0 with 100 particles (shared landmark tree) against the EKF, time
+    per step (predict + update) with 1,000 landmarks in the map, on the loop world of
+    ``bench_fastslam.py`` (the whole map given as a prior to both, so each really holds 1,000
+    landmarks; the first fifth of the steps not timed). Returns markdown rows."""
+    import sys
+
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from bench_fastslam import _fastslam_with_prior, _time_steps
+    from bench_seif import _ekf_with_prior
+    from probmap.datasets.simulation import simulate_landmarks
+
+    ds = simulate_landmarks(1000, steps, seed=1, density=0.03, loop_radius=15.0)
+    lm = ds.landmarks_xy
+    assert lm is not None
+    seq = list(ds)
+    warm = steps // 5
+    fs = _time_steps(_fastslam_with_prior(ds, lm, 100, "tree"), seq)[warm:]
+    ekf = _time_steps(_ekf_with_prior(ds, lm), seq)[warm:]
+    f_ms, e_ms = 1e3 * float(np.median(fs)), 1e3 * float(np.median(ekf))
+    return [
+        "| landmarks | EKF ms / step | FastSLAM 2.0 ms / step | EKF / FastSLAM |",
+        "|---:|---:|---:|---:|",
+        f"| 1,000 | {e_ms:.2f} | {f_ms:.2f} | {e_ms / f_ms:.1f}x |",
+    ]
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--end-time", type=float, default=None)
     ap.add_argument("--methods", default="ekf,seif,graphslam,fastslam")
+    ap.add_argument("--dataset", default="victoria-park", help="A registry name (mrclam7, ...).")
+    ap.add_argument("--robot", type=int, default=None, help="MRCLAM robot (1-5).")
     ap.add_argument("--no-gtsam", action="store_true")
+    ap.add_argument("--no-fastslam-speed", action="store_true")
     args = ap.parse_args()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
+    where = args.dataset + (f" robot {args.robot}" if args.robot is not None else "")
+    print(f"{where}, {'whole log' if args.end_time is None else f'first {args.end_time:g} s'}\n")
     print(
-        "| method | ms / step | total s | peak RSS MiB | landmarks mapped | GPS RMSE m |\n"
-        "|---|---:|---:|---:|---:|---:|"
+        "| method | ms / step | total s | peak RSS MiB | landmarks mapped | GPS RMSE m "
+        "| robot RMSE aligned m | landmark RMSE aligned m |\n"
+        "|---|---:|---:|---:|---:|---:|---:|---:|"
     )
+
+    def fmt(v: float) -> str:
+        return "-" if np.isnan(v) else f"{v:.3f}"
+
     for method in [m for m in args.methods.split(",") if m]:
-        r = _in_process(method, args.end_time)
+        r = _in_process(method, args.end_time, args.dataset, args.robot)
         print(
             f"| {method} | {r['ms_per_step']:.3f} | {r['seconds']:.1f} | {r['peak_mib']:.0f} | "
-            f"{int(r['landmarks'])} | {r['gps']:.3f} |",
+            f"{int(r['landmarks'])} | {fmt(r['gps'])} | {fmt(r['ate_aligned'])} "
+            f"| {fmt(r['landmarks_aligned'])} |",
             flush=True,
         )
-    if not args.no_gtsam:
+    if not args.no_gtsam and args.dataset == "victoria-park":
         print()
         print("\n".join(graphslam_against_gtsam(args.end_time)), flush=True)
-    rows = fastslam_vs_ekf_at_1000_landmarks()
-    print("\nFastSLAM 2.0 vs EKF at 1,000 landmarks:")
-    print("\n".join(rows) if rows else "(not measured yet: fastslam_vs_ekf_at_1000_landmarks)")
+    if not args.no_fastslam_speed:
+        rows = fastslam_vs_ekf_at_1000_landmarks()
+        print("\nFastSLAM 2.0 (100 particles) vs EKF at 1,000 landmarks:")
+        print("\n".join(rows or []))
 
 
 if __name__ == "__main__":

@@ -200,7 +200,7 @@ COMMANDS = [
     Command(
         "semantic",
         lambda i, o, f: ["semantic", str(i["scans"]), "-o", o, "-r", "0.1"],
-        (".npz", ".png", *(f".occupancy{s}" for s in MAP), ".config.yaml"),
+        (".npz", ".png", *(f".occupancy{s}" for s in MAP), ".occupancy.plot.png", ".config.yaml"),
         default="semantic",
     ),
     Command(
@@ -256,7 +256,12 @@ COMMANDS = [
     Command(
         "demo --semantic",
         lambda i, o, f: ["demo", "--semantic", "-o", o],
-        ("semantic.npz", "semantic.png", *(f"semantic.occupancy{s}" for s in MAP)),
+        (
+            "semantic.npz",
+            "semantic.png",
+            *(f"semantic.occupancy{s}" for s in MAP),
+            "semantic.occupancy.plot.png",
+        ),  # fmt: skip
         prefix=False,
     ),
     Command(

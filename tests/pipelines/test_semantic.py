@@ -14,6 +14,7 @@ def test_demo_writes_maps(tmp_path):
         "semantic.npz",
         "semantic.occupancy.npz",
         "semantic.occupancy.pgm",
+        "semantic.occupancy.plot.png",
         "semantic.occupancy.png",
         "semantic.occupancy.yaml",
         "semantic.png",

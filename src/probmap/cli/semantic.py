@@ -131,6 +131,14 @@ def semantic_command(
                     bar.update(task, completed=min(start + chunk, len(data)))
         with watch("write"), atomic_outputs():  # the seven files or none
             files = write_semantic_maps(prefix, grid)
+            from probmap.viz.maps import save_map_figure
+
+            files.append(
+                save_map_figure(
+                    f"{prefix}.occupancy.plot.png", grid.to_occupancy(),
+                    trajectory=data.poses, title=scans.name,
+                )
+            )  # fmt: skip
             files.append(write_run_config(f"{prefix}.config.yaml", cfg))
         cls = grid.classify()
         rows = [("scans", f"{len(data):,}")]

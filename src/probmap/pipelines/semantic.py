@@ -72,8 +72,8 @@ def run_semantic_demo(out_dir: str | os.PathLike[str], *, seed: int = 0) -> dict
     """Map the simulated labelled floor plan (10 % wrong labels), write the maps, score them.
 
     Writes into ``out_dir``: ``semantic.npz`` (the lossless semantic map), ``semantic.png``
-    (colour map with legend) and ``occupancy.{yaml,pgm,npz,png}`` (the derived occupancy grid in
-    the map_server format).
+    (colour map with legend), ``semantic.occupancy.{yaml,pgm,npz,png}`` (the derived occupancy
+    grid in the map_server format) and its picture ``semantic.occupancy.plot.png``.
 
     Returns
     -------
@@ -91,8 +91,16 @@ def run_semantic_demo(out_dir: str | os.PathLike[str], *, seed: int = 0) -> dict
         world.poses, world.ranges, world.angles, labels=world.labels, max_range=world.max_range
     )
     t2 = time.perf_counter()
-    with atomic_outputs():  # all six files or none; a missing out_dir is created
+    with atomic_outputs():  # all seven files or none; a missing out_dir is created
         files = write_semantic_maps(out / "semantic", grid)
+        from probmap.viz.maps import save_map_figure
+
+        files.append(
+            save_map_figure(
+                out / "semantic.occupancy.plot.png", grid.to_occupancy(), trajectory=world.poses,
+                title="probmap demo --semantic: simulated labelled floor plan",
+            )
+        )  # fmt: skip
     t3 = time.perf_counter()
     truth = truth_on_grid(grid.spec, world.truth, world.spec)
     wrong = world.labels != world.true_labels

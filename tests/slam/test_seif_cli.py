@@ -69,15 +69,16 @@ def test_compare_on_mrclam_prints_one_table(shared_data):
 
 @pytest.mark.realdata
 def test_seif_on_victoria_park_unknown_correspondences(shared_data):
-    """Completes on the first 100 s with ML association; better than dead reckoning vs GPS
-    only over longer runs (BENCHMARKS.md), so here: sane map and GPS error, bounded sparsity."""
+    """Completes on the first 60 s with ML association; better than dead reckoning vs GPS
+    only over longer runs (BENCHMARKS.md), so here: sane map and GPS error, bounded sparsity
+    (measured: 2,629 steps, 78 landmarks, 2.45 m)."""
     from probmap.datasets.victoria_park import VictoriaPark
 
-    ds = VictoriaPark(shared_data("victoria-park"), end_time=100.0)
+    ds = VictoriaPark(shared_data("victoria-park"), end_time=60.0)
     seif = build_seif(ds, SeifConfig(max_active=10))
     result = run_landmark_slam(seif, ds)
     m = evaluate(result, ds)
-    assert m["steps"] == len(ds) > 3000
+    assert m["steps"] == len(ds) > 2000
     assert 40 <= m["landmarks_mapped"] <= 200
     assert m["gps"]["rmse_m"] < 6.0
     assert len(seif.store.robot_links) <= 10

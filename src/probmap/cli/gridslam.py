@@ -99,14 +99,15 @@ def grid_command(
     save_session: Path | None = typer.Option(
         None,
         "--save-session",
-        help="graph: also write the run's state to FILE, to continue it later with --resume "
-        "(a Python pickle: load only sessions you wrote).",
+        help="graph: also write the run's state to FILE (a folder: FOLDER/slam.session), to "
+        "continue it later with --resume (a Python pickle: load only sessions you wrote).",
     ),
     resume: Path | None = typer.Option(
         None,
         "--resume",
-        help="graph: continue the session saved in FILE with this log, in the same odometry "
-        "frame (the rest of a log); the outputs cover the whole session.",
+        help="graph: continue the session saved in FILE (a folder: FOLDER/slam.session) with "
+        "this log, in the same odometry frame (the rest of a log); the outputs cover the whole "
+        "session.",
     ),
 ) -> None:
     """Grid SLAM from a raw log or ROS bag: writes the map (PREFIX.yaml/.pgm/.npz/.png, as
@@ -176,9 +177,19 @@ def _graph(
     from probmap.cli.common import Stopwatch, progress_bar
     from probmap.config import write_config
     from probmap.pipelines import check_output_prefix
-    from probmap.pipelines.grid_slam import load_laser_log, run_graph_slam, write_graph_slam
+    from probmap.pipelines.grid_slam import (
+        SESSION_NAME,
+        load_laser_log,
+        run_graph_slam,
+        write_graph_slam,
+    )
     from probmap.slam.graph_slam import GraphSlamConfig
 
+    # a folder names its default file, as -o does (issue 20's output rule)
+    if save_session is not None and save_session.is_dir():
+        save_session = save_session / SESSION_NAME
+    if resume is not None and resume.is_dir():
+        resume = resume / SESSION_NAME
     session = None
     if resume is not None:
         from probmap.slam.graph_slam import GraphSlam

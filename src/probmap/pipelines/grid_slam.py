@@ -24,6 +24,7 @@ if TYPE_CHECKING:
     from probmap.slam.gridslam import GridSlamConfig, GridSlamResult
 
 __all__ = [
+    "SESSION_NAME",
     "GraphSlamRun",
     "load_laser_log",
     "run_graph_slam",
@@ -32,6 +33,11 @@ __all__ = [
     "write_graph_slam",
     "write_trajectory",
 ]
+
+#: The session file's name inside a folder given where a session path is asked for
+#: (``slam grid --save-session/--resume FOLDER``, ``localize --map FOLDER``), as ``-o FOLDER``
+#: names its outputs.
+SESSION_NAME = "slam.session"
 
 
 @dataclass(frozen=True, eq=False)

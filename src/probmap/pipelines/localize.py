@@ -288,7 +288,8 @@ def load_localization_map(path: str | os.PathLike[str]) -> LocalizationMap:
     Parameters
     ----------
     path : path-like
-        ``*.yaml`` / ``*.yml``: a map_server map; anything else: a session.
+        ``*.yaml`` / ``*.yml``: a map_server map; a folder: its ``slam.session``; anything
+        else: a session.
 
     Returns
     -------
@@ -304,6 +305,10 @@ def load_localization_map(path: str | os.PathLike[str]) -> LocalizationMap:
         format version.
     """
     p = Path(path)
+    if p.is_dir():  # a folder given to slam grid --save-session holds slam.session
+        from probmap.pipelines.grid_slam import SESSION_NAME
+
+        p = p / SESSION_NAME
     if not p.is_file():
         raise FileNotFoundError(f"{p}: no such map or session file")
     if p.suffix.lower() in (".yaml", ".yml"):

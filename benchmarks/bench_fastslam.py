@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")  # one core, as the CLI runs (set before numpy loads)
@@ -29,18 +28,7 @@ from probmap.datasets.simulation import simulate_landmarks  # noqa: E402
 from probmap.slam.fastslam import FastSLAM, FastSLAMConfig  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from bench_seif import PRIOR_SD, _ekf_with_prior  # noqa: E402
-
-
-def _time_steps(f, steps) -> np.ndarray:
-    out = np.empty(len(steps))
-    clock = time.perf_counter
-    for i, s in enumerate(steps):
-        t0 = clock()
-        f.predict(s.control, s.dt)
-        f.update(s.z, s.ids)
-        out[i] = clock() - t0
-    return out
+from bench_seif import PRIOR_SD, _ekf_with_prior, _time_steps  # noqa: E402
 
 
 def _fastslam_with_prior(ds, lm: np.ndarray, particles: int, store: str) -> FastSLAM:

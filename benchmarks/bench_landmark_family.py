@@ -291,8 +291,8 @@ def fastslam_vs_ekf_at_1000_landmarks(steps: int = 300) -> list[str] | None:
     import sys
 
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from bench_fastslam import _fastslam_with_prior, _time_steps
-    from bench_seif import _ekf_with_prior
+    from bench_fastslam import _fastslam_with_prior
+    from bench_seif import _ekf_with_prior, _time_steps
     from probmap.datasets.simulation import simulate_landmarks
 
     ds = simulate_landmarks(1000, steps, seed=1, density=0.03, loop_radius=15.0)

@@ -80,6 +80,17 @@ def tree_incref(refc, nodes):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
+def _find_leaf(child, root, c, depth):  # pragma: no cover - compiled
+    """The node holding column ``c`` under ``root`` (0 where the path ends before it)."""
+    x = root
+    level = depth - 1
+    while x != 0 and level >= 0:
+        x = child[x, (c >> level) & 1]
+        level -= 1
+    return x
+
+
+@njit(cache=True, inline="always")
 def _copy_gaussian(dst_mean, dst_cov, src_mean, src_cov):  # pragma: no cover - compiled
     """Copy one landmark filter: mean (2,) and covariance (2, 2)."""
     dst_mean[0] = src_mean[0]
@@ -100,11 +111,7 @@ def tree_gather(
         out_found[m] = False
         if c < 0:
             continue
-        x = roots[m]
-        level = depth - 1
-        while x != 0 and level >= 0:
-            x = child[x, (c >> level) & 1]
-            level -= 1
+        x = _find_leaf(child, roots[m], c, depth)
         if x == 0:
             continue
         out_found[m] = True
@@ -185,12 +192,7 @@ def tree_clear(
         if c < 0:
             continue
         # nothing to do where the landmark is absent (avoids copying a path to an empty leaf)
-        x = roots[m]
-        level = depth - 1
-        while x != 0 and level >= 0:
-            x = child[x, (c >> level) & 1]
-            level -= 1
-        if x == 0:
+        if _find_leaf(child, roots[m], c, depth) == 0:
             continue
         leaf, parent = _writable_path(child, refc, mean, cov, count, free, top, roots, m, c,
                                       depth, copied)  # fmt: skip

@@ -44,6 +44,7 @@ from typing import IO
 import numpy as np
 from numpy.typing import NDArray
 
+from probmap._checks import require_at_least
 from probmap.datasets.records import LaserScan, Odometry, ScanBatch, stack_beams
 from probmap.datasets.validate import PoseLimits, PoseTracker, validate_ranges
 from probmap.errors import BadLinesWarning, DatasetError
@@ -715,8 +716,7 @@ def split_log(path: str | os.PathLike[str], n_shares: int) -> list[LogShare]:
     FileNotFoundError, DatasetError
         A missing file; an empty, truncated or corrupt one (named, as :class:`CarmenLog`).
     """
-    if n_shares < 1:
-        raise ValueError(f"n_shares must be >= 1, got {n_shares}")
+    require_at_least("n_shares", n_shares, 1)
     p = Path(path)
     CarmenLog(p)  # the same checks on the path as a whole-log read
     lines: list[str] = []

@@ -20,6 +20,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
+from probmap._checks import require_at_least
 from probmap._typing import FloatArray, IntArray
 from probmap.datasets.validate import text_lines
 from probmap.errors import DatasetError
@@ -84,8 +85,7 @@ class LandmarkStep:
             if gt.shape != (3,):
                 raise ValueError(f"gt_pose must have shape (3,), got {gt.shape}")
             object.__setattr__(self, "gt_pose", gt)
-        if not self.dt >= 0.0:
-            raise ValueError(f"dt must be >= 0, got {self.dt}")
+        require_at_least("dt", self.dt, 0)
 
 
 @runtime_checkable

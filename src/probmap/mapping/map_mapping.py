@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap._checks import require_at_least
 from probmap.grid.logodds import logit
 from probmap.grid.spec import GridSpec
 from probmap.models.beam import BeamModelParams
@@ -104,8 +105,7 @@ class MapMappingConfig:
             raise ValueError(f"p0 must lie in (0, 1), got {self.p0}")
         if self.window is not None and not (math.isfinite(self.window) and self.window >= 0):
             raise ValueError(f"window must be >= 0 m, got {self.window}")
-        if self.max_sweeps < 1:
-            raise ValueError(f"max_sweeps must be >= 1, got {self.max_sweeps}")
+        require_at_least("max_sweeps", self.max_sweeps, 1)
         if self.init not in ("free", "log-odds"):
             raise ValueError(f"init must be 'free' or 'log-odds', got {self.init!r}")
         if not (0.0 <= self.opening < math.pi):
@@ -117,8 +117,7 @@ class MapMappingConfig:
             )
         if self.order not in ("gain", "raster"):
             raise ValueError(f"order must be 'gain' or 'raster', got {self.order!r}")
-        if not self.tol >= 0.0:
-            raise ValueError(f"tol must be >= 0, got {self.tol}")
+        require_at_least("tol", self.tol, 0)
 
     @property
     def l0(self) -> float:

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from probmap._checks import require_at_least
 from probmap.grid.occupancy import InverseSensorModel, OccupancyGrid, ScanStats
 
 if TYPE_CHECKING:
@@ -204,8 +205,7 @@ def map_log(
     -------
     MappingResult
     """
-    if observe_every < 1:
-        raise ValueError(f"observe_every must be >= 1, got {observe_every}")
+    require_at_least("observe_every", observe_every, 1)
     cfg = config or MappingConfig()
     t0 = time.perf_counter()
     batch = _open(path, cfg, bag_options)

@@ -28,6 +28,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from probmap._checks import require_at_least
 from probmap.grid.increments import (
     IncrementGrid,
     SemanticIncrements,
@@ -102,14 +103,12 @@ class DistributedOptions:
             raise ValueError(
                 f"mode must be 'auto', 'sequential' or 'increments', got {self.mode!r}"
             )
-        if self.chunks < 1:
-            raise ValueError(f"chunks must be >= 1, got {self.chunks}")
+        require_at_least("chunks", self.chunks, 1)
         if self.tile < 1:
             raise ValueError(f"tile must be >= 1 cells, got {self.tile}")
         if self.fan_in < 2:
             raise ValueError(f"fan_in must be >= 2, got {self.fan_in}")
-        if self.retries < 0:
-            raise ValueError(f"retries must be >= 0, got {self.retries}")
+        require_at_least("retries", self.retries, 0)
 
 
 # ------------------------------------------------------------------ task bodies (run on workers)
@@ -344,8 +343,7 @@ def local_cluster(n_workers: int, **kwargs: Any) -> Any:
     import dask
     from distributed import LocalCluster
 
-    if n_workers < 1:
-        raise ValueError(f"n_workers must be >= 1, got {n_workers}")
+    require_at_least("n_workers", n_workers, 1)
     options: dict[str, Any] = {
         "threads_per_worker": 1,
         "processes": True,
@@ -451,8 +449,8 @@ def map_logs_distributed(
             f"{bags[0]}: a ROS bag is read by one task; chunks={opts.chunks} splits CARMEN "
             "logs only"
         )
-    if workers is not None and workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
+    if workers is not None:
+        require_at_least("workers", workers, 1)
     mode = _resolve_mode(len(files), opts)
     t0 = time.perf_counter()
     with _connected(client, workers, scheduler) as cl:
@@ -731,8 +729,7 @@ def map_labelled_distributed(
     for f in files:
         if not f.is_file():
             raise FileNotFoundError(f"{f}: no such labelled-scan file")
-    if chunks < 1:
-        raise ValueError(f"chunks must be >= 1, got {chunks}")
+    require_at_least("chunks", chunks, 1)
     t0 = time.perf_counter()
     classes: tuple[str, ...] | None = None
     per_file = []

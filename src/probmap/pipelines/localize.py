@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap._checks import require_at_least
 from probmap.models.grid_map import GridGeometry
 
 __all__ = [
@@ -104,8 +105,7 @@ class LocalizeConfig:
     def __post_init__(self) -> None:
         if self.n_particles <= 0:
             raise ValueError(f"n_particles must be positive, got {self.n_particles}")
-        if self.beam_step < 1:
-            raise ValueError(f"beam_step must be >= 1, got {self.beam_step}")
+        require_at_least("beam_step", self.beam_step, 1)
         if not (self.update_distance >= 0 and self.update_angle >= 0):
             raise ValueError("update_distance and update_angle must be non-negative")
         # NaN or inf anywhere would give NaN trajectories: refuse it here, naming the field
@@ -132,8 +132,7 @@ class LocalizeConfig:
             raise ValueError(f"free_threshold must lie in [0, 1], got {self.free_threshold}")
         if not (math.isfinite(self.lost_spread) and self.lost_spread > 0):
             raise ValueError(f"lost_spread must be a finite number > 0 m, got {self.lost_spread}")
-        if self.lost_updates < 1:
-            raise ValueError(f"lost_updates must be >= 1, got {self.lost_updates}")
+        require_at_least("lost_updates", self.lost_updates, 1)
 
 
 class FilterLostWarning(UserWarning):

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap._checks import require_at_least, require_nonnegative_finite, require_positive_finite
 from probmap.geometry.se2 import wrap_angle
 from probmap.grid.spec import GridSpec
 
@@ -54,17 +55,11 @@ class MatcherConfig:
 
     def __post_init__(self) -> None:
         for name in ("sigma", "linear_step", "angular_step", "usable_range"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a positive number, got {v}")
+            require_positive_finite(name, getattr(self, name))
         for name in ("linear_window", "angular_window"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be >= 0, got {v}")
-        if self.iterations < 0:
-            raise ValueError(f"iterations must be >= 0, got {self.iterations}")
-        if self.beam_skip < 1:
-            raise ValueError(f"beam_skip must be >= 1, got {self.beam_skip}")
+            require_nonnegative_finite(name, getattr(self, name))
+        require_at_least("iterations", self.iterations, 0)
+        require_at_least("beam_skip", self.beam_skip, 1)
 
 
 @dataclass(frozen=True, eq=False)

@@ -37,6 +37,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap._checks import require_at_least
+
 __all__ = [
     "GraphSlamObserver",
     "LandmarkSlamObserver",
@@ -241,10 +243,8 @@ class GraphSlamObserver:
     """
 
     def __init__(self, view: LiveView, *, every: int = 5, interval: float = 1.0) -> None:
-        if every < 1:
-            raise ValueError(f"every must be >= 1, got {every}")
-        if not interval >= 0:
-            raise ValueError(f"interval must be >= 0 s, got {interval}")
+        require_at_least("every", every, 1)
+        require_at_least("interval", interval, 0, "s")
         self.view = view
         self.every = int(every)
         self.interval = float(interval)
@@ -327,8 +327,7 @@ class MappingObserver:
     """
 
     def __init__(self, view: LiveView, *, interval: float = 1.0) -> None:
-        if not interval >= 0:
-            raise ValueError(f"interval must be >= 0 s, got {interval}")
+        require_at_least("interval", interval, 0, "s")
         self.view = view
         self.interval = float(interval)
         self._last = -math.inf
@@ -410,10 +409,8 @@ class LandmarkSlamObserver:
         interval: float = 1.0,
         reference: ArrayLike | None = None,
     ) -> None:
-        if every < 1:
-            raise ValueError(f"every must be >= 1, got {every}")
-        if not interval >= 0:
-            raise ValueError(f"interval must be >= 0 s, got {interval}")
+        require_at_least("every", every, 1)
+        require_at_least("interval", interval, 0, "s")
         self.view = view
         self.model = measurement_model
         self.every = int(every)
@@ -573,12 +570,9 @@ class LocalizationObserver:
         max_particles: int = 500,
         interval: float = 1.0,
     ) -> None:
-        if every < 1:
-            raise ValueError(f"every must be >= 1, got {every}")
-        if max_particles < 1:
-            raise ValueError(f"max_particles must be >= 1, got {max_particles}")
-        if not interval >= 0:
-            raise ValueError(f"interval must be >= 0 s, got {interval}")
+        require_at_least("every", every, 1)
+        require_at_least("max_particles", max_particles, 1)
+        require_at_least("interval", interval, 0, "s")
         self.view = view
         self.grid = grid
         self.max_range = float(max_range)

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap._checks import require_at_least
 from probmap.viz.maps import plot_map
 
 __all__ = ["converged_index", "plot_localization", "save_localization_figure", "split_at_jumps"]
@@ -31,8 +32,7 @@ def converged_index(spread: ArrayLike, threshold: float = 1.0, hold: int = 10) -
     >>> converged_index([0.1, 0.2]), converged_index([3.0, 0.1]), converged_index([3.0, 4.0])
     (0, 1, 2)
     """
-    if hold < 1:
-        raise ValueError(f"hold must be >= 1, got {hold}")
+    require_at_least("hold", hold, 1)
     s = np.asarray(spread, dtype=np.float64).reshape(-1)
     ok = s <= threshold  # NaN counts as not converged
     run = 0

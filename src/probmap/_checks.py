@@ -1,0 +1,93 @@
+"""The argument checks that configs and constructors of every layer share, one copy each.
+
+Each check raises :class:`ValueError` with the one-line message the package has always given
+for that kind of bad value (``"beam_skip must be >= 1, got 0"``), naming the argument or field.
+A NaN fails every check: no comparison with NaN is true, and each check asks for the good case
+(``not value >= low``), so a NaN never slips through as "not too small".
+
+This module imports only the standard library, so that any layer may import it.
+"""
+
+from __future__ import annotations
+
+import math
+
+__all__ = ["require_at_least", "require_nonnegative_finite", "require_positive_finite"]
+
+
+def require_positive_finite(name: str, value: float) -> None:
+    """Raise unless ``value`` is a finite number > 0.
+
+    Parameters
+    ----------
+    name : str
+        The argument or field, for the message.
+    value : float
+        The value to check (a length in metres, a standard deviation, a step ...).
+
+    Raises
+    ------
+    ValueError
+        ``"{name} must be a positive number, got {value}"``.
+
+    Examples
+    --------
+    >>> require_positive_finite("sigma", 0.05)
+    >>> require_positive_finite("sigma", float("inf"))
+    Traceback (most recent call last):
+    ...
+    ValueError: sigma must be a positive number, got inf
+    """
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive number, got {value}")
+
+
+def require_nonnegative_finite(name: str, value: float) -> None:
+    """Raise unless ``value`` is a finite number >= 0.
+
+    Parameters
+    ----------
+    name : str
+        The argument or field, for the message.
+    value : float
+        The value to check (a window, a tolerance ...).
+
+    Raises
+    ------
+    ValueError
+        ``"{name} must be >= 0, got {value}"``.
+    """
+    if not (math.isfinite(value) and value >= 0):
+        raise ValueError(f"{name} must be >= 0, got {value}")
+
+
+def require_at_least(name: str, value: float, low: float, unit: str = "") -> None:
+    """Raise unless ``value >= low`` (infinity passes; NaN does not).
+
+    Parameters
+    ----------
+    name : str
+        The argument or field, for the message.
+    value : float
+        The value to check: a count (``low`` 1), a number of retries (``low`` 0), a time ...
+    low : float
+        The smallest value allowed; write it as the message should show it (``1``, not ``1.0``).
+    unit : str, optional
+        Appended to ``low`` in the message with a space (``"s"``: ``">= 0 s"``).
+
+    Raises
+    ------
+    ValueError
+        ``"{name} must be >= {low}, got {value}"`` (``">= {low} {unit}"`` with a unit).
+
+    Examples
+    --------
+    >>> require_at_least("workers", 4, 1)
+    >>> require_at_least("interval", -1.0, 0, "s")
+    Traceback (most recent call last):
+    ...
+    ValueError: interval must be >= 0 s, got -1.0
+    """
+    if not value >= low:
+        bound = f"{low} {unit}" if unit else f"{low}"
+        raise ValueError(f"{name} must be >= {bound}, got {value}")

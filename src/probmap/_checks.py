@@ -43,20 +43,9 @@ def require_positive_finite(name: str, value: float) -> None:
 
 
 def require_nonnegative_finite(name: str, value: float) -> None:
-    """Raise unless ``value`` is a finite number >= 0.
-
-    Parameters
-    ----------
-    name : str
-        The argument or field, for the message.
-    value : float
-        The value to check (a window, a tolerance ...).
-
-    Raises
-    ------
-    ValueError
-        ``"{name} must be >= 0, got {value}"``.
-    """
+    """Raise ``ValueError("{name} must be >= 0, got {value}")`` unless ``value`` is a finite
+    number >= 0 (a window, a tolerance); the arguments are those of
+    :func:`require_positive_finite`."""
     if not (math.isfinite(value) and value >= 0):
         raise ValueError(f"{name} must be >= 0, got {value}")
 

@@ -68,3 +68,22 @@ def test_save_map_figure_writes_a_png_atomically(tmp_path, monkeypatch):
     with pytest.raises(OSError):
         save_map_figure(tmp_path / "n.plot.png", grid(2))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.plot.png"]
+
+
+@pytest.mark.parametrize(("title", "legend"), [(None, None), ("run 7", "best")])
+def test_label_metric_axes_labels_in_metres(title, legend):
+    """The one finishing step of every viz picture: equal aspect, metres, optional title/legend."""
+    from matplotlib.figure import Figure
+
+    from probmap.viz.maps import label_metric_axes
+
+    ax = Figure().add_subplot()
+    ax.plot([0.0, 1.0], [0.0, 2.0], label="trajectory")
+    assert label_metric_axes(ax, title, legend=legend) is ax
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("x [m]", "y [m]")
+    assert ax.get_aspect() == 1.0  # "equal"
+    assert ax.get_title() == (title or "")
+    got = ax.get_legend()
+    assert (got is None) == (legend is None)
+    if got is not None:
+        assert [t.get_text() for t in got.get_texts()] == ["trajectory"]

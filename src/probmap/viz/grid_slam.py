@@ -9,6 +9,8 @@ from typing import Any
 
 import numpy as np
 
+from probmap.viz.maps import label_metric_axes
+
 __all__ = ["plot_graph_slam", "save_graph_slam_figure"]
 
 
@@ -54,13 +56,7 @@ def plot_graph_slam(ax: Any, run: Any, *, title: str | None = None, max_pixels: 
     ax.plot([], [], color="tab:green", lw=0.8, label=f"loop closures ({kept})")
     if kept < len(weights):
         ax.plot([], [], color="tab:red", lw=0.8, label=f"down-weighted ({len(weights) - kept})")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    if title:
-        ax.set_title(title)
-    ax.legend(loc="upper right", fontsize=7)
-    return ax
+    return label_metric_axes(ax, title, legend="upper right")
 
 
 def save_graph_slam_figure(

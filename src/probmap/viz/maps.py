@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["map_image", "nice_length", "plot_map", "save_map_figure"]
+__all__ = ["label_metric_axes", "map_image", "nice_length", "plot_map", "save_map_figure"]
 
 
 def nice_length(span: float) -> float:
@@ -29,6 +29,23 @@ def nice_length(span: float) -> float:
         if m * base <= target:
             return m * base
     return base  # pragma: no cover - target >= base always holds
+
+
+def label_metric_axes(ax: Any, title: str | None = None, *, legend: str | None = None) -> Any:
+    """Finish a plot in world coordinates: equal aspect, both axes labelled in metres, the
+    ``title`` if given, and a small legend at ``legend`` (a matplotlib ``loc``) if given.
+
+    The one place every picture of :mod:`probmap.viz` labels its axes, so that they all read
+    the same. Returns ``ax``.
+    """
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    if title:
+        ax.set_title(title)
+    if legend is not None:
+        ax.legend(loc=legend, fontsize=7)
+    return ax
 
 
 def map_image(grid: Any, max_pixels: int = 2000) -> tuple[np.ndarray, int]:
@@ -98,9 +115,7 @@ def plot_map(
     ax.text(bx, by + 0.02 * span, label, color="tab:red", fontsize=8, zorder=3)
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
+    label_metric_axes(ax)
     r = grid.spec.resolution
     h, w = grid.spec.shape
     ax.set_title(f"{title}\n" if title else "", fontsize=9, loc="left")

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from probmap._atomic import atomic_path
+from probmap.viz.maps import label_metric_axes
 
 __all__ = ["alignment_from_metrics", "covariance_ellipse", "plot_slam", "save_slam_figure"]
 
@@ -93,13 +94,7 @@ def plot_slam(
         ax.plot(e[:, 0], e[:, 1], color="tab:red", lw=0.6)
     if len(lm):
         ax.plot(*lm.T, "r.", ms=3, label="landmarks (2-sigma)")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    if title:
-        ax.set_title(title)
-    ax.legend(loc="best", fontsize=7)
-    return ax
+    return label_metric_axes(ax, title, legend="best")
 
 
 def save_slam_figure(

@@ -82,6 +82,49 @@ def classify_beam(
     return 1, ex, ey, ex, ey
 
 
+@njit(cache=True, inline="always")
+def classify_scan(
+    s,
+    poses,
+    ranges,
+    angles,
+    arow,
+    ox,
+    oy,
+    inv,
+    max_range,
+    clear_range,
+    thickness,
+    counts,
+    kind,
+    end,
+    tip,
+):  # pragma: no cover - compiled
+    """Classify every beam of scan ``s`` with :func:`classify_beam`, in beam order.
+
+    Fills ``kind[b]`` (0 dropped, 1 hit, 2 max-range), ``end[b]`` (the hit or cleared point) and
+    ``tip[b]`` (where the obstacle ends) in cell units, counts the readings in ``counts[0:3]``,
+    and returns the sensor's grid point ``(gx0, gy0)``, where every free-space walk starts. The
+    first step of both scan kernels, :func:`integrate_scans` and
+    :func:`probmap.grid._semantic_kernels.integrate_labelled_scans`, which then differ only in
+    what they do with the hits.
+    """  # noqa: D401
+    px = poses[s, 0]
+    py = poses[s, 1]
+    th = poses[s, 2]
+    for b in range(ranges.shape[1]):
+        k, ex, ey, tx, ty = classify_beam(
+            ranges[s, b], th + angles[arow, b], px, py, ox, oy, inv, max_range, clear_range,
+            thickness, counts,
+        )  # fmt: skip
+        kind[b] = k
+        end[b, 0] = ex
+        end[b, 1] = ey
+        tip[b, 0] = tx
+        tip[b, 1] = ty
+    return (px - ox) * inv, (py - oy) * inv
+
+
 # Codes returned by integrate_one_scan; anything but SCAN_OK leaves the grid untouched.
 SCAN_OK = 0
 SCAN_BAD_POSE = 1  # a pose coordinate is not finite
@@ -196,28 +239,21 @@ def integrate_scans(
     n_scans, n_beams = ranges.shape
     inv = 1.0 / res
     end = np.empty((n_beams, 2))
-    kind = np.empty(n_beams, np.int8)  # 0 dropped, 1 hit, 2 max-range
+    tip = np.empty((n_beams, 2))
+    kind = np.empty(n_beams, np.int8)
     for s in range(n_scans):
         sid = sid0 + s
-        px = poses[s, 0]
-        py = poses[s, 1]
-        th = poses[s, 2]
-        gx0 = (px - ox) * inv
-        gy0 = (py - oy) * inv
-        arow = 0 if angles_shared else s
-        # pass 1: classify beams and apply hits (endpoint cell and obstacle thickness)
+        gx0, gy0 = classify_scan(
+            s, poses, ranges, angles, 0 if angles_shared else s, ox, oy, inv, max_range,
+            clear_range, thickness, counts, kind, end, tip,
+        )  # fmt: skip
+        # pass 1: hits (endpoint cell and obstacle thickness)
         for b in range(n_beams):
-            k, ex, ey, tx, ty = classify_beam(
-                ranges[s, b], th + angles[arow, b], px, py, ox, oy, inv, max_range,
-                clear_range, thickness, counts,
-            )  # fmt: skip
-            kind[b] = k
-            end[b, 0] = ex
-            end[b, 1] = ey
-            if k == 1:
+            if kind[b] == 1:
                 counts[3] += _walk_update(
-                    lo_hit, stamp, sid, ex, ey, tx, ty, True, d_hit, lmin, lmax
-                )
+                    lo_hit, stamp, sid, end[b, 0], end[b, 1], tip[b, 0], tip[b, 1], True, d_hit,
+                    lmin, lmax,
+                )  # fmt: skip
         # pass 2: free space along every beam up to (not including) its last cell
         for b in range(n_beams):
             if kind[b] == 0:

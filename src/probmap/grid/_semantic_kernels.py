@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
-from probmap.grid._kernels import classify_beam
+from probmap.grid._kernels import classify_scan
 from probmap.grid._traverse import walk_next, walk_start
 
 
@@ -99,7 +99,8 @@ def integrate_labelled_scans(
     w = lo.shape[1]
     inv = 1.0 / res
     end = np.empty((n_beams, 2))
-    kind = np.empty(n_beams, np.int8)  # 0 dropped, 1 hit, 2 max-range
+    tip = np.empty((n_beams, 2))
+    kind = np.empty(n_beams, np.int8)
     cap = max(16, 2 * n_beams)
     cell_y = np.empty(cap, np.int64)
     cell_x = np.empty(cap, np.int64)
@@ -111,26 +112,19 @@ def integrate_labelled_scans(
     n_updates = 0  # a local counter: a store to counts[] per cell would stay in the loop
     for s in range(n_scans):
         sid = sid0 + s
-        px = poses[s, 0]
-        py = poses[s, 1]
-        th = poses[s, 2]
-        gx0 = (px - ox) * inv
-        gy0 = (py - oy) * inv
-        arow = 0 if angles_shared else s
+        gx0, gy0 = classify_scan(
+            s, poses, ranges, angles, 0 if angles_shared else s, ox, oy, inv, max_range,
+            clear_range, thickness, counts, kind, end, tip,
+        )  # fmt: skip
         n_cells = 0
-        # pass 1: classify beams, gather the endpoint evidence per cell
+        # pass 1: gather the endpoint evidence per cell
         for b in range(n_beams):
-            kb, ex, ey, tx, ty = classify_beam(
-                ranges[s, b], th + angles[arow, b], px, py, ox, oy, inv, max_range,
-                clear_range, thickness, counts,
-            )  # fmt: skip
-            kind[b] = kb
-            end[b, 0] = ex
-            end[b, 1] = ey
-            if kb != 1:
+            if kind[b] != 1:
                 continue
             q = qrow[s, b]
-            ix, iy, lx, ly, sx, sy, tmx, tmy, tdx, tdy, n = walk_start(ex, ey, tx, ty, True)
+            ix, iy, lx, ly, sx, sy, tmx, tmy, tdx, tdy, n = walk_start(
+                end[b, 0], end[b, 1], tip[b, 0], tip[b, 1], True
+            )
             for _ in range(n):
                 if 0 <= ix < w and 0 <= iy < h:
                     if stamp[iy, ix] != sid:

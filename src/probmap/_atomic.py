@@ -427,7 +427,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     FileNotFoundError
         When the writer created nothing at the yielded path.
     OSError
-        When the folder does not exist or is not writable; the message names ``path``.
+        As :func:`atomic_write`.
 
     Examples
     --------

@@ -11,6 +11,7 @@ from scipy.stats import chi2
 
 from probmap.datasets.simulation import simulate_landmarks
 from probmap.geometry.se2 import wrap_angle
+from probmap.metrics.trajectory import absolute_trajectory_error
 from probmap.models.measurement import RangeBearingModel
 from probmap.models.motion import AckermannModel, VelocityModel
 from probmap.pipelines.landmark_slam import (
@@ -341,10 +342,26 @@ def test_segment_log():
 
 # ---------------------------------------------------------------------------- Monte Carlo
 def test_monte_carlo_against_the_ekf_and_anees():
-    """20 seeded simulations (known ids): GraphSLAM's trajectory RMSE at or below the EKF's
-    on average and never far above it, and its pose ANEES inside the 95 % chi-square band."""
+    """20 seeded simulations (known ids, 150 steps): GraphSLAM's SE(2)-aligned trajectory RMSE
+    at or below the EKF's in every run, its map-frame RMSE at or below the EKF's on average,
+    the EKF's departure from GraphSLAM uncorrelated with GraphSLAM's error, and GraphSLAM's
+    pose ANEES inside the 95 % chi-square band.
+
+    Why the map-frame RMSE is not compared run by run: with the first pose known, most of both
+    estimators' error is one rigid displacement of the whole solution (the map's frame, pinned
+    by the first observations, which both use alike), and no later data can remove it. Write the
+    EKF's error as ``e_f = e_s + d`` with ``e_s`` GraphSLAM's error and ``d`` the difference of
+    the two estimates. For the optimal (smoothed) estimate ``e_s`` is orthogonal to ``d``, a
+    function of the data, so ``E|e_f|^2 = E|e_s|^2 + E|d|^2``; in one run the cross term
+    ``2 e_s . d`` has mean zero but a spread (about ``2 |e_s| |d|``) larger than ``|d|^2``, so
+    the filter comes out ahead in some runs by chance (8 of these 20, 41 of 100 seeds) even
+    though the smoother is the better estimator. The orthogonality is the oracle checked here
+    (a mis-modelled odometry factor, or a solve stopped after one step, gives a cross term
+    2-3 standard errors below zero); aligning each trajectory on the truth removes the shared
+    displacement and leaves the part the smoother improves (ratio 0.79 on average).
+    """
     runs = 20
-    ratios, nees = [], []
+    ratios, ratios_aligned, cross, nees = [], [], [], []
     for r in range(runs):
         sim = simulate_landmarks(25, 150, seed=100 + r, density=0.06)
         ekf = EKFSLAM(
@@ -353,15 +370,24 @@ def test_monte_carlo_against_the_ekf_and_anees():
         er = run_landmark_slam(ekf, sim)
         gr = run_landmark_slam(build_graphslam(sim), sim)
         gt = sim.true_poses[1:]
-        e_g = np.sqrt(np.mean(np.sum((gr.trajectory[:, 1:3] - gt[:, :2]) ** 2, 1)))
-        e_e = np.sqrt(np.mean(np.sum((er.trajectory[:, 1:3] - gt[:, :2]) ** 2, 1)))
-        ratios.append(e_g / e_e)
+        e_s = gr.trajectory[:, 1:3] - gt[:, :2]
+        e_f = er.trajectory[:, 1:3] - gt[:, :2]
+        ratios.append(np.sqrt(np.sum(e_s**2) / np.sum(e_f**2)))
+        cross.append(2.0 * np.sum(e_s * (e_f - e_s)))
+        aligned = [
+            absolute_trajectory_error(res.trajectory[:, 1:], gt, align=True)[0].stats()["rmse"]
+            for res in (gr, er)
+        ]
+        ratios_aligned.append(aligned[0] / aligned[1])
         err = gr.trajectory[:, 1:] - gt
         err[:, 2] = wrap_angle(err[:, 2])
         nees.append(np.einsum("ti,tij,tj->t", err, np.linalg.inv(gr.pose_covariances), err).mean())
-    ratios = np.array(ratios)
-    assert ratios.mean() <= 1.0, ratios
-    assert ratios.max() < 1.6, ratios
+    ratios_aligned = np.array(ratios_aligned)
+    assert np.all(ratios_aligned <= 1.0), ratios_aligned
+    assert np.mean(ratios) <= 1.0, ratios
+    cross_a = np.array(cross)
+    z = cross_a.mean() / (cross_a.std(ddof=1) / np.sqrt(runs))
+    assert abs(z) < 2.0, (z, cross_a)
     lo, hi = chi2.ppf([0.025, 0.975], 3 * runs) / runs
     assert lo <= np.mean(nees) <= hi, (np.mean(nees), lo, hi)
 

@@ -333,3 +333,38 @@ def test_ray_casting_bad_input():
         BeamModel(spec, occ, max_range=5.0, ray_casting="bresenham")
     with pytest.raises(ValueError, match="heading_bins"):
         BeamModel(spec, occ, max_range=5.0, ray_casting="table", heading_bins=2)
+
+
+@pytest.mark.parametrize("kind", ["beam", "beam-table", "field"])
+def test_both_models_share_the_scan_likelihood_interface(kind):
+    """One home (models.grid_map.ScanLikelihood): the scan sum is the sum of the per-beam terms,
+    for the beam model (sum of its beams) and the likelihood field (its own summing kernel), and
+    both refuse bad poses and scans with the same words, poses first."""
+    from probmap.models.grid_map import ScanLikelihood
+
+    spec, occ = _world()
+    if kind == "field":
+        model = LikelihoodField(spec, occ, max_range=4.0, sigma_hit=0.2)
+    else:
+        casting = "table" if kind == "beam-table" else "sphere"
+        model = BeamModel(spec, occ, max_range=4.0, ray_casting=casting, heading_bins=64)
+    assert isinstance(model, ScanLikelihood)
+    rng = np.random.default_rng(3)
+    poses = np.column_stack([rng.uniform(0, 4, 5), rng.uniform(-1, 1.5, 5), rng.uniform(-3, 3, 5)])
+    angles = np.linspace(-1.5, 1.5, 21)
+    ranges = rng.uniform(0.2, 5.0, 21)  # some beyond max_range
+    offset = (0.1, -0.05, 0.2)
+    per_beam = model.log_likelihood(poses, ranges, angles, offset)
+    assert per_beam.shape == (5, 21) and np.all(np.isfinite(per_beam))
+    np.testing.assert_allclose(
+        model.log_likelihood_sum(poses, ranges, angles, offset), per_beam.sum(axis=1), rtol=1e-6
+    )
+    one = model.log_likelihood(poses[2], ranges, angles, offset)  # one pose (3,) is one row
+    np.testing.assert_allclose(one, per_beam[2:3])
+    for method in (model.log_likelihood, model.log_likelihood_sum):
+        with pytest.raises(ValueError, match="poses must be finite"):
+            method([np.nan, 0.0, 0.0], ranges[:3], angles[3:])  # bad poses named before the scan
+        with pytest.raises(ValueError, match="ranges and angles must be 1-D arrays of equal"):
+            method(poses, ranges[:3], angles)
+        with pytest.raises(ValueError, match="sensor_offset must be a finite"):
+            method(poses, ranges, angles, (0.0, 0.0))

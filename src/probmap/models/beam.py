@@ -40,9 +40,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap._typing import FloatArray
 from probmap.models import _beam_kernels as _k
 from probmap.models.grid_map import (
     GridGeometry,
+    ScanLikelihood,
     checked_map,
     distance_field,
     poses_array,
@@ -134,7 +136,7 @@ class BeamModelParams:
         return out.reshape(zz.shape)
 
 
-class BeamModel:
+class BeamModel(ScanLikelihood):
     """Beam model of range finders, Probabilistic Robotics Table 6.1, with ray casting.
 
     Parameters
@@ -279,19 +281,10 @@ class BeamModel:
             )
         return out
 
-    def log_likelihood(
-        self,
-        poses: ArrayLike,
-        ranges: ArrayLike,
-        angles: ArrayLike,
-        sensor_offset: ArrayLike = (0.0, 0.0, 0.0),
-    ) -> NDArray[np.float64]:
-        """Per-beam log-likelihoods ``log p(z_b | x_n, m)``, shape ``(N, B)``.
-
-        Readings beyond ``max_range`` are clipped to it (the max-range component).
-        """
-        p = poses_array(poses)
-        r, a, o = scan_arrays(ranges, angles, sensor_offset)
+    def _log_likelihood(
+        self, p: FloatArray, r: FloatArray, a: FloatArray, o: FloatArray
+    ) -> FloatArray:
+        # readings beyond max_range are clipped to it (the max-range component)
         if self.ray_casting == "table":
             scales = self._table_normalisers()
             out = np.empty((p.shape[0], r.shape[0]))
@@ -325,16 +318,6 @@ class BeamModel:
             _k.table_normalisers(self.range_quantum, self.max_range, self.params, scales)
             self._normalisers = scales
         return self._normalisers
-
-    def log_likelihood_sum(
-        self,
-        poses: ArrayLike,
-        ranges: ArrayLike,
-        angles: ArrayLike,
-        sensor_offset: ArrayLike = (0.0, 0.0, 0.0),
-    ) -> NDArray[np.float64]:
-        """Scan log-likelihood, shape ``(N,)``."""
-        return np.asarray(self.log_likelihood(poses, ranges, angles, sensor_offset).sum(axis=1))
 
 
 # ----------------------------------------------------------------------------- the EM fit

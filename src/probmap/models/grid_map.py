@@ -7,7 +7,7 @@ corner of cell ``[0, 0]``, m) and ``shape`` (H, W) -- :class:`probmap.grid.spec.
 see :class:`GridGeometry` -- and ``occupancy`` is either a boolean ``(H, W)`` array (True =
 occupied) or an occupancy probability array with NaN for unknown (:func:`occupied_mask`). This
 module holds what they share: the geometry check, the occupied mask, the Euclidean distance
-transform and the checks of poses and scans.
+transform, the checks of poses and scans, and their common interface (:class:`ScanLikelihood`).
 """
 
 from __future__ import annotations
@@ -19,7 +19,9 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["GridGeometry", "occupied_mask"]
+from probmap._typing import FloatArray
+
+__all__ = ["GridGeometry", "ScanLikelihood", "occupied_mask"]
 
 
 class GridGeometry(Protocol):
@@ -146,3 +148,65 @@ def scan_arrays(
     if o.shape != (3,) or not np.all(np.isfinite(o)):
         raise ValueError(f"sensor_offset must be a finite (x, y, theta), got {o!r}")
     return r, a, o
+
+
+class ScanLikelihood:
+    """The scan likelihoods both range-finder models give, with their input checks, once.
+
+    A model (:class:`~probmap.models.beam.BeamModel`,
+    :class:`~probmap.models.likelihood_field.LikelihoodField`) supplies ``_log_likelihood`` on
+    checked arrays (poses ``(N, 3)``, ranges and angles ``(B,)``, sensor offset ``(3,)``, all
+    contiguous float64), and may supply a faster ``_log_likelihood_sum``.
+    """
+
+    def log_likelihood(
+        self,
+        poses: ArrayLike,
+        ranges: ArrayLike,
+        angles: ArrayLike,
+        sensor_offset: ArrayLike = (0.0, 0.0, 0.0),
+    ) -> NDArray[np.float64]:
+        """Per-beam log-likelihoods ``log p(z_b | x_n, m)``.
+
+        Parameters
+        ----------
+        poses : (N, 3) array_like
+            Robot poses (x, y, theta) in the map frame (m, rad); one pose ``(3,)`` is one row.
+        ranges, angles : (B,) array_like
+            Readings (m, >= 0, NaN allowed) and beam angles (rad) in the sensor frame.
+        sensor_offset : (3,) array_like
+            Sensor pose in the robot frame.
+
+        Returns
+        -------
+        (N, B) float64 ndarray
+            A max-range reading counts as the model says: the beam model clips readings beyond
+            ``max_range`` to it (its max-range component), the likelihood field gives them 0.
+        """
+        p = poses_array(poses)
+        r, a, o = scan_arrays(ranges, angles, sensor_offset)
+        return self._log_likelihood(p, r, a, o)
+
+    # the same inputs as log_likelihood: the per-beam terms and their sum are one interface
+    def log_likelihood_sum(
+        self,
+        poses: ArrayLike,
+        ranges: ArrayLike,
+        angles: ArrayLike,
+        sensor_offset: ArrayLike = (0.0, 0.0, 0.0),
+    ) -> NDArray[np.float64]:
+        """Scan log-likelihood ``sum_b log p(z_b | x_n, m)``, shape ``(N,)`` (arguments as
+        :meth:`log_likelihood`)."""
+        p = poses_array(poses)
+        r, a, o = scan_arrays(ranges, angles, sensor_offset)
+        return self._log_likelihood_sum(p, r, a, o)
+
+    def _log_likelihood(
+        self, p: FloatArray, r: FloatArray, a: FloatArray, o: FloatArray
+    ) -> FloatArray:
+        raise NotImplementedError  # pragma: no cover - every model defines it
+
+    def _log_likelihood_sum(
+        self, p: FloatArray, r: FloatArray, a: FloatArray, o: FloatArray
+    ) -> FloatArray:
+        return np.asarray(self._log_likelihood(p, r, a, o).sum(axis=1))

@@ -25,19 +25,20 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap._typing import FloatArray
 from probmap.models import _likelihood_field_kernels as _k
 from probmap.models.grid_map import (
     GridGeometry,
+    ScanLikelihood,
     checked_map,
     distance_field,
-    poses_array,
     scan_arrays,
 )
 
 __all__ = ["LikelihoodField"]
 
 
-class LikelihoodField:
+class LikelihoodField(ScanLikelihood):
     """Likelihood field range-finder model, Probabilistic Robotics Table 6.3.
 
     Parameters
@@ -108,7 +109,11 @@ class LikelihoodField:
 
         Returns ``(lx, ly, valid)``, each ``(B,)``; ``valid`` is False for max-range readings.
         """
-        r, a, o = scan_arrays(ranges, angles, sensor_offset)
+        return self._endpoints(*scan_arrays(ranges, angles, sensor_offset))
+
+    def _endpoints(
+        self, r: FloatArray, a: FloatArray, o: FloatArray
+    ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
         b = r.shape[0]
         lx = np.empty(b)
         ly = np.empty(b)
@@ -116,31 +121,10 @@ class LikelihoodField:
         _k.endpoints_in_robot_frame(r, a, o, self.max_range, lx, ly, valid)
         return lx, ly, valid
 
-    def log_likelihood(
-        self,
-        poses: ArrayLike,
-        ranges: ArrayLike,
-        angles: ArrayLike,
-        sensor_offset: ArrayLike = (0.0, 0.0, 0.0),
-    ) -> NDArray[np.float64]:
-        """Per-beam log-likelihoods ``log p(z_b | x_n, m)``.
-
-        Parameters
-        ----------
-        poses : (N, 3) array_like
-            Robot poses (x, y, theta) in the map frame (m, rad).
-        ranges, angles : (B,) array_like
-            Readings (m) and beam angles (rad) in the sensor frame.
-        sensor_offset : (3,) array_like
-            Sensor pose in the robot frame.
-
-        Returns
-        -------
-        (N, B) float64 ndarray
-            0 for max-range readings.
-        """
-        p = poses_array(poses)
-        lx, ly, valid = self.endpoints(ranges, angles, sensor_offset)
+    def _log_likelihood(
+        self, p: FloatArray, r: FloatArray, a: FloatArray, o: FloatArray
+    ) -> FloatArray:
+        lx, ly, valid = self._endpoints(r, a, o)  # max-range readings give 0
         out = np.empty((p.shape[0], lx.shape[0]))
         f = self.frame
         _k.likelihood_field_per_beam(
@@ -148,17 +132,10 @@ class LikelihoodField:
         )
         return out
 
-    def log_likelihood_sum(
-        self,
-        poses: ArrayLike,
-        ranges: ArrayLike,
-        angles: ArrayLike,
-        sensor_offset: ArrayLike = (0.0, 0.0, 0.0),
-    ) -> NDArray[np.float64]:
-        """Scan log-likelihood ``sum_b log p(z_b | x_n, m)``, shape ``(N,)``."""
-        p = poses_array(poses)
-        lx, ly, valid = self.endpoints(ranges, angles, sensor_offset)
-        return self.log_likelihood_sum_prepared(p, lx, ly, valid)
+    def _log_likelihood_sum(
+        self, p: FloatArray, r: FloatArray, a: FloatArray, o: FloatArray
+    ) -> FloatArray:
+        return self.log_likelihood_sum_prepared(p, *self._endpoints(r, a, o))
 
     def log_likelihood_sum_prepared(
         self,

@@ -51,6 +51,22 @@ def test_velocity_noise_scaling():
         m.predict([0, 0, 0], [1, 0], -1.0)
 
 
+def test_both_motion_models_share_checks_and_noise_scaling():
+    """predict's input check and control_covariance's reference_dt rule have one home: both
+    models refuse the same bad inputs and scale their per-step noise the same way."""
+    for make, u in ((VelocityModel, [1.2, 0.3]), (AckermannModel, [4.0, 0.1])):
+        plain, ref = make(), make(reference_dt=0.1)
+        M = plain.control_covariance(u, 0.05)
+        assert np.allclose(ref.control_covariance(u, 0.05), 2.0 * M)  # 0.1 / 0.05
+        assert np.allclose(ref.control_covariance(u, 0.0), M)  # dt = 0: unscaled
+        with pytest.raises(ValueError, match="pose x must have shape"):
+            plain.predict([0.0, 0.0], u, 0.1)
+        with pytest.raises(ValueError, match="pose and control must be finite"):
+            plain.predict([0.0, np.nan, 0.0], u, 0.1)
+    a = AckermannModel(sigma_v=0.5, sigma_steer=0.05)
+    assert np.allclose(a.control_covariance([9.0, -0.2], 0.3), np.diag([0.25, 0.0025]))
+
+
 @pytest.mark.parametrize("ref", [(0.0, 0.0), (3.78, 0.5)])
 def test_ackermann_jacobians_numerical(ref):
     m = AckermannModel(reference_point=ref)

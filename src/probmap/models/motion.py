@@ -79,8 +79,58 @@ def _check_noise(model: Any, a: str, b: str) -> None:
         raise ValueError(f"reference_dt must be a finite number > 0 s, got {dt}")
 
 
+class _MotionModel:
+    """What every motion model of this module shares: :meth:`predict` checks its inputs and
+    hands them to the model's ``_predict``; :meth:`control_covariance` scales the model's
+    per-step ``_control_noise`` by ``reference_dt / dt`` (white noise on the control)."""
+
+    reference_dt: float | None
+
+    def predict(
+        self, x: ArrayLike, u: ArrayLike, dt: float
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Noise-free motion ``g(u, x)`` and its Jacobians (Table 10.1, lines 3-4).
+
+        Parameters
+        ----------
+        x : array_like, shape (3,)
+            Pose ``(x, y, theta)`` (m, m, rad) at the start of the step (for
+            :class:`AckermannModel`, the pose of its reference point).
+        u : array_like, shape (2,)
+            The control, held constant over the step: ``(v, w)`` (m/s, rad/s) for
+            :class:`VelocityModel`, ``(v_e, alpha)`` (m/s, rad) for :class:`AckermannModel`.
+        dt : float
+            Step length (s), >= 0.
+
+        Returns
+        -------
+        x_new : ndarray, shape (3,)
+        G : ndarray, shape (3, 3)
+            ``d x_new / d x``.
+        V : ndarray, shape (3, 2)
+            ``d x_new / d u``.
+        """
+        x, u, dt = _check(x, u, dt)
+        return self._predict(x, u, dt)
+
+    def _predict(
+        self, x: FloatArray, u: FloatArray, dt: float
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        raise NotImplementedError  # pragma: no cover - every model defines it
+
+    def control_covariance(self, u: ArrayLike, dt: float) -> FloatArray:
+        """Covariance ``M`` (2x2) of the noise on ``u`` for a step of ``dt`` s."""
+        M = self._control_noise(np.asarray(u, dtype=np.float64))
+        if self.reference_dt is not None and dt > 0:
+            M *= self.reference_dt / dt
+        return M
+
+    def _control_noise(self, u: FloatArray) -> FloatArray:
+        raise NotImplementedError  # pragma: no cover - every model defines it
+
+
 @dataclass(frozen=True)
-class VelocityModel:
+class VelocityModel(_MotionModel):
     """Unicycle velocity motion model, ``u = (v, w)`` in m/s and rad/s (Table 5.3, no final turn).
 
     The pose moves on the exact arc of radius ``v / w``; the straight-line limit ``w -> 0`` is
@@ -114,29 +164,9 @@ class VelocityModel:
             raise ValueError(f"alphas must be 4 finite non-negative numbers, got {self.alphas}")
         _check_noise(self, "sigma_v", "sigma_w")
 
-    def predict(
-        self, x: ArrayLike, u: ArrayLike, dt: float
+    def _predict(
+        self, x: FloatArray, u: FloatArray, dt: float
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Noise-free motion ``g(u, x)`` and its Jacobians (Table 10.1, lines 3-4).
-
-        Parameters
-        ----------
-        x : array_like, shape (3,)
-            Pose ``(x, y, theta)`` (m, m, rad) at the start of the step.
-        u : array_like, shape (2,)
-            ``(v, w)`` (m/s, rad/s), held constant over the step.
-        dt : float
-            Step length (s), >= 0.
-
-        Returns
-        -------
-        x_new : ndarray, shape (3,)
-        G : ndarray, shape (3, 3)
-            ``d x_new / d x``.
-        V : ndarray, shape (3, 2)
-            ``d x_new / d u``.
-        """
-        x, u, dt = _check(x, u, dt)
         v, w = u
         th = x[2]
         d = w * dt
@@ -155,19 +185,14 @@ class VelocityModel:
         V[2, 1] = dt
         return x_new, G, V
 
-    def control_covariance(self, u: ArrayLike, dt: float) -> FloatArray:
-        """Covariance ``M`` (2x2) of the noise on ``u = (v, w)`` for a step of ``dt`` s."""
-        u = np.asarray(u, dtype=np.float64)
+    def _control_noise(self, u: FloatArray) -> FloatArray:
         v2, w2 = float(u[0]) ** 2, float(u[1]) ** 2
         a1, a2, a3, a4 = self.alphas
-        M = np.diag([a1 * v2 + a2 * w2 + self.sigma_v**2, a3 * v2 + a4 * w2 + self.sigma_w**2])
-        if self.reference_dt is not None and dt > 0:
-            M *= self.reference_dt / dt
-        return M
+        return np.diag([a1 * v2 + a2 * w2 + self.sigma_v**2, a3 * v2 + a4 * w2 + self.sigma_w**2])
 
 
 @dataclass(frozen=True)
-class AckermannModel:
+class AckermannModel(_MotionModel):
     """Ackermann (car-like) model driven by an encoder on a rear wheel (Guivant & Nebot 2001).
 
     ``u = (v_e, alpha)``: speed measured at the encoder wheel (m/s) and steering angle (rad).
@@ -217,21 +242,9 @@ class AckermannModel:
             )
         _check_noise(self, "sigma_v", "sigma_steer")
 
-    def predict(
-        self, x: ArrayLike, u: ArrayLike, dt: float
+    def _predict(
+        self, x: FloatArray, u: FloatArray, dt: float
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Noise-free motion and Jacobians ``G = d x'/d x`` (3x3), ``V = d x'/d u`` (3x2).
-
-        Parameters
-        ----------
-        x : array_like, shape (3,)
-            Pose of the reference point ``(x, y, phi)`` (m, m, rad).
-        u : array_like, shape (2,)
-            ``(v_e, alpha)`` (m/s, rad).
-        dt : float
-            Step length (s).
-        """
-        x, u, dt = _check(x, u, dt)
         ve, al = u
         L, H = self.wheelbase, self.encoder_offset
         a, b = self.reference_point
@@ -273,9 +286,5 @@ class AckermannModel:
         V[2, 1] = dt * dk_dal
         return x_new, G, V
 
-    def control_covariance(self, u: ArrayLike, dt: float) -> FloatArray:
-        """Covariance ``M`` (2x2) of the noise on ``u = (v_e, alpha)``."""
-        M = np.diag([self.sigma_v**2, self.sigma_steer**2])
-        if self.reference_dt is not None and dt > 0:
-            M *= self.reference_dt / dt
-        return M
+    def _control_noise(self, u: FloatArray) -> FloatArray:
+        return np.diag([self.sigma_v**2, self.sigma_steer**2])

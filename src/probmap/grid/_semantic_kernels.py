@@ -34,6 +34,8 @@ def _add_clamped(lo, iy, ix, delta, lmin, lmax):  # pragma: no cover - compiled
         lo[iy, ix, k] = v
 
 
+# The scan arguments (sid0 .. thickness) are those of grid._kernels.integrate_scans, in its order:
+# both kernels hand them to the one classify_scan.
 @njit(cache=True)
 def integrate_labelled_scans(
     lo,

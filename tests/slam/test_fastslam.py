@@ -120,7 +120,7 @@ def test_bad_inputs_are_one_line_errors():
         slam.update([[1.0, 0.0], [2.0, 0.1]], [-1, 3])
     with pytest.raises(ValueError, match="-1 for unknown"):
         slam.update([[1.0, 0.0]], [-2])
-    with pytest.raises(ValueError, match="z has 2 rows and ids 1"):
+    with pytest.raises(ValueError, match="z has 2 rows but ids has 1"):
         slam.update([[1.0, 0.0], [2.0, 0.1]], [1])
     with pytest.raises(ValueError, match="finite"):
         slam.update([[np.nan, 0.0]], [1])

@@ -3,6 +3,7 @@
 Pure array functions shared by the EKF and SEIF estimators (Probabilistic Robotics, Table 10.2
 lines 16-18 and section 10.3.3). The estimator supplies, for each candidate landmark ``j``, the
 predicted measurement ``z_hat[j]`` and innovation covariance ``S[j]``; these helpers only compare.
+The input checks every landmark estimator makes (initial state, observations) live here too.
 """
 
 from __future__ import annotations
@@ -23,6 +24,8 @@ __all__ = [
     "chi2_gate",
     "innovation",
     "mahalanobis_squared",
+    "validate_initial_state",
+    "validate_observations",
 ]
 
 NEW = -1
@@ -147,3 +150,57 @@ def associate_ml(
         taken[j] = True
     match[(~done) & (nearest > new_gate)] = NEW
     return Association(match, d2)
+
+
+def validate_initial_state(
+    initial_pose: ArrayLike, initial_covariance: ArrayLike
+) -> tuple[FloatArray, FloatArray]:
+    """The initial pose and covariance of a landmark SLAM estimator, checked.
+
+    Parameters
+    ----------
+    initial_pose : array_like, shape (3,)
+        ``(x, y, theta)`` (m, m, rad).
+    initial_covariance : array_like, shape (3, 3)
+
+    Returns
+    -------
+    mu : ndarray, shape (3,)
+    P0 : ndarray, shape (3, 3)
+        The covariance made exactly symmetric, ``(P + P^T) / 2``; how definite it must be is
+        each estimator's own rule.
+
+    Raises
+    ------
+    ValueError
+        On a wrong shape, a non-finite entry or an asymmetric covariance.
+    """
+    mu = np.asarray(initial_pose, dtype=np.float64)
+    P0 = np.asarray(initial_covariance, dtype=np.float64)
+    if mu.shape != (3,) or P0.shape != (3, 3):
+        raise ValueError("initial_pose must be (3,) and initial_covariance (3, 3)")
+    if not (np.all(np.isfinite(mu)) and np.all(np.isfinite(P0))):
+        raise ValueError("initial pose and covariance must be finite")
+    if not np.allclose(P0, P0.T):
+        raise ValueError("initial_covariance must be a finite symmetric 3x3 matrix")
+    return mu.copy(), 0.5 * (P0 + P0.T)
+
+
+def validate_observations(z: ArrayLike, ids: ArrayLike) -> tuple[FloatArray, IntArray]:
+    """One step's observations, checked: ``z`` as ``(k, 2)`` float (range m, bearing rad) and
+    ``ids`` as ``(k,)`` int (landmark ids, -1 for unknown).
+
+    Raises
+    ------
+    ValueError
+        When the counts differ, a measurement is not finite or an id is below -1.
+    """
+    zs = np.asarray(z, dtype=np.float64).reshape(-1, 2) if np.size(z) else np.zeros((0, 2))
+    idx = np.asarray(ids, dtype=np.int64).reshape(-1)
+    if idx.shape[0] != zs.shape[0]:
+        raise ValueError(f"z has {zs.shape[0]} rows but ids has {idx.shape[0]}")
+    if not np.all(np.isfinite(zs)):
+        raise ValueError("measurements must be finite (NaN or inf found)")
+    if np.any(idx < -1):
+        raise ValueError("landmark ids must be >= 0, or -1 for unknown")
+    return zs, idx

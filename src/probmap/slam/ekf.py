@@ -36,7 +36,14 @@ from scipy.linalg import blas, cho_factor, cho_solve
 
 from probmap._typing import FloatArray, IntArray
 from probmap.geometry.se2 import wrap_angle
-from probmap.slam.association import NEW, associate_ml, chi2_gate, innovation
+from probmap.slam.association import (
+    NEW,
+    associate_ml,
+    chi2_gate,
+    innovation,
+    validate_initial_state,
+    validate_observations,
+)
 
 __all__ = [
     "EKFConfig",
@@ -414,17 +421,10 @@ class EKFSLAM:
         initial_covariance: ArrayLike,
         config: EKFConfig | None = None,
     ) -> None:
-        mu = np.asarray(initial_pose, dtype=np.float64)
-        P0 = np.asarray(initial_covariance, dtype=np.float64)
-        if mu.shape != (3,) or P0.shape != (3, 3):
-            raise ValueError("initial_pose must be (3,) and initial_covariance (3, 3)")
-        if not (np.all(np.isfinite(mu)) and np.all(np.isfinite(P0))):
-            raise ValueError("initial pose and covariance must be finite")
-        if not np.allclose(P0, P0.T):
-            raise ValueError("initial_covariance must be a finite symmetric 3x3 matrix")
+        mu, P0 = validate_initial_state(initial_pose, initial_covariance)
         # positive semi-definite: a zero covariance (a pose known exactly) is allowed, unlike
         # SEIFSlam, which needs the inverse
-        lowest = float(np.linalg.eigvalsh(0.5 * (P0 + P0.T)).min())
+        lowest = float(np.linalg.eigvalsh(P0).min())
         if lowest < -1e-12 * max(1.0, float(np.abs(P0).max())):
             raise ValueError(
                 f"initial_covariance must be positive semi-definite (smallest eigenvalue {lowest:g})"
@@ -432,8 +432,8 @@ class EKFSLAM:
         self.motion_model = motion_model
         self.measurement_model = measurement_model
         self.config = config if config is not None else EKFConfig()
-        self._mu = mu.copy()
-        self._P = np.array(0.5 * (P0 + P0.T), order="C")
+        self._mu = mu
+        self._P = np.array(P0, order="C")
         self._R = np.asarray(measurement_model.R, dtype=np.float64)
         self._ids = np.zeros(0, dtype=np.int64)  # landmark id per slot
         self._hits = np.zeros(0, dtype=np.int64)
@@ -514,17 +514,10 @@ class EKFSLAM:
         likelihood with gating (Table 10.2). New landmarks are added first, then all matched
         observations are fused in one batched Joseph-form update.
         """
-        z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
-        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
-        if z.shape[0] == 0 and ids.shape[0] == 0:  # no scan: nothing to do
+        z, ids = validate_observations(z, ids)
+        if z.shape[0] == 0:  # no scan: nothing to do
             self.last_nis, self.last_nis_dof = np.nan, 0
             return
-        if ids.shape[0] != z.shape[0]:
-            raise ValueError(f"z has {z.shape[0]} rows but ids has {ids.shape[0]}")
-        if not np.all(np.isfinite(z)):
-            raise ValueError("measurements must be finite (NaN or inf found)")
-        if np.any(ids < -1):
-            raise ValueError("landmark ids must be >= 0, or -1 for unknown")
         keep = z[:, 0] > max(self.config.min_range, 1e-9)
         z, ids = z[keep], ids[keep]
         self.last_nis, self.last_nis_dof = np.nan, 0

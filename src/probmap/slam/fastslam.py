@@ -53,6 +53,7 @@ from numpy.typing import ArrayLike
 from probmap._typing import BoolArray, FloatArray, IntArray
 from probmap.filters.resampling import effective_sample_size, low_variance_resample
 from probmap.geometry.se2 import compose, wrap_angle
+from probmap.slam.association import validate_observations
 
 __all__ = ["FastSLAM", "FastSLAMConfig", "FlatLandmarks", "LandmarkTree"]
 
@@ -437,14 +438,7 @@ class FastSLAM:
     def update(self, z: ArrayLike, ids: ArrayLike) -> None:
         """Measurements ``z (k, 2)`` (range m, bearing rad) of landmarks ``ids (k,)``: all
         ``>= 0`` (known correspondences) or all ``-1`` (unknown, Table 13.2)."""
-        zs = np.asarray(z, dtype=np.float64).reshape(-1, 2)
-        idx = np.asarray(ids, dtype=np.int64).reshape(-1)
-        if zs.shape[0] != idx.shape[0]:
-            raise ValueError(f"z has {zs.shape[0]} rows and ids {idx.shape[0]}")
-        if zs.size and not np.all(np.isfinite(zs)):
-            raise ValueError("measurements must be finite")
-        if np.any(idx < -1):
-            raise ValueError("landmark ids must be >= 0, or -1 for unknown")
+        zs, idx = validate_observations(z, ids)
         if idx.size:
             known = bool(idx[0] >= 0)
             if np.any((idx >= 0) != known) or (self._known is not None and known != self._known):

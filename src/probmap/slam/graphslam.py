@@ -76,6 +76,7 @@ from probmap.geometry.se2 import wrap_angle
 from probmap.models.measurement import RangeBearingModel
 from probmap.models.motion import AckermannModel, VelocityModel
 from probmap.slam import _graphslam_kernels as _k
+from probmap.slam.association import validate_initial_state, validate_observations
 
 __all__ = [
     "GraphSLAM",
@@ -1914,19 +1915,14 @@ class GraphSLAM:
         initial_covariance: ArrayLike,
         config: GraphSLAMConfig | None = None,
     ) -> None:
-        mu = np.asarray(initial_pose, dtype=np.float64)
-        P0 = np.asarray(initial_covariance, dtype=np.float64)
-        if mu.shape != (3,) or P0.shape != (3, 3):
-            raise ValueError("initial_pose must be (3,) and initial_covariance (3, 3)")
-        if not (np.all(np.isfinite(mu)) and np.all(np.isfinite(P0))):
-            raise ValueError("initial pose and covariance must be finite")
-        if not np.allclose(P0, P0.T) or np.linalg.eigvalsh(0.5 * (P0 + P0.T)).min() <= 0:
+        mu, P0 = validate_initial_state(initial_pose, initial_covariance)
+        if np.linalg.eigvalsh(P0).min() <= 0:
             raise ValueError("initial_covariance must be symmetric positive definite")
         self.motion_model = motion_model
         self.measurement_model = measurement_model
         self.config = config if config is not None else GraphSLAMConfig()
-        self._mu0 = mu.copy()
-        self._P0 = 0.5 * (P0 + P0.T)
+        self._mu0 = mu
+        self._P0 = P0
         self._log = _Log()
         self._result: GraphSLAMResult | None = None
         self._problem: GraphSLAMProblem | None = None
@@ -1949,18 +1945,11 @@ class GraphSLAM:
 
     def update(self, z: ArrayLike, ids: ArrayLike) -> None:
         """Record the observations ``z`` (k, 2) with landmark ``ids`` (k,) of the last step."""
-        z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
-        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
-        if ids.shape[0] != z.shape[0]:
-            raise ValueError(f"z has {z.shape[0]} rows but ids has {ids.shape[0]}")
+        z, ids = validate_observations(z, ids)
         if z.shape[0] == 0:
             return
         if not self._log.dts:
             raise ValueError("update before the first predict: record a step first")
-        if not np.all(np.isfinite(z)):
-            raise ValueError("measurements must be finite (NaN or inf found)")
-        if np.any(ids < -1):
-            raise ValueError("landmark ids must be >= 0, or -1 for unknown")
         if np.any(ids < 0) and np.any(ids >= 0):
             raise ValueError(
                 "mix of known and unknown landmark ids in one log: give all ids or none"
@@ -1994,7 +1983,7 @@ class GraphSLAM:
             motion_model=self.motion_model,
             measurement_model=self.measurement_model,
             prior_mean=self._mu0.copy(),
-            prior_information=np.linalg.inv(self._P0),
+            prior_information=np.asarray(np.linalg.inv(self._P0), dtype=np.float64),
             controls=controls,
             dts=dts,
             seg_ptr=seg_ptr,

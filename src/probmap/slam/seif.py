@@ -55,7 +55,13 @@ from probmap._typing import FloatArray, IntArray
 from probmap.errors import SingularInformationError
 from probmap.geometry.se2 import wrap_angle
 from probmap.slam._seif_store import InformationStore
-from probmap.slam.association import NEW, associate_ml, chi2_gate
+from probmap.slam.association import (
+    NEW,
+    associate_ml,
+    chi2_gate,
+    validate_initial_state,
+    validate_observations,
+)
 
 __all__ = [
     "SEIFSlam",
@@ -80,6 +86,21 @@ CONTEXT_MAX = 128
 # ---------------------------------------------------------------------------------------------
 # Function tier: each table's equations on dense arrays (robot = rows 0..2)
 # ---------------------------------------------------------------------------------------------
+def _cho_solve(A: FloatArray, B: FloatArray, what: str) -> FloatArray:
+    """``A^-1 B`` by Cholesky for a symmetric positive definite information block ``A``.
+
+    Raises
+    ------
+    SingularInformationError
+        When ``A`` is not positive definite (the message names ``what``).
+    """
+    try:
+        fac = sla.cho_factor(A)
+    except np.linalg.LinAlgError as exc:
+        raise SingularInformationError(f"{what} is not positive definite") from exc
+    return np.asarray(sla.cho_solve(fac, B))
+
+
 def motion_update_information(
     Omega: FloatArray,
     xi: FloatArray,
@@ -249,13 +270,8 @@ def sparsify_information(
         # subtracts from the rows that stay
         cols = Omega[np.ix_(rows, idx)]
         block = Omega[np.ix_(idx, idx)]
-        try:
-            fac = sla.cho_factor(block)
-        except np.linalg.LinAlgError as exc:
-            raise SingularInformationError(
-                "sparsification: information block to marginalise is not positive definite"
-            ) from exc
-        return cols @ sla.cho_solve(fac, cols.T)
+        what = "sparsification: information block to marginalise"
+        return cols @ _cho_solve(block, cols.T, what)
 
     # Omega1 - Omega2 is zero outside the rows and columns of (x, m+); Omega3 - Omega is zero
     # outside the robot's Markov blanket, i.e. wherever a row or column is a context row
@@ -470,12 +486,7 @@ class SEIFSlam:
             deactivation,
             context_hops,
         )
-        mu0 = np.asarray(initial_pose, dtype=np.float64)
-        P0 = np.asarray(initial_covariance, dtype=np.float64)
-        if mu0.shape != (3,) or not np.all(np.isfinite(mu0)):
-            raise ValueError(f"initial_pose must be 3 finite numbers, got shape {mu0.shape}")
-        if P0.shape != (3, 3) or not np.all(np.isfinite(P0)) or not np.allclose(P0, P0.T):
-            raise ValueError("initial_covariance must be a finite symmetric 3x3 matrix")
+        mu0, P0 = validate_initial_state(initial_pose, initial_covariance)
         try:
             c = sla.cho_factor(P0)
         except np.linalg.LinAlgError as exc:
@@ -647,14 +658,7 @@ class SEIFSlam:
         SingularInformationError
             When an information block is singular or indefinite; the state is left unchanged.
         """
-        z = np.asarray(z, dtype=np.float64).reshape(-1, 2) if np.size(z) else np.zeros((0, 2))
-        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
-        if ids.shape[0] != z.shape[0]:
-            raise ValueError(f"z has {z.shape[0]} rows but ids has {ids.shape[0]}")
-        if not np.all(np.isfinite(z)):
-            raise ValueError("measurements z must be finite")
-        if np.any(ids < -1):
-            raise ValueError("landmark ids must be >= 0, or -1 for unknown")
+        z, ids = validate_observations(z, ids)
         positive = z[:, 0] > 1e-9  # a range <= 0 (noise near the sensor) has no bearing: drop it
         if not positive.all():
             z, ids = z[positive], ids[positive]
@@ -852,13 +856,7 @@ class SEIFSlam:
         b = xi.copy()
         if local:
             b[3:] -= self._store.boundary(local)
-        try:
-            c = sla.cho_factor(Omega)
-        except np.linalg.LinAlgError as exc:
-            raise SingularInformationError(
-                "information block over the robot and active landmarks is not positive definite"
-            ) from exc
-        return np.asarray(sla.cho_solve(c, b))
+        return _cho_solve(Omega, b, "information block over the robot and active landmarks")
 
     def _deactivation(
         self, local: Sequence[int], Omega: FloatArray, pos: dict[int, int]
@@ -968,12 +966,8 @@ class SEIFSlam:
                     seen.add(s)
                     local.append(s)
             Omega, _, _ = st.gather(local)
-            try:
-                Sigma = sla.cho_solve(sla.cho_factor(Omega), np.eye(Omega.shape[0]))
-            except np.linalg.LinAlgError as exc:
-                raise SingularInformationError(
-                    "data association: local information block is not positive definite"
-                ) from exc
+            what = "data association: local information block"
+            Sigma = _cho_solve(Omega, np.eye(Omega.shape[0]), what)
             pos = st.local_index(local)
             rows = np.array([pos[s] for s in cand])
             lm = st.mu_landmarks[cand]

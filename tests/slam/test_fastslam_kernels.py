@@ -13,7 +13,8 @@ import pytest
 
 from probmap.geometry.se2 import wrap_angle
 from probmap.models.measurement import RangeBearingModel
-from probmap.slam._fastslam_kernels import _h, _logpdf2, fastslam_update
+from probmap.slam._fastslam_kernels import _logpdf2, fastslam_update
+from probmap.slam._landmark_kernels import range_bearing
 
 MODEL = RangeBearingModel(sensor_offset=(0.2, -0.1, 0.3), R=np.diag([0.04, 0.002]))
 OFFSET = np.asarray(MODEL.sensor_offset, dtype=np.float64)
@@ -24,7 +25,7 @@ def test_h_equals_the_models_own():
     hm, hx = np.empty((2, 2)), np.empty((2, 3))
     for _ in range(20):
         pose, mark = rng.normal(0.0, 2.0, 3), rng.normal(0.0, 5.0, 2)
-        r, b = _h(pose[0], pose[1], pose[2], OFFSET, mark[0], mark[1], hm, hx)
+        r, b = range_bearing(pose[0], pose[1], pose[2], OFFSET, mark[0], mark[1], hm, hx)
         z, H_x, H_m = MODEL.predict(pose, mark)
         np.testing.assert_allclose([r, b], z, atol=1e-12)
         np.testing.assert_allclose(hx, H_x, atol=1e-12)

@@ -32,6 +32,8 @@ import math
 import numpy as np
 from numba import njit
 
+from probmap.slam._landmark_kernels import gemm, range_bearing, wrap
+
 _TWO_PI = 2.0 * math.pi
 
 
@@ -269,11 +271,6 @@ def tree_grow(child, refc, free, top, roots):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _wrap(a):  # pragma: no cover - compiled
-    return a - _TWO_PI * math.floor((a + math.pi) / _TWO_PI)
-
-
-@njit(cache=True)
 def associate_ml(
     poses, offset, mean, cov, found, z, R, Rt, use_rt, log_p0, vis_range, vis_half_fov, cols,
     unseen,
@@ -316,7 +313,7 @@ def associate_ml(
             q = max(dx * dx + dy * dy, 1e-18)
             r = math.sqrt(q)
             zr[n] = r
-            zb[n] = _wrap(math.atan2(dy, dx) - heading)
+            zb[n] = wrap(math.atan2(dy, dx) - heading)
             h00 = dx / r
             h01 = dy / r
             h10 = -dy / q
@@ -360,7 +357,7 @@ def associate_ml(
                 if not free[n]:
                     continue
                 e0 = z[i, 0] - zr[n]
-                e1 = _wrap(z[i, 1] - zb[n])
+                e1 = wrap(z[i, 1] - zb[n])
                 ll = norm[n] - 0.5 * (i00[n] * e0 * e0 + 2.0 * i01[n] * e0 * e1 + i11[n] * e1 * e1)
                 if ll > best_ll:
                     best_ll = ll
@@ -372,32 +369,6 @@ def associate_ml(
                 cols[i, m] = -1
         for n in range(n_lm):
             unseen[m, n] = free[n] and zr[n] <= vis_range and abs(zb[n]) <= vis_half_fov
-
-
-@njit(cache=True)
-def _h(px, py, pth, offset, mx, my, hm, hx):  # pragma: no cover - compiled
-    """Range-bearing ``h`` of landmark ``(mx, my)`` from pose ``(px, py, pth)``: returns
-    ``(r, phi)`` and fills ``hm (2, 2)`` and ``hx (2, 3)`` (the sensor offset included)."""
-    c = math.cos(pth)
-    s = math.sin(pth)
-    sx = px + c * offset[0] - s * offset[1]
-    sy = py + s * offset[0] + c * offset[1]
-    dsx = -s * offset[0] - c * offset[1]
-    dsy = c * offset[0] - s * offset[1]
-    dx = mx - sx
-    dy = my - sy
-    q = max(dx * dx + dy * dy, 1e-18)
-    r = math.sqrt(q)
-    hm[0, 0] = dx / r
-    hm[0, 1] = dy / r
-    hm[1, 0] = -dy / q
-    hm[1, 1] = dx / q
-    for i in range(2):
-        hx[i, 0] = -hm[i, 0]
-        hx[i, 1] = -hm[i, 1]
-        hx[i, 2] = -(hm[i, 0] * dsx + hm[i, 1] * dsy)
-    hx[1, 2] -= 1.0
-    return r, _wrap(math.atan2(dy, dx) - (pth + offset[2]))
 
 
 @njit(cache=True)
@@ -442,7 +413,9 @@ def fastslam_update(
             for i in range(k):
                 if mode[i, m] != 1:
                     continue
-                zr, zb = _h(x[0], x[1], x[2], offset, mean[i, m, 0], mean[i, m, 1], hm, hx)
+                zr, zb = range_bearing(
+                    x[0], x[1], x[2], offset, mean[i, m, 0], mean[i, m, 1], hm, hx
+                )
                 C = cov[i, m]
                 # S = H_m C H_m' + R
                 s = np.empty((2, 2))
@@ -454,13 +427,9 @@ def fastslam_update(
                                 acc += hm[a, u] * C[u, v] * hm[b, v]
                         s[a, b] = acc
                 e0 = z[i, 0] - zr
-                e1 = _wrap(z[i, 1] - zb)
-                for a in range(3):
-                    for b in range(2):
-                        acc = 0.0
-                        for u in range(3):
-                            acc += P[a, u] * hx[b, u]
-                        pht[a, b] = acc
+                e1 = wrap(z[i, 1] - zb)
+                pht[:] = 0.0
+                gemm(P, hx.T, 1.0, pht)
                 t00 = s[0, 0]
                 t01 = s[0, 1]
                 t10 = s[1, 0]
@@ -480,7 +449,7 @@ def fastslam_update(
                     kg[a, 1] = pht[a, 0] * i01 + pht[a, 1] * i11
                 for a in range(3):
                     x[a] += kg[a, 0] * e0 + kg[a, 1] * e1
-                x[2] = _wrap(x[2])
+                x[2] = wrap(x[2])
                 for a in range(3):
                     for b in range(3):
                         P[a, b] -= kg[a, 0] * pht[b, 0] + kg[a, 1] * pht[b, 1]
@@ -499,9 +468,7 @@ def fastslam_update(
             l22 = math.sqrt(P[2, 2] - l20 * l20 - l21 * l21)
             particles[m, 0] = x[0] + l00 * noise[m, 0]
             particles[m, 1] = x[1] + l10 * noise[m, 0] + l11 * noise[m, 1]
-            particles[m, 2] = _wrap(
-                x[2] + l20 * noise[m, 0] + l21 * noise[m, 1] + l22 * noise[m, 2]
-            )
+            particles[m, 2] = wrap(x[2] + l20 * noise[m, 0] + l21 * noise[m, 1] + l22 * noise[m, 2])
         px = particles[m, 0]
         py = particles[m, 1]
         pth = particles[m, 2]
@@ -548,7 +515,7 @@ def fastslam_update(
             # Table 13.1 lines 14-18: the landmark's EKF update
             mu0 = mean[i, m, 0]
             mu1 = mean[i, m, 1]
-            zr, zb = _h(px, py, pth, offset, mu0, mu1, hm, hx)
+            zr, zb = range_bearing(px, py, pth, offset, mu0, mu1, hm, hx)
             C = cov[i, m].copy()
             hc = np.empty((2, 2))  # H_m C
             for a in range(2):
@@ -564,7 +531,7 @@ def fastslam_update(
             i10 = -q10 / det
             i11 = q00 / det
             e0 = z[i, 0] - zr
-            e1 = _wrap(z[i, 1] - zb)
+            e1 = wrap(z[i, 1] - zb)
             # K = C H_m' Q^-1 = (H_m C)' Q^-1
             k00 = hc[0, 0] * i00 + hc[1, 0] * i10
             k01 = hc[0, 0] * i01 + hc[1, 0] * i11
@@ -583,10 +550,10 @@ def fastslam_update(
             count[i, m] += 1
             if v2:
                 # Table 13.3 line 16: the likelihood under the proposal's prior
-                pr, pb = _h(predicted[m, 0], predicted[m, 1], predicted[m, 2], offset, mu0, mu1,
-                            hm, hx)  # fmt: skip
+                pm = predicted[m]
+                pr, pb = range_bearing(pm[0], pm[1], pm[2], offset, mu0, mu1, hm, hx)
                 f0 = z[i, 0] - pr
-                f1 = _wrap(z[i, 1] - pb)
+                f1 = wrap(z[i, 1] - pb)
                 l00_ = q00
                 l01_ = q01
                 l10_ = q10

@@ -26,6 +26,8 @@ import math
 import numpy as np
 from numba import njit
 
+from probmap.slam._landmark_kernels import ZERO_RANGE, gemm, range_bearing, wrap
+
 KIND_VELOCITY = 0
 KIND_ACKERMANN = 1
 
@@ -33,14 +35,7 @@ STATUS_OK = 0
 STATUS_SINGULAR_STEERING = 1
 STATUS_SINGULAR_NOISE = 2
 
-_TWO_PI = 2.0 * math.pi
 _SERIES = 1e-4
-
-
-@njit(cache=True)
-def wrap(a):  # pragma: no cover - compiled
-    """Angle wrapped to ``[-pi, pi)``."""
-    return a - _TWO_PI * math.floor((a + math.pi) / _TWO_PI)
 
 
 @njit(cache=True)
@@ -169,29 +164,16 @@ def chain_steps(
                 if st != STATUS_OK:
                     return st
                 # S <- G S G^T + Q + floor dt ; F <- G F
+                T1[:] = 0.0
+                gemm(G, S, 1.0, T1)
+                S[:] = Q
+                gemm(T1, G.T, 1.0, S)
                 for r in range(3):
-                    for k in range(3):
-                        acc = 0.0
-                        for m in range(3):
-                            acc += G[r, m] * S[m, k]
-                        T1[r, k] = acc
-                for r in range(3):
-                    for k in range(3):
-                        acc = Q[r, k]
-                        for m in range(3):
-                            acc += T1[r, m] * G[k, m]
-                        S[r, k] = acc
                     S[r, r] += floor[r] * dt
-                for r in range(3):
-                    for k in range(3):
-                        acc = 0.0
-                        for m in range(3):
-                            acc += G[r, m] * F[m, k]
-                        T1[r, k] = acc
-                for r in range(3):
-                    x[r] = xn[r]
-                    for k in range(3):
-                        F[r, k] = T1[r, k]
+                T1[:] = 0.0
+                gemm(G, F, 1.0, T1)
+                x[:] = xn
+                F[:] = T1
             else:
                 for r in range(3):
                     for k in range(3):
@@ -275,59 +257,33 @@ def smooth_steps(
                 Psi[q, m] = 1.0 if q == m else 0.0
         for t in range(b, a - 1, -1):
             # C = Sig[t] Psi^T ; K = C Sj_inv
-            for q in range(3):
-                for m in range(3):
-                    acc = 0.0
-                    for n in range(3):
-                        acc += Sig[t, q, n] * Psi[m, n]
-                    C[q, m] = acc
-            for q in range(3):
-                for m in range(3):
-                    acc = 0.0
-                    for n in range(3):
-                        acc += C[q, n] * Sj_inv[n, m]
-                    K[q, m] = acc
+            C[:] = 0.0
+            gemm(Sig[t], Psi.T, 1.0, C)
+            K[:] = 0.0
+            gemm(C, Sj_inv, 1.0, K)
             for q in range(3):
                 acc = xbar[t, q]
                 for n in range(3):
                     acc += K[q, n] * r[n]
                 out_pose[t, q] = acc
             out_pose[t, 2] = wrap(out_pose[t, 2])
-            for q in range(3):
-                for m in range(3):
-                    acc = Phi[t, q, m]
-                    for n in range(3):
-                        acc -= K[q, n] * Phi[b, n, m]
-                    J[q, m] = acc
-                    J[q, 3 + m] = K[q, m]
-            for q in range(3):
-                for m in range(6):
-                    acc = 0.0
-                    for n in range(6):
-                        acc += J[q, n] * P[n, m]
-                    JP[q, m] = acc
-            for q in range(3):
-                for m in range(3):
-                    acc = Sig[t, q, m]
-                    for n in range(3):
-                        acc -= K[q, n] * C[m, n]
-                    for n in range(6):
-                        acc += JP[q, n] * J[m, n]
-                    out_cov[t, q, m] = acc
+            # J = [Phi[t] - K Phi[b], K]; cov = Sig[t] - K C^T + J P J^T
+            J[:, :3] = Phi[t]
+            gemm(K, Phi[b], -1.0, J[:, :3])
+            J[:, 3:] = K
+            JP[:] = 0.0
+            gemm(J, P, 1.0, JP)
+            out_cov[t] = Sig[t]
+            gemm(K, C.T, -1.0, out_cov[t])
+            gemm(JP, J.T, 1.0, out_cov[t])
             for q in range(3):
                 for m in range(3):
                     out_cov[t, q, m] = 0.5 * (out_cov[t, q, m] + out_cov[t, m, q])
                     out_cov[t, m, q] = out_cov[t, q, m]
             # Psi <- Psi G[t]
-            for q in range(3):
-                for m in range(3):
-                    acc = 0.0
-                    for n in range(3):
-                        acc += Psi[q, n] * Gs[t, n, m]
-                    tmp[q, m] = acc
-            for q in range(3):
-                for m in range(3):
-                    Psi[q, m] = tmp[q, m]
+            tmp[:] = 0.0
+            gemm(Psi, Gs[t], 1.0, tmp)
+            Psi[:] = tmp
     return STATUS_OK
 
 
@@ -345,49 +301,27 @@ def block_tridiagonal_inverse(D, U, P_node, P_cross):  # pragma: no cover - comp
     Einv = np.empty((n, 3, 3))
     E = np.empty((3, 3))
     W = np.empty((3, 3))
+    UW = np.empty((3, 3))
     for k in range(n):
-        for q in range(3):
-            for m in range(3):
-                E[q, m] = D[k, q, m]
+        E[:] = D[k]
         if k > 0:
             # W = E_{k-1}^-1 U_{k-1}; E -= U_{k-1}^T W
-            for q in range(3):
-                for m in range(3):
-                    acc = 0.0
-                    for t in range(3):
-                        acc += Einv[k - 1, q, t] * U[k - 1, t, m]
-                    W[q, m] = acc
-            for q in range(3):
-                for m in range(3):
-                    acc = 0.0
-                    for t in range(3):
-                        acc += U[k - 1, t, q] * W[t, m]
-                    E[q, m] -= acc
+            W[:] = 0.0
+            gemm(Einv[k - 1], U[k - 1], 1.0, W)
+            UW[:] = 0.0
+            gemm(U[k - 1].T, W, 1.0, UW)
+            E -= UW
         if not _inv3(E, Einv[k]):
             return False
-    for q in range(3):
-        for m in range(3):
-            P_node[n - 1, q, m] = Einv[n - 1, q, m]
+    P_node[n - 1] = Einv[n - 1]
     for k in range(n - 2, -1, -1):
-        # W = E_k^-1 U_k ; P_cross[k] = -W P_{k+1}
-        for q in range(3):
-            for m in range(3):
-                acc = 0.0
-                for t in range(3):
-                    acc += Einv[k, q, t] * U[k, t, m]
-                W[q, m] = acc
-        for q in range(3):
-            for m in range(3):
-                acc = 0.0
-                for t in range(3):
-                    acc += W[q, t] * P_node[k + 1, t, m]
-                P_cross[k, q, m] = -acc
-        for q in range(3):
-            for m in range(3):
-                acc = Einv[k, q, m]
-                for t in range(3):
-                    acc -= P_cross[k, q, t] * W[m, t]
-                P_node[k, q, m] = acc
+        # W = E_k^-1 U_k ; P_cross[k] = -W P_{k+1} ; P_k = E_k^-1 - P_cross[k] W^T
+        W[:] = 0.0
+        gemm(Einv[k], U[k], 1.0, W)
+        P_cross[k] = 0.0
+        gemm(W, P_node[k + 1], -1.0, P_cross[k])
+        P_node[k] = Einv[k]
+        gemm(P_cross[k], W.T, -1.0, P_node[k])
         for q in range(3):
             for m in range(q + 1, 3):
                 v = 0.5 * (P_node[k, q, m] + P_node[k, m, q])
@@ -398,33 +332,14 @@ def block_tridiagonal_inverse(D, U, P_node, P_cross):  # pragma: no cover - comp
 
 @njit(cache=True)
 def _range_bearing_one(x, off, m0, m1, zh, Hx, Hm):  # pragma: no cover - compiled
-    """Range-bearing prediction of landmark ``(m0, m1)`` from pose ``x`` with the sensor at
-    ``off = (dx, dy, dth)`` in the robot frame, and its Jacobians (as
-    ``RangeBearingModel.predict``). Returns False at zero range."""
-    c = math.cos(x[2])
-    s = math.sin(x[2])
-    sx = x[0] + c * off[0] - s * off[1]
-    sy = x[1] + s * off[0] + c * off[1]
-    dsx = -s * off[0] - c * off[1]
-    dsy = c * off[0] - s * off[1]
-    d0 = m0 - sx
-    d1 = m1 - sy
-    q = d0 * d0 + d1 * d1
-    if q <= 1e-18:
-        return False
-    r = math.sqrt(q)
+    """Range-bearing prediction ``zh (2,)`` of landmark ``(m0, m1)`` from pose ``x`` with the
+    sensor at ``off = (dx, dy, dth)`` in the robot frame, and its Jacobians ``Hx (2, 3)``,
+    ``Hm (2, 2)`` (:func:`~probmap.slam._landmark_kernels.range_bearing`). Returns False at
+    zero range."""
+    r, b = range_bearing(x[0], x[1], x[2], off, m0, m1, Hm, Hx)
     zh[0] = r
-    zh[1] = wrap(math.atan2(d1, d0) - x[2] - off[2])
-    Hm[0, 0] = d0 / r
-    Hm[0, 1] = d1 / r
-    Hm[1, 0] = -d1 / q
-    Hm[1, 1] = d0 / q
-    for a in range(2):
-        Hx[a, 0] = -Hm[a, 0]
-        Hx[a, 1] = -Hm[a, 1]
-        Hx[a, 2] = -(Hm[a, 0] * dsx + Hm[a, 1] * dsy)
-    Hx[1, 2] -= 1.0
-    return True
+    zh[1] = b
+    return r > ZERO_RANGE
 
 
 @njit(cache=True)

@@ -96,53 +96,6 @@ def skip_bad_lines_option() -> Any:
     )
 
 
-def scan_topic_option() -> Any:
-    """``--scan-topic``: the same option on every command that reads a laser log."""
-    return typer.Option(
-        None,
-        "--scan-topic",
-        help="ROS bag: LaserScan/MultiEchoLaserScan topic (default: the only one).",
-    )
-
-
-def odom_topic_option() -> Any:
-    """``--odom-topic``."""
-    return typer.Option(
-        None, "--odom-topic", help="ROS bag: nav_msgs/Odometry topic (default: the only one)."
-    )
-
-
-def fixed_frame_option() -> Any:
-    """``--fixed-frame``."""
-    return typer.Option(
-        None,
-        "--fixed-frame",
-        help="ROS bag: world frame of the poses (default: odometry frame, map or odom).",
-    )
-
-
-def laser_frame_option() -> Any:
-    """``--laser-frame``."""
-    return typer.Option(
-        None, "--laser-frame", help="ROS bag: the scans' frame (default: their header.frame_id)."
-    )
-
-
-def bag_options_of(
-    scan_topic: str | None,
-    odom_topic: str | None,
-    fixed_frame: str | None,
-    laser_frame: str | None,
-) -> dict[str, Any]:
-    """The ``bag_options`` of :func:`probmap.datasets.open_scans` from the four options."""
-    return {
-        "scan_topic": scan_topic,
-        "odom_topic": odom_topic,
-        "fixed_frame": fixed_frame,
-        "laser_frame": laser_frame,
-    }
-
-
 def laser_input(path: Path | str) -> Path:
     """The file a laser-log argument names: the path, or a registered laser dataset's file
     under the data directory (``$PROBMAP_DATA``, else ``../shared/data``). A name that is

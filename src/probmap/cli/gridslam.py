@@ -10,23 +10,20 @@ import typer
 
 from probmap.cli._provenance import command_line
 from probmap.cli.common import (
-    bag_options_of,
     cli_errors,
-    fixed_frame_option,
     input_rows,
-    laser_frame_option,
     laser_input,
-    odom_topic_option,
     print_summary,
     resolve_config,
-    scan_topic_option,
     skip_bad_lines_option,
 )
+from probmap.cli.options import ros_bag_options, with_option_groups
 from probmap.cli.slam import slam_app
 from probmap.cli.watch import stop_on_ctrl_c
 
 
 @slam_app.command("grid")
+@with_option_groups
 def grid_command(
     log: Path = typer.Argument(
         ..., help="A raw CARMEN log (plain, .gz or .bz2), a ROS 1/2 bag or a dataset name."
@@ -47,10 +44,7 @@ def grid_command(
     end_time: float | None = typer.Option(
         None, "--end-time", help="Use only the first this many seconds of the log."
     ),
-    scan_topic: str | None = scan_topic_option(),
-    odom_topic: str | None = odom_topic_option(),
-    fixed_frame: str | None = fixed_frame_option(),
-    laser_frame: str | None = laser_frame_option(),
+    bag_options: dict[str, Any] = ros_bag_options(),
     config: Path | None = typer.Option(
         None,
         "--config",
@@ -125,7 +119,6 @@ def grid_command(
         from probmap.pipelines import check_output_prefix
 
         prefix = check_output_prefix(output, "slam")
-        bag_options = bag_options_of(scan_topic, odom_topic, fixed_frame, laser_frame)
         rbpf_options = {
             "particles": particles,
             "linear_update": linear_update,
@@ -415,6 +408,7 @@ def _rbpf(
     print_summary("grid SLAM (rbpf)", rows)
 
 
+@with_option_groups
 def match_command(
     map_file: Path = typer.Argument(..., help="A map: PREFIX.npz or a map_server PREFIX.yaml."),
     log: Path = typer.Argument(
@@ -441,10 +435,7 @@ def match_command(
         "above; the options given here override it.",
     ),
     skip_bad_lines: bool = skip_bad_lines_option(),
-    scan_topic: str | None = scan_topic_option(),
-    odom_topic: str | None = odom_topic_option(),
-    fixed_frame: str | None = fixed_frame_option(),
-    laser_frame: str | None = laser_frame_option(),
+    bag_options: dict[str, Any] = ros_bag_options(),
 ) -> None:
     """Match one scan of a log against a map: prints the pose, its standard deviations and
     the match score (correlative search refined by Gauss-Newton)."""
@@ -487,7 +478,7 @@ def match_command(
                     log,
                     poses="corrected",
                     skip_bad_lines=skip_bad_lines,
-                    bag_options=bag_options_of(scan_topic, odom_topic, fixed_frame, laser_frame),
+                    bag_options=bag_options,
                 )
         with watch("compute"):
             if suffix == ".npz":

@@ -12,17 +12,13 @@ from probmap._atomic import atomic_path
 from probmap.cli.common import (
     CliError,
     Stopwatch,
-    bag_options_of,
     cli_errors,
-    fixed_frame_option,
     input_rows,
-    laser_frame_option,
     laser_input,
-    odom_topic_option,
     print_summary,
-    scan_topic_option,
     skip_bad_lines_option,
 )
+from probmap.cli.options import ros_bag_options, with_option_groups
 
 
 def _read_reference(
@@ -92,6 +88,7 @@ def _describe_offset(mount: Any) -> str:
     return f"{x:.3f}, {y:.3f} m, {math.degrees(th):.1f} deg (laser in the robot frame)"
 
 
+@with_option_groups
 def localize_command(
     first: Path = typer.Argument(
         ...,
@@ -160,10 +157,7 @@ def localize_command(
     start: int = typer.Option(0, "--start", help="First scan to use."),
     stop: int | None = typer.Option(None, "--stop", help="Scan to stop before."),
     skip_bad_lines: bool = skip_bad_lines_option(),
-    scan_topic: str | None = scan_topic_option(),
-    odom_topic: str | None = odom_topic_option(),
-    fixed_frame: str | None = fixed_frame_option(),
-    laser_frame: str | None = laser_frame_option(),
+    bag_options: dict[str, Any] = ros_bag_options(),
     viz: bool = typer.Option(
         False, "--viz", help="Watch the run in the rerun viewer (extra 'viz')."
     ),
@@ -226,14 +220,13 @@ def localize_command(
         if viz_save is not None:
             check_output_folder(viz_save.parent if str(viz_save.parent) else Path("."))
 
-        bags = bag_options_of(scan_topic, odom_topic, fixed_frame, laser_frame)
         with watch("read"):
             m = load_localization_map(map_path)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", BadLinesWarning)  # counted in the summary
                 # the log's own laser poses: beside the robot's they give the mounting
                 batch = open_scans(
-                    log, poses="corrected", skip_bad_lines=skip_bad_lines, bag_options=bags
+                    log, poses="corrected", skip_bad_lines=skip_bad_lines, bag_options=bag_options
                 )
             odo = np.asarray(batch.robot_poses)
             if odo.shape[0] < 2 or np.all(odo == odo[0]):
@@ -243,7 +236,7 @@ def localize_command(
                 raise CliError(f"{log}: scans with differing beam geometry are not supported")
             if not 0 <= start < len(batch.times):
                 raise CliError(f"--start {start}: the log has {len(batch.times):,} scans")
-            mount = _laser_offset(log, batch, m, skip_bad_lines, bags)
+            mount = _laser_offset(log, batch, m, skip_bad_lines, bag_options)
             ref_t = ref_p = None
             ref_name = None
             always = None
@@ -251,7 +244,7 @@ def localize_command(
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", BadLinesWarning)
                     ref_t, ref_p = _read_reference(
-                        reference, reference_offset, skip_bad_lines, bags
+                        reference, reference_offset, skip_bad_lines, bag_options
                     )
                 always, _ = match_times(batch.times, ref_t)
                 if always.size == 0:

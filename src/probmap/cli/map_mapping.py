@@ -12,17 +12,13 @@ from typing import Any
 import typer
 
 from probmap.cli.common import (
-    bag_options_of,
     cli_errors,
-    fixed_frame_option,
     input_rows,
-    laser_frame_option,
     laser_input,
-    odom_topic_option,
     print_summary,
-    scan_topic_option,
     skip_bad_lines_option,
 )
+from probmap.cli.options import ros_bag_options, with_option_groups
 
 
 def run_map_method(
@@ -97,6 +93,7 @@ def run_map_method(
     return result
 
 
+@with_option_groups
 def fit_sensor_model_command(
     log: Path = typer.Argument(
         ...,
@@ -132,10 +129,7 @@ def fit_sensor_model_command(
         "settings used under 'configuration'.",
     ),
     skip_bad_lines: bool = skip_bad_lines_option(),
-    scan_topic: str | None = scan_topic_option(),
-    odom_topic: str | None = odom_topic_option(),
-    fixed_frame: str | None = fixed_frame_option(),
-    laser_frame: str | None = laser_frame_option(),
+    bag_options: dict[str, Any] = ros_bag_options(),
 ) -> None:
     """Fit the beam model's parameters to a log by EM (Probabilistic Robotics Table 6.2).
 
@@ -170,7 +164,7 @@ def fit_sensor_model_command(
                 poses=cfg.poses,
                 max_range=cfg.max_range,
                 skip_bad_lines=skip_bad_lines,
-                bag_options=bag_options_of(scan_topic, odom_topic, fixed_frame, laser_frame),
+                bag_options=bag_options,
             )
         with watch("compute"):
             fit = fit_scans(batch, cfg)

@@ -12,19 +12,15 @@ import typer
 from probmap.cli._provenance import command_line
 from probmap.cli.common import (
     Stopwatch,
-    bag_options_of,
     cli_errors,
-    fixed_frame_option,
-    laser_frame_option,
     laser_input,
     mapping_rows,
-    odom_topic_option,
     print_summary,
     resolve_config,
-    scan_topic_option,
     skip_bad_lines_option,
 )
-from probmap.cli.watch import save_partial_option, viz_option, viz_save_option
+from probmap.cli.options import ros_bag_options, with_option_groups
+from probmap.cli.watch import live_view_options
 
 
 def _fmt(v: object) -> str:
@@ -33,6 +29,7 @@ def _fmt(v: object) -> str:
     return str(v)
 
 
+@with_option_groups
 def map_command(
     logs: list[Path] = typer.Argument(
         ...,
@@ -81,10 +78,7 @@ def map_command(
         "--method",
         help="log-odds: per-cell Bayes filter; map: MAP mapping with the beam model (Table 9.3).",
     ),
-    scan_topic: str | None = scan_topic_option(),
-    odom_topic: str | None = odom_topic_option(),
-    fixed_frame: str | None = fixed_frame_option(),
-    laser_frame: str | None = laser_frame_option(),
+    bag_options: dict[str, Any] = ros_bag_options(),
     to_bag: Path | None = typer.Option(
         None,
         "--to-bag",
@@ -100,9 +94,7 @@ def map_command(
     allow_partial: bool = typer.Option(
         False, "--allow-partial", help="Dask: write the map of the readable logs when some fail."
     ),
-    viz: bool = viz_option(),
-    viz_save: Path | None = viz_save_option(),
-    save_partial: bool = save_partial_option(),
+    live: dict[str, Any] = live_view_options(),
 ) -> None:
     """Build an occupancy grid map from a laser log with known poses."""
     watch = Stopwatch()
@@ -120,7 +112,6 @@ def map_command(
         # run reports it)
         logs = [laser_input(p) if p.exists() or not allow_partial else p for p in logs]
         log = logs[0]
-        bag_options = bag_options_of(scan_topic, odom_topic, fixed_frame, laser_frame)
         prefix = check_output_prefix(output, "map")
         if to_bag is not None:
             from probmap.datasets.rosbag import is_bag
@@ -144,7 +135,7 @@ def map_command(
             },
         )
         local = workers is None and scheduler is None and len(logs) == 1 and chunks == 1
-        if (viz or viz_save is not None) and not (local and method == "log-odds"):
+        if (live["viz"] or live["viz_save"] is not None) and not (local and method == "log-odds"):
             raise ValueError(
                 "--viz and --viz-save watch the log-odds method on one log (no --method map, "
                 "--workers, --scheduler, --chunks or several logs)"
@@ -196,8 +187,7 @@ def map_command(
                 run_map_method(log, prefix, cfg, bag_options=bag_options)
             return
         _map_one(
-            log, prefix, cfg, bag_options, to_bag=to_bag, watch=watch, viz=viz,
-            viz_save=viz_save, save_partial=save_partial,
+            log, prefix, cfg, bag_options, to_bag=to_bag, watch=watch, **live
         )  # fmt: skip
 
 

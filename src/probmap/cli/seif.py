@@ -8,6 +8,7 @@ from typing import Any
 import typer
 
 from probmap.cli.common import cli_errors
+from probmap.cli.options import with_option_groups
 from probmap.cli.slam import (
     DATASET_HELP,
     data_dir_option,
@@ -17,13 +18,11 @@ from probmap.cli.slam import (
     output_folder_option,
     plot_option,
     robot_option,
-    save_partial_option,
     slam_app,
     threads_option,
     tum_option,
-    viz_option,
-    viz_save_option,
 )
+from probmap.cli.watch import live_view_options
 
 MAX_ACTIVE_HELP = "Bound on the active landmarks (Table 12.4); 0 = unbounded (no sparsification)."
 CONTEXT_HELP = (
@@ -94,6 +93,7 @@ def _label(cfg: Any) -> str:
 
 
 @slam_app.command("seif")
+@with_option_groups
 def seif_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
     output: Path = output_folder_option(),
@@ -113,9 +113,7 @@ def seif_command(
     threads: int = threads_option(),
     plot: bool = plot_option(),
     tum: bool = tum_option(),
-    viz: bool = viz_option(),
-    viz_save: Path | None = viz_save_option(),
-    save_partial: bool = save_partial_option(),
+    live: dict[str, Any] = live_view_options(),
 ) -> None:
     """SEIF SLAM (Probabilistic Robotics Tables 12.1-12.5): writes trajectory.csv,
     landmarks.csv, metrics.json, config.yaml and slam.png (and trajectory.tum with --tum) into
@@ -135,7 +133,7 @@ def seif_command(
         title = f"SEIF SLAM ({_label(cfg)})"
         run_and_report(
             _seif(ds, cfg), ds, output, title, plot, tum=tum, watch=watch,
-            viz=viz, viz_save=viz_save, save_partial=save_partial,
+            **live,
         )  # fmt: skip
 
 

@@ -15,13 +15,12 @@ import typer
 
 from probmap.cli._provenance import command_line
 from probmap.cli.common import CliError, Stopwatch, cli_errors, print_summary
+from probmap.cli.options import with_option_groups
 from probmap.cli.watch import (
     interrupted_exit,
+    live_view_options,
     open_view,
-    save_partial_option,
     stop_on_ctrl_c,
-    viz_option,
-    viz_save_option,
 )
 
 slam_app = typer.Typer(
@@ -287,6 +286,7 @@ def run_and_report(
 
 
 @slam_app.command("ekf")
+@with_option_groups
 def ekf_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
     output: Path = output_folder_option(),
@@ -305,9 +305,7 @@ def ekf_command(
         help="A YAML file of the estimator's configuration (as OUTPUT/config.yaml records it) "
         "instead of the dataset's defaults.",
     ),
-    viz: bool = viz_option(),
-    viz_save: Path | None = viz_save_option(),
-    save_partial: bool = save_partial_option(),
+    live: dict[str, Any] = live_view_options(),
 ) -> None:
     """EKF SLAM (Probabilistic Robotics Table 10.1/10.2): writes trajectory.csv, landmarks.csv,
     metrics.json and slam.png (and trajectory.tum with --tum) into OUTPUT."""
@@ -331,12 +329,12 @@ def ekf_command(
             file_cfg if file_cfg is not None else default_ekf_config(ds),
         )
         run_and_report(
-            ekf, ds, output, "EKF SLAM", plot, tum=tum, watch=watch, viz=viz, viz_save=viz_save,
-            save_partial=save_partial,
+            ekf, ds, output, "EKF SLAM", plot, tum=tum, watch=watch, **live
         )  # fmt: skip
 
 
 @slam_app.command("graphslam")
+@with_option_groups
 def graphslam_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
     output: Path = output_folder_option(),
@@ -360,9 +358,7 @@ def graphslam_command(
         help="A YAML file of GraphSLAMConfig (as OUTPUT/config.yaml records it) instead of the "
         "dataset's defaults; --robust still applies.",
     ),
-    viz: bool = viz_option(),
-    viz_save: Path | None = viz_save_option(),
-    save_partial: bool = save_partial_option(),
+    live: dict[str, Any] = live_view_options(),
 ) -> None:
     """GraphSLAM over the whole log (Probabilistic Robotics Tables 11.1-11.5, known landmark
     ids): writes trajectory.csv (smoothed), landmarks.csv, metrics.json and slam.png (and
@@ -385,11 +381,12 @@ def graphslam_command(
         gcfg = replace(base, robust=robust, robust_scale=None)
         run_and_report(
             build_graphslam(ds, gcfg), ds, output, "GraphSLAM", plot, tum=tum, watch=watch,
-            viz=viz, viz_save=viz_save, save_partial=save_partial,
+            **live,
         )  # fmt: skip
 
 
 @slam_app.command("fastslam")
+@with_option_groups
 def fastslam_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
     output: Path = output_folder_option(),
@@ -422,9 +419,7 @@ def fastslam_command(
     end_time: float | None = end_time_option(),
     plot: bool = plot_option(),
     tum: bool = tum_option(),
-    viz: bool = viz_option(),
-    viz_save: Path | None = viz_save_option(),
-    save_partial: bool = save_partial_option(),
+    live: dict[str, Any] = live_view_options(),
 ) -> None:
     """FastSLAM 1.0 / 2.0 (Probabilistic Robotics ch. 13), known or unknown landmark ids:
     writes trajectory.csv (weighted mean pose), landmarks.csv (heaviest particle), metrics.json
@@ -452,8 +447,7 @@ def fastslam_command(
         slam = FastSLAM(ds.motion_model, ds.measurement_model, ds.initial_pose, cfg)
         title = f"FastSLAM {cfg.version}.0 ({cfg.n_particles} particles)"
         run_and_report(
-            slam, ds, output, title, plot, tum=tum, watch=watch, viz=viz, viz_save=viz_save,
-            save_partial=save_partial,
+            slam, ds, output, title, plot, tum=tum, watch=watch, **live
         )  # fmt: skip
 
 

@@ -12,27 +12,28 @@ from typing import Any
 import typer
 
 
-def viz_option() -> Any:
-    """``--viz``: the same option on every command with a live view."""
-    return typer.Option(False, "--viz", help="Watch the run in the rerun viewer (extra 'viz').")
+def live_view_options() -> Any:
+    """``--viz``, ``--viz-save FILE.rrd`` and ``--save-partial/--no-save-partial`` (default
+    on): the same three options on every command with a live view (an
+    :func:`~probmap.cli.options.option_group`). The command gets them as one dict,
+    ``{"viz": ..., "viz_save": ..., "save_partial": ...}``, the keywords of the functions that
+    run it (:func:`probmap.cli.slam.run_and_report`)."""
+    from probmap.cli.options import option_group
 
-
-def viz_save_option() -> Any:
-    """``--viz-save FILE.rrd``."""
-    return typer.Option(
+    viz = typer.Option(False, "--viz", help="Watch the run in the rerun viewer (extra 'viz').")
+    viz_save = typer.Option(
         None,
         "--viz-save",
         help="Record the live view into FILE.rrd (open it later with 'rerun FILE.rrd').",
     )
-
-
-def save_partial_option() -> Any:
-    """``--save-partial/--no-save-partial`` (default on)."""
-    return typer.Option(
+    save_partial = typer.Option(
         True,
         "--save-partial/--no-save-partial",
         help="On Ctrl-C, stop and write the results of the part run so far (exit 130); a "
         "second Ctrl-C aborts without writing.",
+    )
+    return option_group(
+        dict, viz=(bool, viz), viz_save=(Path | None, viz_save), save_partial=(bool, save_partial)
     )
 
 

@@ -1,0 +1,168 @@
+"""The options several commands share, each declared once.
+
+Single options are factories (``config: Path | None = config_option("...")``). Options that
+always travel together (a ROS bag's topics and frames; the live view) form an
+:func:`option_group`: the command lists one parameter whose default is the group, and
+:func:`with_option_groups` expands it, in place, into the group's options for typer, then
+hands the command the group's one combined value. ``--help`` lists the same options in the
+same order as if each had been written out.
+
+Imports nothing beyond typer: ``probmap --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, TypeVar, get_type_hints
+
+import typer
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+@dataclass(frozen=True)
+class OptionGroup:
+    """Typer options that one command parameter stands for (see :func:`option_group`).
+
+    Attributes
+    ----------
+    options : tuple of (str, type, typer option)
+        Each option's parameter name, annotation and ``typer.Option``, in ``--help`` order.
+    combine : callable
+        Called with the options' values as keywords; its result is what the command gets.
+    """
+
+    options: tuple[tuple[str, Any, Any], ...]
+    combine: Callable[..., Any]
+
+
+def option_group(combine: Callable[..., Any], **options: tuple[Any, Any]) -> Any:
+    """A group of options, used as the default of the one parameter it stands for.
+
+    Parameters
+    ----------
+    combine : callable
+        Turns the options' values (keywords named as the options) into the parameter's value.
+    **options : (type, typer option)
+        Each option's annotation and ``typer.Option``, in the order ``--help`` lists them.
+
+    Returns
+    -------
+    OptionGroup
+        Typed ``Any`` so that it can stand as the default of a parameter of any type;
+        :func:`with_option_groups` on the command expands it.
+    """
+    return OptionGroup(tuple((name, ann, opt) for name, (ann, opt) in options.items()), combine)
+
+
+def with_option_groups(command: F) -> F:
+    """The typer command ``command`` with each parameter whose default is an
+    :class:`OptionGroup` replaced, at its place, by the group's options; a call combines their
+    values back into that parameter. Decorate the function before typer registers it.
+
+    Raises
+    ------
+    TypeError
+        Two groups (or a group and the command) name the same parameter.
+    """
+    sig = inspect.signature(command)
+    hints = get_type_hints(command, include_extras=True)
+    params: list[inspect.Parameter] = []
+    groups: dict[str, OptionGroup] = {}
+    for p in sig.parameters.values():
+        if not isinstance(p.default, OptionGroup):
+            params.append(p.replace(annotation=hints.get(p.name, p.annotation)))
+            continue
+        groups[p.name] = p.default
+        kind = inspect.Parameter.KEYWORD_ONLY
+        params += [
+            inspect.Parameter(n, kind, default=o, annotation=a) for n, a, o in p.default.options
+        ]
+    names = [p.name for p in params]
+    if len(set(names)) != len(names):
+        raise TypeError(f"{command.__name__}: an option group repeats a parameter name")
+
+    @functools.wraps(command)
+    def expanded(**kwargs: Any) -> Any:
+        for name, group in groups.items():
+            values = {n: kwargs.pop(n) for n, _, _ in group.options}
+            kwargs[name] = group.combine(**values)
+        return command(**kwargs)
+
+    # keyword-only parameters may follow ones with defaults or none in any order
+    fixed = [p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for p in params]
+    expanded.__signature__ = sig.replace(parameters=fixed)  # type: ignore[attr-defined]
+    expanded.__annotations__ = {p.name: p.annotation for p in fixed}
+    expanded.__annotations__["return"] = hints.get("return", sig.return_annotation)
+    return expanded  # type: ignore[return-value]
+
+
+def config_option(help: str) -> Any:
+    """``--config FILE``: a YAML file of the command's configuration fields; ``help`` names
+    the configuration and what the other options do to it."""
+    return typer.Option(None, "--config", help=help)
+
+
+def output_option(help: str, default: Any = ...) -> Any:
+    """``-o/--output``: where the command writes (required unless ``default`` is given)."""
+    return typer.Option(default, "-o", "--output", help=help)
+
+
+def bag_options_of(
+    scan_topic: str | None,
+    odom_topic: str | None,
+    fixed_frame: str | None,
+    laser_frame: str | None,
+) -> dict[str, Any]:
+    """The ``bag_options`` of :func:`probmap.datasets.open_scans` from the four options."""
+    return {
+        "scan_topic": scan_topic,
+        "odom_topic": odom_topic,
+        "fixed_frame": fixed_frame,
+        "laser_frame": laser_frame,
+    }
+
+
+def ros_bag_options() -> Any:
+    """``--scan-topic``, ``--odom-topic``, ``--fixed-frame``, ``--laser-frame``: how every
+    command that reads a laser log picks a ROS bag's topics and frames; the command gets the
+    ``bag_options`` dict of :func:`probmap.datasets.open_scans` (:func:`bag_options_of`)."""
+    str_or_none = str | None
+    return option_group(
+        bag_options_of,
+        scan_topic=(
+            str_or_none,
+            typer.Option(
+                None,
+                "--scan-topic",
+                help="ROS bag: LaserScan/MultiEchoLaserScan topic (default: the only one).",
+            ),
+        ),
+        odom_topic=(
+            str_or_none,
+            typer.Option(
+                None,
+                "--odom-topic",
+                help="ROS bag: nav_msgs/Odometry topic (default: the only one).",
+            ),
+        ),
+        fixed_frame=(
+            str_or_none,
+            typer.Option(
+                None,
+                "--fixed-frame",
+                help="ROS bag: world frame of the poses (default: odometry frame, map or odom).",
+            ),
+        ),
+        laser_frame=(
+            str_or_none,
+            typer.Option(
+                None,
+                "--laser-frame",
+                help="ROS bag: the scans' frame (default: their header.frame_id).",
+            ),
+        ),
+    )

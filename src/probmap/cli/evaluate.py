@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from probmap.cli.common import cli_errors
+from probmap.cli.options import config_option, output_option
 
 evaluate_app = typer.Typer(
     help="Score trajectories and maps against references.", no_args_is_help=True
@@ -27,19 +28,15 @@ def relations_command(
         "--poses",
         help="For a CARMEN log: robot (odom fields) or laser poses [default: robot].",
     ),
-    config: Path | None = typer.Option(
-        None,
-        "--config",
-        help="A YAML file of RelationsConfig fields (tolerance, poses); the options given here "
-        "override it.",
+    config: Path | None = config_option(
+        "A YAML file of RelationsConfig fields (tolerance, poses); the options given here "
+        "override it."
     ),
-    output: str | None = typer.Option(
-        None,
-        "-o",
-        "--output",
-        help="Also write the figures as JSON, with the settings used ('configuration'), the "
+    output: str | None = output_option(
+        "Also write the figures as JSON, with the settings used ('configuration'), the "
         "command line and the probmap version; an existing folder (or a name ending in /) gets "
         "FOLDER/relations.json. Missing folders are created.",
+        default=None,
     ),
 ) -> None:
     """Relation error of a trajectory: mean and std of translational and rotational errors."""

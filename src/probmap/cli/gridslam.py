@@ -17,7 +17,7 @@ from probmap.cli.common import (
     resolve_config,
     skip_bad_lines_option,
 )
-from probmap.cli.options import ros_bag_options, with_option_groups
+from probmap.cli.options import config_option, output_option, ros_bag_options, with_option_groups
 from probmap.cli.slam import slam_app
 from probmap.cli.watch import stop_on_ctrl_c
 
@@ -28,12 +28,9 @@ def grid_command(
     log: Path = typer.Argument(
         ..., help="A raw CARMEN log (plain, .gz or .bz2), a ROS 1/2 bag or a dataset name."
     ),
-    output: str = typer.Option(
-        ...,
-        "-o",
-        "--output",
-        help="Output prefix (PREFIX.yaml, ...); an existing folder (or a name ending in /) "
-        "writes FOLDER/slam.*. Missing folders are created.",
+    output: str = output_option(
+        "Output prefix (PREFIX.yaml, ...); an existing folder (or a name ending in /) "
+        "writes FOLDER/slam.*. Missing folders are created."
     ),
     method: str = typer.Option(
         "graph",
@@ -45,11 +42,9 @@ def grid_command(
         None, "--end-time", help="Use only the first this many seconds of the log."
     ),
     bag_options: dict[str, Any] = ros_bag_options(),
-    config: Path | None = typer.Option(
-        None,
-        "--config",
-        help="A YAML configuration: GraphSlamConfig fields (graph) or GridSlamConfig fields "
-        "(rbpf; the options below override it). Fields left out keep their defaults.",
+    config: Path | None = config_option(
+        "A YAML configuration: GraphSlamConfig fields (graph) or GridSlamConfig fields "
+        "(rbpf; the options below override it). Fields left out keep their defaults."
     ),
     particles: int | None = typer.Option(
         None, "--particles", "-n", help="rbpf: number of particles [default: 30]."
@@ -427,12 +422,10 @@ def match_command(
     angular_window: float | None = typer.Option(
         None, "--angular-window", help="Search half-width in heading (rad) [default: 0.2]."
     ),
-    config: Path | None = typer.Option(
-        None,
-        "--config",
-        help="A YAML file of MatcherConfig fields (sigma, linear_window, linear_step, "
+    config: Path | None = config_option(
+        "A YAML file of MatcherConfig fields (sigma, linear_window, linear_step, "
         "angular_window, angular_step, iterations, usable_range, beam_skip) over the defaults "
-        "above; the options given here override it.",
+        "above; the options given here override it."
     ),
     skip_bad_lines: bool = skip_bad_lines_option(),
     bag_options: dict[str, Any] = ros_bag_options(),

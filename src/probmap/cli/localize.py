@@ -18,7 +18,7 @@ from probmap.cli.common import (
     print_summary,
     skip_bad_lines_option,
 )
-from probmap.cli.options import ros_bag_options, with_option_groups
+from probmap.cli.options import config_option, output_option, ros_bag_options, with_option_groups
 
 
 def _read_reference(
@@ -109,12 +109,9 @@ def localize_command(
         "is its occupancy grid at its optimized poses, and its trajectory is the reference when "
         "--reference is not given.",
     ),
-    output: Path = typer.Option(
-        ...,
-        "-o",
-        "--output",
-        help="Output folder (created when missing): trajectory.csv (the robot's poses) and "
-        "trajectory.png.",
+    output: Path = output_option(
+        "Output folder (created when missing): trajectory.csv (the robot's poses) and "
+        "trajectory.png."
     ),
     particles: int | None = typer.Option(
         None, "--particles", "-n", help="Number of particles [default: 2000]."
@@ -141,11 +138,9 @@ def localize_command(
         help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
     ),
     seed: int | None = typer.Option(None, "--seed", help="Random seed [default: 0]."),
-    config: Path | None = typer.Option(
-        None,
-        "--config",
-        help="A YAML file of LocalizeConfig fields (as OUTPUT/config.yaml records them); the "
-        "options given here override it.",
+    config: Path | None = config_option(
+        "A YAML file of LocalizeConfig fields (as OUTPUT/config.yaml records them); the "
+        "options given here override it."
     ),
     allow_lost: bool = typer.Option(
         False,

@@ -18,7 +18,7 @@ from probmap.cli.common import (
     print_summary,
     skip_bad_lines_option,
 )
-from probmap.cli.options import ros_bag_options, with_option_groups
+from probmap.cli.options import config_option, output_option, ros_bag_options, with_option_groups
 
 
 def run_map_method(
@@ -99,12 +99,10 @@ def fit_sensor_model_command(
         ...,
         help="Laser log: CARMEN .clf/.log (plain, .gz, .bz2), ROS 1/2 bag or a dataset name.",
     ),
-    output: str | None = typer.Option(
-        None,
-        "-o",
-        "--output",
-        help="Write the fitted parameters to this YAML file; an existing folder (or a name "
+    output: str | None = output_option(
+        "Write the fitted parameters to this YAML file; an existing folder (or a name "
         "ending in /) gets FOLDER/beam_model.yaml. Missing folders are created.",
+        default=None,
     ),
     resolution: float | None = typer.Option(
         None,
@@ -121,12 +119,10 @@ def fit_sensor_model_command(
         "--poses",
         help="corrected: the scans' laser poses; odometry: odometry [default: corrected].",
     ),
-    config: Path | None = typer.Option(
-        None,
-        "--config",
-        help="A YAML file of FitConfig fields (resolution, every, max_range, poses, "
+    config: Path | None = config_option(
+        "A YAML file of FitConfig fields (resolution, every, max_range, poses, "
         "max_iterations, tol); the options given here override it. The output records the "
-        "settings used under 'configuration'.",
+        "settings used under 'configuration'."
     ),
     skip_bad_lines: bool = skip_bad_lines_option(),
     bag_options: dict[str, Any] = ros_bag_options(),

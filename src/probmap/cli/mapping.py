@@ -19,7 +19,7 @@ from probmap.cli.common import (
     resolve_config,
     skip_bad_lines_option,
 )
-from probmap.cli.options import ros_bag_options, with_option_groups
+from probmap.cli.options import config_option, output_option, ros_bag_options, with_option_groups
 from probmap.cli.watch import live_view_options
 
 
@@ -36,12 +36,9 @@ def map_command(
         help="Laser log(s): CARMEN .clf/.log (plain, .gz, .bz2), ROS 1/2 bag or a dataset name "
         "(probmap datasets list). Several logs are mapped together on a Dask cluster.",
     ),
-    output: str = typer.Option(
-        ...,
-        "-o",
-        "--output",
-        help="Output prefix: writes PREFIX.{yaml,pgm,npz,png}; an existing folder (or a name "
-        "ending in /) writes FOLDER/map.*. Missing folders are created.",
+    output: str = output_option(
+        "Output prefix: writes PREFIX.{yaml,pgm,npz,png}; an existing folder (or a name "
+        "ending in /) writes FOLDER/map.*. Missing folders are created."
     ),
     resolution: float | None = typer.Option(
         None, "--resolution", "-r", help="Cell size in metres [default: 0.05]."
@@ -66,11 +63,9 @@ def map_command(
     p_miss: float | None = typer.Option(
         None, "--p-miss", help="Inverse model: p(occupied) along a beam [default: 0.4]."
     ),
-    config: Path | None = typer.Option(
-        None,
-        "--config",
-        help="A YAML file of MappingConfig fields (as PREFIX.config.yaml records them); the "
-        "options given here override it.",
+    config: Path | None = config_option(
+        "A YAML file of MappingConfig fields (as PREFIX.config.yaml records them); the "
+        "options given here override it."
     ),
     skip_bad_lines: bool = skip_bad_lines_option(),
     method: str = typer.Option(
@@ -284,12 +279,10 @@ def _map_one(
 
 
 def demo_command(
-    output: Path = typer.Option(
-        Path("probmap-demo"),
-        "-o",
-        "--output",
-        help="Output folder (created when missing): map.*, or trajectory.csv (--localize), or "
+    output: Path = output_option(
+        "Output folder (created when missing): map.*, or trajectory.csv (--localize), or "
         "semantic.* and semantic.occupancy.* (--semantic).",
+        default=Path("probmap-demo"),
     ),
     seed: int = typer.Option(0, "--seed", help="Seed of the simulated world."),
     localize: bool = typer.Option(
@@ -298,11 +291,9 @@ def demo_command(
     semantic: bool = typer.Option(
         False, "--semantic", help="Map a labelled simulated world into a semantic grid instead."
     ),
-    config: Path | None = typer.Option(
-        None,
-        "--config",
-        help="A YAML file of MappingConfig fields (resolution, inverse sensor model, prior, "
-        "clamp) for the mapping demo; recorded as map.config.yaml.",
+    config: Path | None = config_option(
+        "A YAML file of MappingConfig fields (resolution, inverse sensor model, prior, "
+        "clamp) for the mapping demo; recorded as map.config.yaml."
     ),
 ) -> None:
     """Map a simulated floor plan (no download) and report its accuracy against the truth."""

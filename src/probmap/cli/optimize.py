@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from probmap.cli.common import cli_errors
+from probmap.cli.options import config_option, output_option
 
 ROBUST_HELP = (
     "Robust kernel for every edge: none, huber, cauchy or dcs (dynamic covariance scaling)."
@@ -24,12 +25,9 @@ INIT_HELP = (
 
 def optimize_command(
     graph: Path = typer.Argument(..., help="Pose graph: g2o (VERTEX_SE2/EDGE_SE2) or TORO."),
-    output: str = typer.Option(
-        ...,
-        "-o",
-        "--output",
-        help="Optimized graph (g2o); an existing folder (or a name ending in /) gets "
-        "FOLDER/optimized.g2o. Missing folders are created.",
+    output: str = output_option(
+        "Optimized graph (g2o); an existing folder (or a name ending in /) gets "
+        "FOLDER/optimized.g2o. Missing folders are created."
     ),
     robust: str | None = typer.Option(None, "--robust", help=ROBUST_HELP + " [default: none]"),
     robust_scale: float | None = typer.Option(None, "--robust-scale", help=SCALE_HELP),
@@ -43,12 +41,10 @@ def optimize_command(
         "[default: all].",
     ),
     init: str | None = typer.Option(None, "--init", help=INIT_HELP + " [default: auto]"),
-    config: Path | None = typer.Option(
-        None,
-        "--config",
-        help="A YAML file of PoseGraphConfig fields (iterations, tolerances, damping, robust "
+    config: Path | None = config_option(
+        "A YAML file of PoseGraphConfig fields (iterations, tolerances, damping, robust "
         "kernel and scale, chart, robust_edges, init), as PREFIX.config.yaml records it; the "
-        "options given here override it.",
+        "options given here override it."
     ),
 ) -> None:
     """Levenberg-Marquardt on GRAPH; writes the optimized graph and, beside it, the settings

@@ -8,14 +8,13 @@ from typing import Any
 import typer
 
 from probmap.cli.common import cli_errors
-from probmap.cli.options import with_option_groups
+from probmap.cli.options import config_option, output_option, with_option_groups
 from probmap.cli.slam import (
     DATASET_HELP,
     data_dir_option,
     end_time_option,
     limit_threads,
     open_landmark_dataset,
-    output_folder_option,
     plot_option,
     robot_option,
     slam_app,
@@ -96,14 +95,14 @@ def _label(cfg: Any) -> str:
 @with_option_groups
 def seif_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
-    output: Path = output_folder_option(),
+    output: Path = output_option("Output folder (created when missing)."),
     max_active: int | None = typer.Option(
         None, "--max-active", help=MAX_ACTIVE_HELP + " [default: 10]"
     ),
     context_hops: int | None = typer.Option(
         None, "--context-hops", help=CONTEXT_HELP + " [default: 0]"
     ),
-    config: Path | None = typer.Option(None, "--config", help=CONFIG_HELP),
+    config: Path | None = config_option(CONFIG_HELP),
     data_dir: Path | None = data_dir_option(),
     robot: int = robot_option(),
     unknown: bool = typer.Option(
@@ -153,13 +152,11 @@ def compare_command(
     context_hops: int | None = typer.Option(
         None, "--context-hops", help=CONTEXT_HELP + " [default: 0]"
     ),
-    config: Path | None = typer.Option(
-        None,
-        "--config",
-        help="A YAML file with one section per method (ekf: EKFConfig, seif: SeifConfig, "
+    config: Path | None = config_option(
+        "A YAML file with one section per method (ekf: EKFConfig, seif: SeifConfig, "
         "graphslam: GraphSLAMConfig, fastslam: FastSLAMConfig fields; a section replaces that "
         "method's dataset defaults), or SEIF's SeifConfig fields alone; --max-active and "
-        "--context-hops override SEIF's.",
+        "--context-hops override SEIF's."
     ),
     data_dir: Path | None = data_dir_option(),
     robot: int = robot_option(),

@@ -8,6 +8,7 @@ from typing import Any
 import typer
 
 from probmap.cli.common import cli_errors, input_rows, print_summary
+from probmap.cli.options import config_option, output_option
 
 
 def _demo_time_row(summary: dict[str, Any], watch: Any = None) -> tuple[str, str]:
@@ -47,14 +48,11 @@ def print_semantic_demo(summary: dict[str, Any], watch: Any = None) -> None:
 
 def semantic_command(
     scans: Path = typer.Argument(..., help="Labelled scans (.npz: poses, ranges, angles, ...)."),
-    output: str = typer.Option(
-        ...,
-        "-o",
-        "--output",
-        help="Output prefix: PREFIX.{npz,png}, PREFIX.occupancy.{yaml,pgm,npz,png} and "
+    output: str = output_option(
+        "Output prefix: PREFIX.{npz,png}, PREFIX.occupancy.{yaml,pgm,npz,png} and "
         "PREFIX.config.yaml; an "
         "existing folder (or a name ending in /) writes FOLDER/semantic.*. Missing folders are "
-        "created.",
+        "created."
     ),
     resolution: float | None = typer.Option(
         None, "--resolution", "-r", help="Cell size in metres [default: 0.05]."
@@ -75,11 +73,9 @@ def semantic_command(
         "--max-clear",
         help="Free space cleared by max-range readings, metres [default: the max range].",
     ),
-    config: Path | None = typer.Option(
-        None,
-        "--config",
-        help="A YAML file of SemanticMappingConfig fields (as PREFIX.config.yaml records it); "
-        "the options given here override it.",
+    config: Path | None = config_option(
+        "A YAML file of SemanticMappingConfig fields (as PREFIX.config.yaml records it); "
+        "the options given here override it."
     ),
     chunk: int = typer.Option(500, "--chunk", help="Scans per kernel call (progress steps)."),
 ) -> None:

@@ -15,7 +15,7 @@ import typer
 
 from probmap.cli._provenance import command_line
 from probmap.cli.common import CliError, Stopwatch, cli_errors, print_summary
-from probmap.cli.options import with_option_groups
+from probmap.cli.options import config_option, output_option, with_option_groups
 from probmap.cli.watch import (
     interrupted_exit,
     live_view_options,
@@ -34,10 +34,6 @@ DATASET_HELP = (
 
 
 # the options every landmark-SLAM command shares (one definition each)
-def output_folder_option() -> Any:
-    return typer.Option(..., "-o", "--output", help="Output folder (created when missing).")
-
-
 def data_dir_option() -> Any:
     return typer.Option(
         None, "--data-dir", help="Data directory for registered names (default $PROBMAP_DATA)."
@@ -289,7 +285,7 @@ def run_and_report(
 @with_option_groups
 def ekf_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
-    output: Path = output_folder_option(),
+    output: Path = output_option("Output folder (created when missing)."),
     data_dir: Path | None = data_dir_option(),
     robot: int = robot_option(),
     unknown: bool = typer.Option(
@@ -299,11 +295,9 @@ def ekf_command(
     threads: int = threads_option(),
     plot: bool = plot_option(),
     tum: bool = tum_option(),
-    config: Path | None = typer.Option(
-        None,
-        "--config",
-        help="A YAML file of the estimator's configuration (as OUTPUT/config.yaml records it) "
-        "instead of the dataset's defaults.",
+    config: Path | None = config_option(
+        "A YAML file of the estimator's configuration (as OUTPUT/config.yaml records it) "
+        "instead of the dataset's defaults."
     ),
     live: dict[str, Any] = live_view_options(),
 ) -> None:
@@ -337,7 +331,7 @@ def ekf_command(
 @with_option_groups
 def graphslam_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
-    output: Path = output_folder_option(),
+    output: Path = output_option("Output folder (created when missing)."),
     data_dir: Path | None = data_dir_option(),
     robot: int = robot_option(),
     unknown: bool = typer.Option(
@@ -352,11 +346,9 @@ def graphslam_command(
     threads: int = threads_option(),
     plot: bool = plot_option(),
     tum: bool = tum_option(),
-    config: Path | None = typer.Option(
-        None,
-        "--config",
-        help="A YAML file of GraphSLAMConfig (as OUTPUT/config.yaml records it) instead of the "
-        "dataset's defaults; --robust still applies.",
+    config: Path | None = config_option(
+        "A YAML file of GraphSLAMConfig (as OUTPUT/config.yaml records it) instead of the "
+        "dataset's defaults; --robust still applies."
     ),
     live: dict[str, Any] = live_view_options(),
 ) -> None:
@@ -389,7 +381,7 @@ def graphslam_command(
 @with_option_groups
 def fastslam_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
-    output: Path = output_folder_option(),
+    output: Path = output_option("Output folder (created when missing)."),
     data_dir: Path | None = data_dir_option(),
     robot: int = robot_option(),
     particles: int | None = typer.Option(
@@ -410,11 +402,9 @@ def fastslam_command(
         "--p0",
         help="New-landmark likelihood p0 for unknown ids (1/(m rad)) [default: 0.001].",
     ),
-    config: Path | None = typer.Option(
-        None,
-        "--config",
-        help="A YAML file of FastSLAMConfig (as OUTPUT/config.yaml records it); the options "
-        "given here override it.",
+    config: Path | None = config_option(
+        "A YAML file of FastSLAMConfig (as OUTPUT/config.yaml records it); the options "
+        "given here override it."
     ),
     end_time: float | None = end_time_option(),
     plot: bool = plot_option(),

@@ -8,7 +8,7 @@ import re
 import pytest
 from typer.testing import CliRunner
 
-import probmap.cli.seif
+import probmap.cli.slam
 from probmap.cli import register
 from probmap.cli.app import app
 
@@ -20,7 +20,8 @@ def small(monkeypatch):
     from probmap.datasets.simulation import simulate_landmarks
 
     ds = simulate_landmarks(30, 40, seed=3)
-    monkeypatch.setattr(probmap.cli.seif, "open_landmark_dataset", lambda *args: ds)
+    # every landmark command reads its dataset through slam.open_landmark_dataset
+    monkeypatch.setattr(probmap.cli.slam, "open_landmark_dataset", lambda *args: ds)
 
 
 def test_footnote_explains_exactly_the_columns_shown(small):

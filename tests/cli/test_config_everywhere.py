@@ -296,11 +296,12 @@ def test_match_bad_config(short_log, tmp_path):
 def small_landmarks(monkeypatch):
     """``slam seif`` and ``slam compare`` on a short simulated run (40 steps, 30 landmarks)
     instead of the registry's 2,000-step simulation."""
-    import probmap.cli.seif
+    import probmap.cli.slam
     from probmap.datasets.simulation import simulate_landmarks
 
     ds = simulate_landmarks(30, 40, seed=3)
-    monkeypatch.setattr(probmap.cli.seif, "open_landmark_dataset", lambda *args: ds)
+    # every landmark command reads its dataset through slam.open_landmark_dataset
+    monkeypatch.setattr(probmap.cli.slam, "open_landmark_dataset", lambda *args: ds)
     return ds
 
 

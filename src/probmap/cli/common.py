@@ -86,16 +86,6 @@ def note_first_compile(*modules: str) -> None:
     )
 
 
-def skip_bad_lines_option() -> Any:
-    """``--skip-bad-lines``: the same option, with the same meaning, on every command that
-    reads a laser log."""
-    return typer.Option(
-        False,
-        "--skip-bad-lines",
-        help="Skip and count malformed or physically implausible log lines instead of failing.",
-    )
-
-
 def laser_input(path: Path | str) -> Path:
     """The file a laser-log argument names: the path, or a registered laser dataset's file
     under the data directory (``$PROBMAP_DATA``, else ``../shared/data``). A name that is

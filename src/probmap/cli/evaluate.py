@@ -6,8 +6,8 @@ from pathlib import Path
 
 import typer
 
+from probmap.cli import options as opt
 from probmap.cli.common import cli_errors
-from probmap.cli.options import config_option, output_option
 
 evaluate_app = typer.Typer(
     help="Score trajectories and maps against references.", no_args_is_help=True
@@ -28,11 +28,11 @@ def relations_command(
         "--poses",
         help="For a CARMEN log: robot (odom fields) or laser poses [default: robot].",
     ),
-    config: Path | None = config_option(
+    config: Path | None = opt.config_option(
         "A YAML file of RelationsConfig fields (tolerance, poses); the options given here "
         "override it."
     ),
-    output: str | None = output_option(
+    output: str | None = opt.output_option(
         "Also write the figures as JSON, with the settings used ('configuration'), the "
         "command line and the probmap version; an existing folder (or a name ending in /) gets "
         "FOLDER/relations.json. Missing folders are created.",

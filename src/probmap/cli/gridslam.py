@@ -8,27 +8,20 @@ from typing import Any
 
 import typer
 
+from probmap.cli import options as opt
 from probmap.cli._provenance import command_line
-from probmap.cli.common import (
-    cli_errors,
-    input_rows,
-    laser_input,
-    print_summary,
-    resolve_config,
-    skip_bad_lines_option,
-)
-from probmap.cli.options import config_option, output_option, ros_bag_options, with_option_groups
+from probmap.cli.common import cli_errors, input_rows, laser_input, print_summary, resolve_config
 from probmap.cli.slam import slam_app
 from probmap.cli.watch import stop_on_ctrl_c
 
 
 @slam_app.command("grid")
-@with_option_groups
+@opt.with_option_groups
 def grid_command(
     log: Path = typer.Argument(
         ..., help="A raw CARMEN log (plain, .gz or .bz2), a ROS 1/2 bag or a dataset name."
     ),
-    output: str = output_option(
+    output: str = opt.output_option(
         "Output prefix (PREFIX.yaml, ...); an existing folder (or a name ending in /) "
         "writes FOLDER/slam.*. Missing folders are created."
     ),
@@ -41,14 +34,12 @@ def grid_command(
     end_time: float | None = typer.Option(
         None, "--end-time", help="Use only the first this many seconds of the log."
     ),
-    bag_options: dict[str, Any] = ros_bag_options(),
-    config: Path | None = config_option(
+    bag_options: dict[str, Any] = opt.ros_bag_options(),
+    config: Path | None = opt.config_option(
         "A YAML configuration: GraphSlamConfig fields (graph) or GridSlamConfig fields "
         "(rbpf; the options below override it). Fields left out keep their defaults."
     ),
-    particles: int | None = typer.Option(
-        None, "--particles", "-n", help="rbpf: number of particles [default: 30]."
-    ),
+    particles: int | None = opt.particles_option("rbpf: number of particles [default: 30]."),
     linear_update: float | None = typer.Option(
         None,
         "--linear-update",
@@ -59,13 +50,13 @@ def grid_command(
         "--angular-update",
         help="rbpf: ... or after this many radians of rotation [default: 0.25].",
     ),
-    seed: int | None = typer.Option(None, "--seed", help="rbpf: random seed [default: 0]."),
+    seed: int | None = opt.seed_option("rbpf: random seed [default: 0]."),
     guard: bool | None = typer.Option(
         None,
         "--guard/--no-guard",
         help="rbpf: keep the odometry along featureless corridors [default: guard].",
     ),
-    skip_bad_lines: bool = skip_bad_lines_option(),
+    skip_bad_lines: bool = opt.skip_bad_lines_option(),
     viz: bool = typer.Option(
         False, "--viz", help="graph: watch the run in the rerun viewer (extra 'viz')."
     ),
@@ -74,10 +65,8 @@ def grid_command(
         "--viz-save",
         help="graph: record the live view into FILE.rrd (open it later with 'rerun FILE.rrd').",
     ),
-    tum: bool = typer.Option(
-        False,
-        "--tum",
-        help="Also write PREFIX.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
+    tum: bool = opt.tum_option(
+        "Also write PREFIX.tum: the trajectory in the TUM format (evo_ape, evo_rpe)."
     ),
     save_partial: bool = typer.Option(
         True,
@@ -403,7 +392,7 @@ def _rbpf(
     print_summary("grid SLAM (rbpf)", rows)
 
 
-@with_option_groups
+@opt.with_option_groups
 def match_command(
     map_file: Path = typer.Argument(..., help="A map: PREFIX.npz or a map_server PREFIX.yaml."),
     log: Path = typer.Argument(
@@ -422,13 +411,13 @@ def match_command(
     angular_window: float | None = typer.Option(
         None, "--angular-window", help="Search half-width in heading (rad) [default: 0.2]."
     ),
-    config: Path | None = config_option(
+    config: Path | None = opt.config_option(
         "A YAML file of MatcherConfig fields (sigma, linear_window, linear_step, "
         "angular_window, angular_step, iterations, usable_range, beam_skip) over the defaults "
         "above; the options given here override it."
     ),
-    skip_bad_lines: bool = skip_bad_lines_option(),
-    bag_options: dict[str, Any] = ros_bag_options(),
+    skip_bad_lines: bool = opt.skip_bad_lines_option(),
+    bag_options: dict[str, Any] = opt.ros_bag_options(),
 ) -> None:
     """Match one scan of a log against a map: prints the pose, its standard deviations and
     the match score (correlative search refined by Gauss-Newton)."""

@@ -9,6 +9,7 @@ from typing import Any
 import typer
 
 from probmap._atomic import atomic_path
+from probmap.cli import options as opt
 from probmap.cli.common import (
     CliError,
     Stopwatch,
@@ -16,9 +17,7 @@ from probmap.cli.common import (
     input_rows,
     laser_input,
     print_summary,
-    skip_bad_lines_option,
 )
-from probmap.cli.options import config_option, output_option, ros_bag_options, with_option_groups
 
 
 def _read_reference(
@@ -88,7 +87,7 @@ def _describe_offset(mount: Any) -> str:
     return f"{x:.3f}, {y:.3f} m, {math.degrees(th):.1f} deg (laser in the robot frame)"
 
 
-@with_option_groups
+@opt.with_option_groups
 def localize_command(
     first: Path = typer.Argument(
         ...,
@@ -109,13 +108,11 @@ def localize_command(
         "is its occupancy grid at its optimized poses, and its trajectory is the reference when "
         "--reference is not given.",
     ),
-    output: Path = output_option(
+    output: Path = opt.output_option(
         "Output folder (created when missing): trajectory.csv (the robot's poses) and "
         "trajectory.png."
     ),
-    particles: int | None = typer.Option(
-        None, "--particles", "-n", help="Number of particles [default: 2000]."
-    ),
+    particles: int | None = opt.particles_option("Number of particles [default: 2000]."),
     global_: bool = typer.Option(
         False, "--global", help="Global localization: start from particles over free space."
     ),
@@ -132,13 +129,9 @@ def localize_command(
         "--reference-offset",
         help="Seconds added to the reference times (Intel corrected log: 976052857.337284).",
     ),
-    tum: bool = typer.Option(
-        False,
-        "--tum",
-        help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
-    ),
-    seed: int | None = typer.Option(None, "--seed", help="Random seed [default: 0]."),
-    config: Path | None = config_option(
+    tum: bool = opt.tum_option(),
+    seed: int | None = opt.seed_option(),
+    config: Path | None = opt.config_option(
         "A YAML file of LocalizeConfig fields (as OUTPUT/config.yaml records them); the "
         "options given here override it."
     ),
@@ -151,8 +144,8 @@ def localize_command(
     ),
     start: int = typer.Option(0, "--start", help="First scan to use."),
     stop: int | None = typer.Option(None, "--stop", help="Scan to stop before."),
-    skip_bad_lines: bool = skip_bad_lines_option(),
-    bag_options: dict[str, Any] = ros_bag_options(),
+    skip_bad_lines: bool = opt.skip_bad_lines_option(),
+    bag_options: dict[str, Any] = opt.ros_bag_options(),
     viz: bool = typer.Option(
         False, "--viz", help="Watch the run in the rerun viewer (extra 'viz')."
     ),
@@ -290,21 +283,10 @@ def localize_command(
                 with warnings.catch_warnings():  # a lost filter is reported below, in one line
                     warnings.simplefilter("ignore", FilterLostWarning)
                     run = localize_scans(
-                        m.spec,
-                        m.probability,
-                        batch.times,
-                        batch.ranges,
-                        angles,
-                        odo,
-                        batch.max_range,
-                        cfg,
-                        start=start,
-                        stop=stop,
-                        always_update=always,
-                        laser_offset=mount,
-                        progress=tick,
-                        observer=observer,
-                    )
+                        m.spec, m.probability, batch.times, batch.ranges, angles, odo,
+                        batch.max_range, cfg, start=start, stop=stop, always_update=always,
+                        laser_offset=mount, progress=tick, observer=observer,
+                    )  # fmt: skip
             except BaseException:
                 if observer is not None:
                     observer.view.close(keep=False)

@@ -11,14 +11,8 @@ from typing import Any
 
 import typer
 
-from probmap.cli.common import (
-    cli_errors,
-    input_rows,
-    laser_input,
-    print_summary,
-    skip_bad_lines_option,
-)
-from probmap.cli.options import config_option, output_option, ros_bag_options, with_option_groups
+from probmap.cli import options as opt
+from probmap.cli.common import cli_errors, input_rows, laser_input, print_summary
 
 
 def run_map_method(
@@ -93,22 +87,19 @@ def run_map_method(
     return result
 
 
-@with_option_groups
+@opt.with_option_groups
 def fit_sensor_model_command(
     log: Path = typer.Argument(
         ...,
         help="Laser log: CARMEN .clf/.log (plain, .gz, .bz2), ROS 1/2 bag or a dataset name.",
     ),
-    output: str | None = output_option(
+    output: str | None = opt.output_option(
         "Write the fitted parameters to this YAML file; an existing folder (or a name "
         "ending in /) gets FOLDER/beam_model.yaml. Missing folders are created.",
         default=None,
     ),
-    resolution: float | None = typer.Option(
-        None,
-        "--resolution",
-        "-r",
-        help="Cell size (m) of the map the ranges are cast in [default: 0.05].",
+    resolution: float | None = opt.resolution_option(
+        "Cell size (m) of the map the ranges are cast in [default: 0.05]."
     ),
     every: int | None = typer.Option(None, "--every", help="Use every N-th scan [default: 1]."),
     max_range: float | None = typer.Option(
@@ -119,13 +110,13 @@ def fit_sensor_model_command(
         "--poses",
         help="corrected: the scans' laser poses; odometry: odometry [default: corrected].",
     ),
-    config: Path | None = config_option(
+    config: Path | None = opt.config_option(
         "A YAML file of FitConfig fields (resolution, every, max_range, poses, "
         "max_iterations, tol); the options given here override it. The output records the "
         "settings used under 'configuration'."
     ),
-    skip_bad_lines: bool = skip_bad_lines_option(),
-    bag_options: dict[str, Any] = ros_bag_options(),
+    skip_bad_lines: bool = opt.skip_bad_lines_option(),
+    bag_options: dict[str, Any] = opt.ros_bag_options(),
 ) -> None:
     """Fit the beam model's parameters to a log by EM (Probabilistic Robotics Table 6.2).
 

@@ -9,6 +9,7 @@ from typing import Any
 
 import typer
 
+from probmap.cli import options as opt
 from probmap.cli._provenance import command_line
 from probmap.cli.common import (
     Stopwatch,
@@ -17,9 +18,7 @@ from probmap.cli.common import (
     mapping_rows,
     print_summary,
     resolve_config,
-    skip_bad_lines_option,
 )
-from probmap.cli.options import config_option, output_option, ros_bag_options, with_option_groups
 from probmap.cli.watch import live_view_options
 
 
@@ -29,20 +28,18 @@ def _fmt(v: object) -> str:
     return str(v)
 
 
-@with_option_groups
+@opt.with_option_groups
 def map_command(
     logs: list[Path] = typer.Argument(
         ...,
         help="Laser log(s): CARMEN .clf/.log (plain, .gz, .bz2), ROS 1/2 bag or a dataset name "
         "(probmap datasets list). Several logs are mapped together on a Dask cluster.",
     ),
-    output: str = output_option(
+    output: str = opt.output_option(
         "Output prefix: writes PREFIX.{yaml,pgm,npz,png}; an existing folder (or a name "
         "ending in /) writes FOLDER/map.*. Missing folders are created."
     ),
-    resolution: float | None = typer.Option(
-        None, "--resolution", "-r", help="Cell size in metres [default: 0.05]."
-    ),
+    resolution: float | None = opt.resolution_option(),
     max_range: float | None = typer.Option(
         None, "--max-range", help="Sensor max range in metres (default: from the log)."
     ),
@@ -63,17 +60,17 @@ def map_command(
     p_miss: float | None = typer.Option(
         None, "--p-miss", help="Inverse model: p(occupied) along a beam [default: 0.4]."
     ),
-    config: Path | None = config_option(
+    config: Path | None = opt.config_option(
         "A YAML file of MappingConfig fields (as PREFIX.config.yaml records them); the "
         "options given here override it."
     ),
-    skip_bad_lines: bool = skip_bad_lines_option(),
+    skip_bad_lines: bool = opt.skip_bad_lines_option(),
     method: str = typer.Option(
         "log-odds",
         "--method",
         help="log-odds: per-cell Bayes filter; map: MAP mapping with the beam model (Table 9.3).",
     ),
-    bag_options: dict[str, Any] = ros_bag_options(),
+    bag_options: dict[str, Any] = opt.ros_bag_options(),
     to_bag: Path | None = typer.Option(
         None,
         "--to-bag",
@@ -135,10 +132,13 @@ def map_command(
                 "--viz and --viz-save watch the log-odds method on one log (no --method map, "
                 "--workers, --scheduler, --chunks or several logs)"
             )
+        if method not in ("log-odds", "map"):
+            raise ValueError(f"--method must be 'log-odds' or 'map', got {method!r}")
         if not local:
             several = len(logs) > 1 or chunks > 1
-            if method not in ("log-odds", "map"):
-                raise ValueError(f"--method must be 'log-odds' or 'map', got {method!r}")
+            cluster: dict[str, Any] = dict(
+                workers=workers, scheduler=scheduler, bag_options=bag_options, to_bag=to_bag
+            )
             if method == "map" and several:
                 raise ValueError(
                     "--method map maps one log as a whole (its sweeps depend on each other): "
@@ -152,28 +152,15 @@ def map_command(
                 from probmap.cli.distributed import run_map_method_distributed
 
                 with _aborted_on_ctrl_c():
-                    run_map_method_distributed(
-                        log, prefix, cfg, workers=workers, scheduler=scheduler,
-                        bag_options=bag_options, to_bag=to_bag,
-                    )  # fmt: skip
+                    run_map_method_distributed(log, prefix, cfg, **cluster)
                 return
             from probmap.cli.distributed import run_map_distributed
 
             with _aborted_on_ctrl_c():
                 run_map_distributed(
-                    logs,
-                    prefix,
-                    cfg,
-                    workers=workers,
-                    scheduler=scheduler,
-                    chunks=chunks,
-                    allow_partial=allow_partial,
-                    bag_options=bag_options,
-                    to_bag=to_bag,
+                    logs, prefix, cfg, chunks=chunks, allow_partial=allow_partial, **cluster
                 )
             return
-        if method not in ("log-odds", "map"):
-            raise ValueError(f"--method must be 'log-odds' or 'map', got {method!r}")
         if method == "map":
             from probmap.cli.map_mapping import run_map_method
 
@@ -279,7 +266,7 @@ def _map_one(
 
 
 def demo_command(
-    output: Path = output_option(
+    output: Path = opt.output_option(
         "Output folder (created when missing): map.*, or trajectory.csv (--localize), or "
         "semantic.* and semantic.occupancy.* (--semantic).",
         default=Path("probmap-demo"),
@@ -291,7 +278,7 @@ def demo_command(
     semantic: bool = typer.Option(
         False, "--semantic", help="Map a labelled simulated world into a semantic grid instead."
     ),
-    config: Path | None = config_option(
+    config: Path | None = opt.config_option(
         "A YAML file of MappingConfig fields (resolution, inverse sensor model, prior, "
         "clamp) for the mapping demo; recorded as map.config.yaml."
     ),

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import typer
 
+from probmap.cli import options as opt
 from probmap.cli.common import cli_errors
-from probmap.cli.options import config_option, output_option
 
 ROBUST_HELP = (
     "Robust kernel for every edge: none, huber, cauchy or dcs (dynamic covariance scaling)."
@@ -25,7 +25,7 @@ INIT_HELP = (
 
 def optimize_command(
     graph: Path = typer.Argument(..., help="Pose graph: g2o (VERTEX_SE2/EDGE_SE2) or TORO."),
-    output: str = output_option(
+    output: str = opt.output_option(
         "Optimized graph (g2o); an existing folder (or a name ending in /) gets "
         "FOLDER/optimized.g2o. Missing folders are created."
     ),
@@ -41,7 +41,7 @@ def optimize_command(
         "[default: all].",
     ),
     init: str | None = typer.Option(None, "--init", help=INIT_HELP + " [default: auto]"),
-    config: Path | None = config_option(
+    config: Path | None = opt.config_option(
         "A YAML file of PoseGraphConfig fields (iterations, tolerances, damping, robust "
         "kernel and scale, chart, robust_edges, init), as PREFIX.config.yaml records it; the "
         "options given here override it."

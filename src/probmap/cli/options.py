@@ -111,6 +111,38 @@ def output_option(help: str, default: Any = ...) -> Any:
     return typer.Option(default, "-o", "--output", help=help)
 
 
+def skip_bad_lines_option() -> Any:
+    """``--skip-bad-lines``: the same option, with the same meaning, on every command that
+    reads a laser log."""
+    return typer.Option(
+        False,
+        "--skip-bad-lines",
+        help="Skip and count malformed or physically implausible log lines instead of failing.",
+    )
+
+
+def resolution_option(help: str = "Cell size in metres [default: 0.05].") -> Any:
+    """``-r/--resolution``: the map's cell size, metres (None: the configuration's)."""
+    return typer.Option(None, "--resolution", "-r", help=help)
+
+
+def particles_option(help: str) -> Any:
+    """``-n/--particles``: how many particles a filter runs (None: the configuration's)."""
+    return typer.Option(None, "--particles", "-n", help=help)
+
+
+def seed_option(help: str = "Random seed [default: 0].") -> Any:
+    """``--seed``: the random seed of a sampling method (None: the configuration's)."""
+    return typer.Option(None, "--seed", help=help)
+
+
+def tum_option(
+    help: str = "Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
+) -> Any:
+    """``--tum``: also write the trajectory in the TUM format (``help`` names the file)."""
+    return typer.Option(False, "--tum", help=help)
+
+
 def bag_options_of(
     scan_topic: str | None,
     odom_topic: str | None,

@@ -7,19 +7,19 @@ from typing import Any
 
 import typer
 
+from probmap.cli import options as opt
 from probmap.cli.common import cli_errors
-from probmap.cli.options import config_option, output_option, with_option_groups
 from probmap.cli.slam import (
     DATASET_HELP,
     data_dir_option,
     end_time_option,
     limit_threads,
-    open_landmark_dataset,
     plot_option,
+    read_landmark_dataset,
     robot_option,
     slam_app,
     threads_option,
-    tum_option,
+    unknown_option,
 )
 from probmap.cli.watch import live_view_options
 
@@ -92,26 +92,25 @@ def _label(cfg: Any) -> str:
 
 
 @slam_app.command("seif")
-@with_option_groups
+@opt.with_option_groups
 def seif_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
-    output: Path = output_option("Output folder (created when missing)."),
+    output: Path = opt.output_option("Output folder (created when missing)."),
     max_active: int | None = typer.Option(
         None, "--max-active", help=MAX_ACTIVE_HELP + " [default: 10]"
     ),
     context_hops: int | None = typer.Option(
         None, "--context-hops", help=CONTEXT_HELP + " [default: 0]"
     ),
-    config: Path | None = config_option(CONFIG_HELP),
+    config: Path | None = opt.config_option(CONFIG_HELP),
+    # the options of every landmark command, from one factory each (typer reads each signature)
     data_dir: Path | None = data_dir_option(),
     robot: int = robot_option(),
-    unknown: bool = typer.Option(
-        False, "--unknown", help="Ignore given landmark ids: maximum-likelihood association."
-    ),
+    unknown: bool = unknown_option(),
     end_time: float | None = end_time_option(),
     threads: int = threads_option(),
     plot: bool = plot_option(),
-    tum: bool = tum_option(),
+    tum: bool = opt.tum_option(),
     live: dict[str, Any] = live_view_options(),
 ) -> None:
     """SEIF SLAM (Probabilistic Robotics Tables 12.1-12.5): writes trajectory.csv,
@@ -123,12 +122,9 @@ def seif_command(
     limit_threads(threads)
     with cli_errors():
         from probmap.cli.slam import run_and_report
-        from probmap.pipelines import check_output_folder
 
         cfg = _seif_config(config, max_active, context_hops)
-        check_output_folder(output)
-        with watch("read"):
-            ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
+        ds = read_landmark_dataset(watch, output, dataset, data_dir, robot, unknown, end_time)
         title = f"SEIF SLAM ({_label(cfg)})"
         run_and_report(
             _seif(ds, cfg), ds, output, title, plot, tum=tum, watch=watch,
@@ -152,17 +148,16 @@ def compare_command(
     context_hops: int | None = typer.Option(
         None, "--context-hops", help=CONTEXT_HELP + " [default: 0]"
     ),
-    config: Path | None = config_option(
+    config: Path | None = opt.config_option(
         "A YAML file with one section per method (ekf: EKFConfig, seif: SeifConfig, "
         "graphslam: GraphSLAMConfig, fastslam: FastSLAMConfig fields; a section replaces that "
         "method's dataset defaults), or SEIF's SeifConfig fields alone; --max-active and "
         "--context-hops override SEIF's."
     ),
+    # the options of every landmark command, from one factory each (typer reads each signature)
     data_dir: Path | None = data_dir_option(),
     robot: int = robot_option(),
-    unknown: bool = typer.Option(
-        False, "--unknown", help="Ignore given landmark ids: maximum-likelihood association."
-    ),
+    unknown: bool = unknown_option(),
     end_time: float | None = end_time_option(),
     threads: int = threads_option(),
     methods: str = typer.Option(
@@ -202,8 +197,7 @@ def compare_command(
                     set_["max_active"] = None
                 seif_cfg = dataclasses.replace(base, **set_)
         own = sections or {}
-        with watch("read"):
-            ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
+        ds = read_landmark_dataset(watch, None, dataset, data_dir, robot, unknown, end_time)
         runs = []
         seif_name = f"SEIF-{seif_cfg.max_active or 'unbounded'}" + (
             f"-ctx{seif_cfg.context_hops}" if seif_cfg.context_hops else ""

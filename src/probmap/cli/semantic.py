@@ -7,8 +7,8 @@ from typing import Any
 
 import typer
 
+from probmap.cli import options as opt
 from probmap.cli.common import cli_errors, input_rows, print_summary
-from probmap.cli.options import config_option, output_option
 
 
 def _demo_time_row(summary: dict[str, Any], watch: Any = None) -> tuple[str, str]:
@@ -48,15 +48,13 @@ def print_semantic_demo(summary: dict[str, Any], watch: Any = None) -> None:
 
 def semantic_command(
     scans: Path = typer.Argument(..., help="Labelled scans (.npz: poses, ranges, angles, ...)."),
-    output: str = output_option(
+    output: str = opt.output_option(
         "Output prefix: PREFIX.{npz,png}, PREFIX.occupancy.{yaml,pgm,npz,png} and "
         "PREFIX.config.yaml; an "
         "existing folder (or a name ending in /) writes FOLDER/semantic.*. Missing folders are "
         "created."
     ),
-    resolution: float | None = typer.Option(
-        None, "--resolution", "-r", help="Cell size in metres [default: 0.05]."
-    ),
+    resolution: float | None = opt.resolution_option(),
     p_hit: float | None = typer.Option(
         None, "--p-hit", help="p(not free) at a beam's endpoint [default: 0.7]."
     ),
@@ -73,7 +71,7 @@ def semantic_command(
         "--max-clear",
         help="Free space cleared by max-range readings, metres [default: the max range].",
     ),
-    config: Path | None = config_option(
+    config: Path | None = opt.config_option(
         "A YAML file of SemanticMappingConfig fields (as PREFIX.config.yaml records it); "
         "the options given here override it."
     ),

@@ -1,7 +1,8 @@
 """``probmap slam ...`` (landmark SLAM).
 
 The SEIF commands are added to :data:`slam_app` by :mod:`probmap.cli.seif`; the helpers
-:func:`open_landmark_dataset`, :func:`limit_threads` and :func:`run_and_report` are shared with it.
+:func:`read_landmark_dataset`, :func:`limit_threads`, :func:`run_and_report` and the options are
+shared with it.
 """
 
 from __future__ import annotations
@@ -13,15 +14,10 @@ from typing import Any
 
 import typer
 
+from probmap.cli import options as opt
 from probmap.cli._provenance import command_line
 from probmap.cli.common import CliError, Stopwatch, cli_errors, print_summary
-from probmap.cli.options import config_option, output_option, with_option_groups
-from probmap.cli.watch import (
-    interrupted_exit,
-    live_view_options,
-    open_view,
-    stop_on_ctrl_c,
-)
+from probmap.cli.watch import interrupted_exit, live_view_options, open_view, stop_on_ctrl_c
 
 slam_app = typer.Typer(
     help="Landmark SLAM on feature datasets (EKF; SEIF; GraphSLAM).", no_args_is_help=True
@@ -56,12 +52,11 @@ def plot_option() -> Any:
     return typer.Option(True, "--plot/--no-plot", help="Write slam.png.")
 
 
-def tum_option() -> Any:
-    return typer.Option(
-        False,
-        "--tum",
-        help="Also write trajectory.tum: the trajectory in the TUM format (evo_ape, evo_rpe).",
-    )
+def unknown_option(
+    help: str = "Ignore given landmark ids: maximum-likelihood association.",
+) -> Any:
+    """``--unknown``: the estimator associates the observations itself (``help`` says how)."""
+    return typer.Option(False, "--unknown", help=help)
 
 
 def limit_threads(threads: int) -> None:
@@ -95,6 +90,26 @@ def open_landmark_dataset(
     else:
         raise CliError(f"{dataset}: format {fmt!r} holds no landmark observations")
     return registry.load(dataset, data_directory=data_dir, **opts)
+
+
+def read_landmark_dataset(
+    watch: Stopwatch,
+    output: Path | None,
+    dataset: str,
+    data_dir: Path | None,
+    robot: int,
+    unknown: bool,
+    end_time: float | None,
+) -> Any:
+    """The steps every landmark-SLAM command takes once its configuration is known: check
+    the ``output`` folder (when it writes one) before any work, then read the dataset
+    (:func:`open_landmark_dataset`) as the ``read`` phase of the command's ``watch``."""
+    if output is not None:
+        from probmap.pipelines import check_output_folder
+
+        check_output_folder(output)
+    with watch("read"):
+        return open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
 
 
 def _fmt(v: Any, unit: str = "") -> str:
@@ -282,20 +297,19 @@ def run_and_report(
 
 
 @slam_app.command("ekf")
-@with_option_groups
+@opt.with_option_groups
 def ekf_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
-    output: Path = output_option("Output folder (created when missing)."),
+    output: Path = opt.output_option("Output folder (created when missing)."),
+    # the options of every landmark command, from one factory each (typer reads each signature)
     data_dir: Path | None = data_dir_option(),
     robot: int = robot_option(),
-    unknown: bool = typer.Option(
-        False, "--unknown", help="Ignore given landmark ids: maximum-likelihood association."
-    ),
+    unknown: bool = unknown_option(),
     end_time: float | None = end_time_option(),
     threads: int = threads_option(),
     plot: bool = plot_option(),
-    tum: bool = tum_option(),
-    config: Path | None = config_option(
+    tum: bool = opt.tum_option(),
+    config: Path | None = opt.config_option(
         "A YAML file of the estimator's configuration (as OUTPUT/config.yaml records it) "
         "instead of the dataset's defaults."
     ),
@@ -307,14 +321,11 @@ def ekf_command(
     limit_threads(threads)
     with cli_errors():
         from probmap.config import load_config
-        from probmap.pipelines import check_output_folder
         from probmap.pipelines.landmark_slam import default_ekf_config
         from probmap.slam.ekf import EKFSLAM, EKFConfig
 
-        check_output_folder(output)
         file_cfg = None if config is None else load_config(EKFConfig, config)
-        with watch("read"):
-            ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
+        ds = read_landmark_dataset(watch, output, dataset, data_dir, robot, unknown, end_time)
         ekf = EKFSLAM(
             ds.motion_model,
             ds.measurement_model,
@@ -328,16 +339,15 @@ def ekf_command(
 
 
 @slam_app.command("graphslam")
-@with_option_groups
+@opt.with_option_groups
 def graphslam_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
-    output: Path = output_option("Output folder (created when missing)."),
+    output: Path = opt.output_option("Output folder (created when missing)."),
+    # the options of every landmark command, from one factory each (typer reads each signature)
     data_dir: Path | None = data_dir_option(),
     robot: int = robot_option(),
-    unknown: bool = typer.Option(
-        False,
-        "--unknown",
-        help="Ignore given landmark ids: Table 11.9's correspondence test (small maps only).",
+    unknown: bool = unknown_option(
+        "Ignore given landmark ids: Table 11.9's correspondence test (small maps only)."
     ),
     robust: str = typer.Option(
         "none", "--robust", help="Robust kernel on the measurements: none, huber or cauchy."
@@ -345,8 +355,8 @@ def graphslam_command(
     end_time: float | None = end_time_option(),
     threads: int = threads_option(),
     plot: bool = plot_option(),
-    tum: bool = tum_option(),
-    config: Path | None = config_option(
+    tum: bool = opt.tum_option(),
+    config: Path | None = opt.config_option(
         "A YAML file of GraphSLAMConfig (as OUTPUT/config.yaml records it) instead of the "
         "dataset's defaults; --robust still applies."
     ),
@@ -361,14 +371,11 @@ def graphslam_command(
         from dataclasses import replace
 
         from probmap.config import load_config
-        from probmap.pipelines import check_output_folder
         from probmap.pipelines.landmark_slam import default_graphslam_config
         from probmap.slam.graphslam import GraphSLAMConfig, build_graphslam
 
-        check_output_folder(output)
         file_cfg = None if config is None else load_config(GraphSLAMConfig, config)
-        with watch("read"):
-            ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
+        ds = read_landmark_dataset(watch, output, dataset, data_dir, robot, unknown, end_time)
         base = file_cfg if file_cfg is not None else default_graphslam_config(ds)
         gcfg = replace(base, robust=robust, robust_scale=None)
         run_and_report(
@@ -378,37 +385,34 @@ def graphslam_command(
 
 
 @slam_app.command("fastslam")
-@with_option_groups
+@opt.with_option_groups
 def fastslam_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
-    output: Path = output_option("Output folder (created when missing)."),
+    output: Path = opt.output_option("Output folder (created when missing)."),
+    # the options of every landmark command, from one factory each (typer reads each signature)
     data_dir: Path | None = data_dir_option(),
     robot: int = robot_option(),
-    particles: int | None = typer.Option(
-        None, "--particles", "-n", help="Particles [default: 100]."
-    ),
+    particles: int | None = opt.particles_option("Particles [default: 100]."),
     version: int | None = typer.Option(
         None, "--version", help="FastSLAM 1 or 2 (Tables 13.1, 13.3) [default: 2]."
     ),
-    seed: int | None = typer.Option(None, "--seed", help="Random seed [default: 0]."),
-    unknown: bool = typer.Option(
-        False,
-        "--unknown",
-        help="Ignore the dataset's landmark ids: per-particle maximum-likelihood association "
-        "(Table 13.2; Victoria Park has no ids and always runs so).",
+    seed: int | None = opt.seed_option(),
+    unknown: bool = unknown_option(
+        "Ignore the dataset's landmark ids: per-particle maximum-likelihood association "
+        "(Table 13.2; Victoria Park has no ids and always runs so)."
     ),
     p0: float | None = typer.Option(
         None,
         "--p0",
         help="New-landmark likelihood p0 for unknown ids (1/(m rad)) [default: 0.001].",
     ),
-    config: Path | None = config_option(
+    config: Path | None = opt.config_option(
         "A YAML file of FastSLAMConfig (as OUTPUT/config.yaml records it); the options "
         "given here override it."
     ),
     end_time: float | None = end_time_option(),
     plot: bool = plot_option(),
-    tum: bool = tum_option(),
+    tum: bool = opt.tum_option(),
     live: dict[str, Any] = live_view_options(),
 ) -> None:
     """FastSLAM 1.0 / 2.0 (Probabilistic Robotics ch. 13), known or unknown landmark ids:
@@ -417,7 +421,6 @@ def fastslam_command(
     watch = Stopwatch()
     with cli_errors():
         from probmap.cli.common import resolve_config
-        from probmap.pipelines import check_output_folder
         from probmap.slam.fastslam import FastSLAM, FastSLAMConfig
 
         overrides = {
@@ -427,9 +430,7 @@ def fastslam_command(
             "new_landmark_likelihood": p0,
         }
         cfg = resolve_config(FastSLAMConfig, config, overrides)
-        check_output_folder(output)
-        with watch("read"):
-            ds = open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
+        ds = read_landmark_dataset(watch, output, dataset, data_dir, robot, unknown, end_time)
         if config is None:  # a file gives every field; without one, the dataset's defaults
             from probmap.pipelines.landmark_slam import default_fastslam_config
 

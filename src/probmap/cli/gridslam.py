@@ -12,7 +12,13 @@ from probmap.cli import options as opt
 from probmap.cli._provenance import command_line
 from probmap.cli.common import cli_errors, input_rows, laser_input, print_summary, resolve_config
 from probmap.cli.slam import slam_app
-from probmap.cli.watch import stop_on_ctrl_c
+from probmap.cli.watch import (
+    open_view,
+    save_partial_option,
+    stop_on_ctrl_c,
+    viz_option,
+    viz_save_option,
+)
 
 
 @slam_app.command("grid")
@@ -57,22 +63,16 @@ def grid_command(
         help="rbpf: keep the odometry along featureless corridors [default: guard].",
     ),
     skip_bad_lines: bool = opt.skip_bad_lines_option(),
-    viz: bool = typer.Option(
-        False, "--viz", help="graph: watch the run in the rerun viewer (extra 'viz')."
-    ),
-    viz_save: Path | None = typer.Option(
-        None,
-        "--viz-save",
-        help="graph: record the live view into FILE.rrd (open it later with 'rerun FILE.rrd').",
+    viz: bool = viz_option("graph: watch the run in the rerun viewer (extra 'viz')."),
+    viz_save: Path | None = viz_save_option(
+        "graph: record the live view into FILE.rrd (open it later with 'rerun FILE.rrd')."
     ),
     tum: bool = opt.tum_option(
         "Also write PREFIX.tum: the trajectory in the TUM format (evo_ape, evo_rpe)."
     ),
-    save_partial: bool = typer.Option(
-        True,
-        "--save-partial/--no-save-partial",
-        help="graph: on Ctrl-C, finish with the scans so far and write their map and trajectory "
-        "(exit 130); a second Ctrl-C aborts without writing.",
+    save_partial: bool = save_partial_option(
+        "graph: on Ctrl-C, finish with the scans so far and write their map and trajectory "
+        "(exit 130); a second Ctrl-C aborts without writing."
     ),
     save_session: Path | None = typer.Option(
         None,
@@ -191,15 +191,10 @@ def _graph(
         "probmap.slam._posegraph_kernels",
     )
     observer = None
-    if viz or viz_save is not None:
-        from probmap.pipelines import check_output_folder
-        from probmap.viz.live import GraphSlamObserver, LiveView
+    view = open_view(f"probmap slam grid {log.name}", viz, viz_save)
+    if view is not None:
+        from probmap.viz.live import GraphSlamObserver
 
-        if viz_save is not None:
-            if viz_save.suffix != ".rrd":
-                raise ValueError(f"--viz-save {viz_save}: a recording is saved as FILE.rrd")
-            check_output_folder(viz_save.parent if str(viz_save.parent) else Path("."))
-        view = LiveView(f"probmap slam grid {log.name}", save=viz_save, spawn=viz)
         observer = GraphSlamObserver(view)
 
     watch = watch if watch is not None else Stopwatch()

@@ -18,6 +18,7 @@ from probmap.cli.common import (
     laser_input,
     print_summary,
 )
+from probmap.cli.watch import viz_option, viz_save_option
 
 
 def _read_reference(
@@ -146,14 +147,10 @@ def localize_command(
     stop: int | None = typer.Option(None, "--stop", help="Scan to stop before."),
     skip_bad_lines: bool = opt.skip_bad_lines_option(),
     bag_options: dict[str, Any] = opt.ros_bag_options(),
-    viz: bool = typer.Option(
-        False, "--viz", help="Watch the run in the rerun viewer (extra 'viz')."
-    ),
-    viz_save: Path | None = typer.Option(
-        None,
-        "--viz-save",
-        help="Record the live view (map, particles, estimate and trajectory, scan, reference) "
-        "into FILE.rrd, to open later with 'rerun FILE.rrd' (extra 'viz').",
+    viz: bool = viz_option(),
+    viz_save: Path | None = viz_save_option(
+        "Record the live view (map, particles, estimate and trajectory, scan, reference) "
+        "into FILE.rrd, to open later with 'rerun FILE.rrd' (extra 'viz')."
     ),
 ) -> None:
     """Track (or globally localize) the robot of a laser log on a map with MCL: writes

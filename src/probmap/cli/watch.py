@@ -12,6 +12,27 @@ from typing import Any
 import typer
 
 
+def viz_option(help: str = "Watch the run in the rerun viewer (extra 'viz').") -> Any:
+    """``--viz``: show the run in the rerun viewer (``help`` says what it shows)."""
+    return typer.Option(False, "--viz", help=help)
+
+
+def viz_save_option(
+    help: str = "Record the live view into FILE.rrd (open it later with 'rerun FILE.rrd').",
+) -> Any:
+    """``--viz-save FILE.rrd``: record the live view (checked by :func:`open_view`)."""
+    return typer.Option(None, "--viz-save", help=help)
+
+
+def save_partial_option(
+    help: str = "On Ctrl-C, stop and write the results of the part run so far (exit 130); a "
+    "second Ctrl-C aborts without writing.",
+) -> Any:
+    """``--save-partial/--no-save-partial`` (default on): what Ctrl-C does
+    (:func:`stop_on_ctrl_c`)."""
+    return typer.Option(True, "--save-partial/--no-save-partial", help=help)
+
+
 def live_view_options() -> Any:
     """``--viz``, ``--viz-save FILE.rrd`` and ``--save-partial/--no-save-partial`` (default
     on): the same three options on every command with a live view (an
@@ -20,20 +41,11 @@ def live_view_options() -> Any:
     run it (:func:`probmap.cli.slam.run_and_report`)."""
     from probmap.cli.options import option_group
 
-    viz = typer.Option(False, "--viz", help="Watch the run in the rerun viewer (extra 'viz').")
-    viz_save = typer.Option(
-        None,
-        "--viz-save",
-        help="Record the live view into FILE.rrd (open it later with 'rerun FILE.rrd').",
-    )
-    save_partial = typer.Option(
-        True,
-        "--save-partial/--no-save-partial",
-        help="On Ctrl-C, stop and write the results of the part run so far (exit 130); a "
-        "second Ctrl-C aborts without writing.",
-    )
     return option_group(
-        dict, viz=(bool, viz), viz_save=(Path | None, viz_save), save_partial=(bool, save_partial)
+        dict,
+        viz=(bool, viz_option()),
+        viz_save=(Path | None, viz_save_option()),
+        save_partial=(bool, save_partial_option()),
     )
 
 

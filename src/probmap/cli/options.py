@@ -5,7 +5,13 @@ always travel together (a ROS bag's topics and frames; the live view) form an
 :func:`option_group`: the command lists one parameter whose default is the group, and
 :func:`with_option_groups` expands it, in place, into the group's options for typer, then
 hands the command the group's one combined value. ``--help`` lists the same options in the
-same order as if each had been written out.
+same order as if each had been written out. The live view's options and their group are in
+:mod:`probmap.cli.watch`, the landmark commands' in :mod:`probmap.cli.slam`.
+
+A command's own options (one command each) stay in its signature, where typer reads them; runs
+of different options written alike (``x: float | None = typer.Option(None, "--x", help=...)``)
+are what ``duplicates`` still lists as same-shape pairs among the commands: distinct options,
+not repeats.
 
 Imports nothing beyond typer: ``probmap --help`` stays fast.
 """

@@ -12,6 +12,7 @@ from typing import Any
 import typer
 
 
+# the option factories here have the same form as those of probmap.cli.options: one per option
 def viz_option(help: str = "Watch the run in the rerun viewer (extra 'viz').") -> Any:
     """``--viz``: show the run in the rerun viewer (``help`` says what it shows)."""
     return typer.Option(False, "--viz", help=help)

@@ -23,10 +23,8 @@ def relations_command(
     tolerance: float | None = typer.Option(
         None, "--tolerance", help="Timestamp matching tolerance, seconds [default: 0.001]."
     ),
-    poses: str | None = typer.Option(
-        None,
-        "--poses",
-        help="For a CARMEN log: robot (odom fields) or laser poses [default: robot].",
+    poses: str | None = opt.poses_option(
+        "For a CARMEN log: robot (odom fields) or laser poses [default: robot]."
     ),
     config: Path | None = opt.config_option(
         "A YAML file of RelationsConfig fields (tolerance, poses); the options given here "

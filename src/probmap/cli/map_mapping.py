@@ -102,13 +102,11 @@ def fit_sensor_model_command(
         "Cell size (m) of the map the ranges are cast in [default: 0.05]."
     ),
     every: int | None = typer.Option(None, "--every", help="Use every N-th scan [default: 1]."),
-    max_range: float | None = typer.Option(
-        None, "--max-range", help="Sensor max range in metres [default: from the log]."
+    max_range: float | None = opt.max_range_option(
+        "Sensor max range in metres [default: from the log]."
     ),
-    poses: str | None = typer.Option(
-        None,
-        "--poses",
-        help="corrected: the scans' laser poses; odometry: odometry [default: corrected].",
+    poses: str | None = opt.poses_option(
+        "corrected: the scans' laser poses; odometry: odometry [default: corrected]."
     ),
     config: Path | None = opt.config_option(
         "A YAML file of FitConfig fields (resolution, every, max_range, poses, "

@@ -40,25 +40,21 @@ def map_command(
         "ending in /) writes FOLDER/map.*. Missing folders are created."
     ),
     resolution: float | None = opt.resolution_option(),
-    max_range: float | None = typer.Option(
-        None, "--max-range", help="Sensor max range in metres (default: from the log)."
+    max_range: float | None = opt.max_range_option(
+        "Sensor max range in metres (default: from the log)."
     ),
-    poses: str | None = typer.Option(
-        None,
-        "--poses",
-        help="corrected: the scans' laser poses; odometry: robot odometry + laser offset "
-        "[default: corrected].",
+    poses: str | None = opt.poses_option(
+        "corrected: the scans' laser poses; odometry: robot odometry + laser offset "
+        "[default: corrected]."
     ),
-    max_clear: float | None = typer.Option(
-        None,
-        "--max-clear",
-        help="Free space cleared by a max-range (no-return) reading, metres [default: 10].",
+    max_clear: float | None = opt.max_clear_option(
+        "Free space cleared by a max-range (no-return) reading, metres [default: 10]."
     ),
-    p_hit: float | None = typer.Option(
-        None, "--p-hit", help="Inverse model: p(occupied) at a beam's endpoint [default: 0.7]."
+    p_hit: float | None = opt.p_hit_option(
+        "Inverse model: p(occupied) at a beam's endpoint [default: 0.7]."
     ),
-    p_miss: float | None = typer.Option(
-        None, "--p-miss", help="Inverse model: p(occupied) along a beam [default: 0.4]."
+    p_miss: float | None = opt.p_miss_option(
+        "Inverse model: p(occupied) along a beam [default: 0.4]."
     ),
     config: Path | None = opt.config_option(
         "A YAML file of MappingConfig fields (as PREFIX.config.yaml records them); the "

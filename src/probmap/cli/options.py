@@ -132,6 +132,31 @@ def resolution_option(help: str = "Cell size in metres [default: 0.05].") -> Any
     return typer.Option(None, "--resolution", "-r", help=help)
 
 
+def max_range_option(help: str) -> Any:
+    """``--max-range``: the sensor's max range, metres (None: the log's)."""
+    return typer.Option(None, "--max-range", help=help)
+
+
+def poses_option(help: str) -> Any:
+    """``--poses``: which poses of a log to use (``help`` lists the choices)."""
+    return typer.Option(None, "--poses", help=help)
+
+
+def p_hit_option(help: str) -> Any:
+    """``--p-hit``: the inverse sensor model's p(occupied) at a beam's endpoint."""
+    return typer.Option(None, "--p-hit", help=help)
+
+
+def p_miss_option(help: str) -> Any:
+    """``--p-miss``: the inverse sensor model's p(occupied) along a beam."""
+    return typer.Option(None, "--p-miss", help=help)
+
+
+def max_clear_option(help: str) -> Any:
+    """``--max-clear``: the free space a max-range (no-return) reading clears, metres."""
+    return typer.Option(None, "--max-clear", help=help)
+
+
 def particles_option(help: str) -> Any:
     """``-n/--particles``: how many particles a filter runs (None: the configuration's)."""
     return typer.Option(None, "--particles", "-n", help=help)

@@ -55,21 +55,15 @@ def semantic_command(
         "created."
     ),
     resolution: float | None = opt.resolution_option(),
-    p_hit: float | None = typer.Option(
-        None, "--p-hit", help="p(not free) at a beam's endpoint [default: 0.7]."
-    ),
-    p_miss: float | None = typer.Option(
-        None, "--p-miss", help="p(not free) along a beam [default: 0.4]."
-    ),
+    p_hit: float | None = opt.p_hit_option("p(not free) at a beam's endpoint [default: 0.7]."),
+    p_miss: float | None = opt.p_miss_option("p(not free) along a beam [default: 0.4]."),
     p_correct: float | None = typer.Option(
         None,
         "--p-correct",
         help="Probability that a hard label is right (confusion model) [default: 0.9].",
     ),
-    max_clear: float | None = typer.Option(
-        None,
-        "--max-clear",
-        help="Free space cleared by max-range readings, metres [default: the max range].",
+    max_clear: float | None = opt.max_clear_option(
+        "Free space cleared by max-range readings, metres [default: the max range]."
     ),
     config: Path | None = opt.config_option(
         "A YAML file of SemanticMappingConfig fields (as PREFIX.config.yaml records it); "

@@ -13,7 +13,8 @@ of different options written alike (``x: float | None = typer.Option(None, "--x"
 are what ``duplicates`` still lists as same-shape pairs among the commands: distinct options,
 not repeats.
 
-Imports nothing beyond typer: ``probmap --help`` stays fast.
+Command modules import it as ``opt`` (``from probmap.cli import options as opt``). It imports
+nothing beyond typer and the standard library: ``probmap --help`` stays fast.
 """
 
 from __future__ import annotations

@@ -22,7 +22,8 @@ INTEL_REL = "intel-research-lab/intel.relations"
 
 
 def run(*args: str):
-    return runner.invoke(app, [str(a) for a in args])
+    # a wide terminal, so the summary table never wraps a label over two lines
+    return runner.invoke(app, [str(a) for a in args], env={"COLUMNS": "200"})
 
 
 def _one_line_error(res, *words: str) -> None:

@@ -4,6 +4,7 @@ writes, the trajectory it reports, and configuration checks."""
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -220,29 +221,44 @@ def test_inverse_mount_undoes_the_mount():
 
 
 @pytest.mark.parametrize(
-    ("kwargs", "match"),
+    ("kwargs", "message"),
     [
-        ({"resolution": 0.0}, "resolution"),
-        ({"resolution": float("nan")}, "resolution"),
-        ({"robust_scale": -1.0}, "robust_scale"),
-        ({"min_distance": -0.1}, "min_distance"),
-        ({"max_clear_range": float("inf")}, "max_clear_range"),
-        ({"closure_min_score": 1.5}, "closure_min_score"),
-        ({"min_match_score": -0.1}, "min_match_score"),
-        ({"local_sd": (0.02, 0.0)}, "local_sd"),
-        ({"closure_sd": (0.05,)}, "closure_sd"),
-        ({"max_window": (-1.0, 0.3)}, "max_window"),
-        ({"submap_scans": 1}, "submap_scans"),
-        ({"optimize_every": -1}, "optimize_every"),
-        ({"closure_points": 0}, "closure_points"),
-        ({"field_radius": 0}, "field_radius"),
-        ({"robust": "tukey"}, "robust"),
-        ({"p_hit": 0.4}, "p_miss < 0.5 < p_hit"),
+        ({"resolution": 0.0}, "resolution must be a positive number, got 0.0"),
+        ({"resolution": float("nan")}, "resolution must be a positive number, got nan"),
+        ({"robust_scale": -1.0}, "robust_scale must be a positive number, got -1.0"),
+        ({"min_distance": -0.1}, "min_distance must be >= 0, got -0.1"),
+        ({"max_clear_range": float("inf")}, "max_clear_range must be >= 0, got inf"),
+        ({"closure_min_score": 1.5}, "closure_min_score must lie in [0, 1], got 1.5"),
+        ({"min_match_score": -0.1}, "min_match_score must lie in [0, 1], got -0.1"),
+        ({"local_sd": (0.02, 0.0)}, "local_sd must be two positive numbers, got (0.02, 0.0)"),
+        ({"closure_sd": (0.05,)}, "closure_sd must be two positive numbers, got (0.05,)"),
+        (
+            {"odometry_sd_rate": [0.1, 0.1]},
+            "odometry_sd_rate must be two positive numbers, got [0.1, 0.1]",
+        ),
+        ({"max_window": (-1.0, 0.3)}, "max_window must be two numbers >= 0, got (-1.0, 0.3)"),
+        ({"consensus": (0.3, float("inf"))}, "consensus must be two numbers >= 0, got (0.3, inf)"),
+        (
+            {"odometry_sd": (0.02, 0.0)},
+            "odometry_sd needs a positive rotation part, got (0.02, 0.0)",
+        ),
+        ({"submap_scans": 1}, "submap_scans must be >= 2, got 1"),
+        ({"optimize_every": -1}, "optimize_every must be >= 0, got -1"),
+        ({"closure_points": 0}, "closure_points must be >= 1, got 0"),
+        ({"field_radius": 0}, "field_radius must be >= 1, got 0"),
+        ({"robust": "tukey"}, "robust must be dcs, cauchy, huber or none, got 'tukey'"),
+        ({"p_hit": 0.4}, "need 0 < p_miss < 0.5 < p_hit < 1, got 0.4, 0.4"),
     ],
 )
-def test_config_refuses_bad_values(kwargs, match):
-    with pytest.raises(ValueError, match=match):
+def test_config_refuses_bad_values(kwargs, message):
+    # the whole message, as the checks have always worded it
+    with pytest.raises(ValueError, match="^" + re.escape(message) + "$"):
         GraphSlamConfig(**kwargs)
+
+
+def test_config_takes_pairs_at_their_bounds():
+    cfg = GraphSlamConfig(max_window=(0.0, 0.0), odometry_sd=(0.0, 0.0), local_sd=(1e-9, 1e-9))
+    assert cfg.max_window == (0.0, 0.0) and cfg.local_sd == (1e-9, 1e-9)
 
 
 def test_bad_scans_are_refused():

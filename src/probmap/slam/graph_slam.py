@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap._checks import require_at_least, require_nonnegative_finite, require_positive_finite
 from probmap.geometry.se2 import between, compose, inverse, wrap_angle
 from probmap.grid.occupancy import InverseSensorModel, OccupancyGrid
 from probmap.slam.posegraph import RobustKernel
@@ -211,61 +212,47 @@ class GraphSlamConfig:
     grid_cache: int = 8
 
     def __post_init__(self) -> None:
-        positive = ("resolution", "robust_scale", "near_window")
-        for name in positive:
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a positive number, got {v}")
+        for name in ("resolution", "robust_scale", "near_window"):
+            require_positive_finite(name, getattr(self, name))
         for name in ("min_distance", "min_rotation", "max_clear_range"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be >= 0, got {v}")
+            require_nonnegative_finite(name, getattr(self, name))
         for name in ("min_match_score", "recover_score", "closure_min_score", "wide_min_score"):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"{name} must lie in [0, 1], got {v}")
         for name in ("local_sd", "closure_sd", "odometry_sd_rate"):
-            v = getattr(self, name)
-            if (
-                not isinstance(v, tuple)
-                or len(v) != 2
-                or not all(math.isfinite(x) and x > 0 for x in v)
-            ):
-                raise ValueError(f"{name} must be two positive numbers, got {v}")
+            _require_pair(name, getattr(self, name), positive=True)
         for name in (
             "closure_window", "window_growth", "max_window", "wide_window", "consensus",
             "recover_window", "odometry_sd",
         ):  # fmt: skip
-            v = getattr(self, name)
-            if (
-                not isinstance(v, tuple)
-                or len(v) != 2
-                or not all(math.isfinite(x) and x >= 0 for x in v)
-            ):
-                raise ValueError(f"{name} must be two numbers >= 0, got {v}")
+            _require_pair(name, getattr(self, name), positive=False)
         if self.odometry_sd[0] > 0 and not self.odometry_sd[1] > 0:
             raise ValueError(f"odometry_sd needs a positive rotation part, got {self.odometry_sd}")
-        if self.submap_scans < 2:
-            raise ValueError(f"submap_scans must be >= 2, got {self.submap_scans}")
+        require_at_least("submap_scans", self.submap_scans, 2)
         for name in ("wide_search_every", "optimize_every", "final_iterations"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+            require_at_least(name, getattr(self, name), 0)
         for name in (
-            "far_every",
-            "consensus_nodes",
-            "consensus_checks",
-            "closure_every",
-            "closure_candidates",
-            "closure_points",
-            "grid_cache",
-            "field_radius",
-        ):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+            "far_every", "consensus_nodes", "consensus_checks", "closure_every",
+            "closure_candidates", "closure_points", "grid_cache", "field_radius",
+        ):  # fmt: skip
+            require_at_least(name, getattr(self, name), 1)
         if self.robust not in ("dcs", "cauchy", "huber", "none"):
             raise ValueError(f"robust must be dcs, cauchy, huber or none, got {self.robust!r}")
         if not 0.0 < self.p_miss < 0.5 < self.p_hit < 1.0:
             raise ValueError(f"need 0 < p_miss < 0.5 < p_hit < 1, got {self.p_miss}, {self.p_hit}")
+
+
+def _require_pair(name: str, value: Any, *, positive: bool) -> None:
+    """Raise unless ``value`` is a tuple of two finite numbers, each > 0 (``positive``) or
+    >= 0: the ``(metres, radians)`` pairs of :class:`GraphSlamConfig`."""
+    if (
+        not isinstance(value, tuple)
+        or len(value) != 2
+        or not all(math.isfinite(x) and (x > 0 if positive else x >= 0) for x in value)
+    ):
+        kind = "two positive numbers" if positive else "two numbers >= 0"
+        raise ValueError(f"{name} must be {kind}, got {value}")
 
 
 @dataclass(frozen=True)

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap._checks import require_at_least, require_nonnegative_finite, require_positive_finite
 from probmap._deprecation import moved
 from probmap.geometry.se2 import between, compose, inverse, wrap_angle
 from probmap.grid.occupancy import OccupancyGrid
@@ -141,18 +142,13 @@ class GridSlamConfig:
     known_fraction: float = 0.8
 
     def __post_init__(self) -> None:
-        if self.particles < 1:
-            raise ValueError(f"particles must be >= 1, got {self.particles}")
+        require_at_least("particles", self.particles, 1)
         positive = ("resolution", "likelihood_sigma", "weight_gain", "match_temperature",
                     "degenerate_sd")  # fmt: skip
         for name in positive:
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a positive number, got {v}")
+            require_positive_finite(name, getattr(self, name))
         for name in ("linear_update", "angular_update", "max_clear_range", "min_score"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be >= 0, got {v}")
+            require_nonnegative_finite(name, getattr(self, name))
         if not 0.0 <= self.known_fraction <= 1.0:
             raise ValueError(f"known_fraction must be in [0, 1], got {self.known_fraction}")
         if self.field_radius < 1 or self.likelihood_skip < 1:

@@ -48,6 +48,7 @@ from typing import Any, Literal, TypeVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap._checks import require_at_least, require_positive_finite
 from probmap._typing import BoolArray, FloatArray, IntArray
 from probmap.slam import _posegraph_kernels as _k
 
@@ -123,8 +124,7 @@ class OptimizerConfig:
             self.max_iterations, (int, np.integer)
         ):
             raise ValueError(f"max_iterations must be an integer, got {self.max_iterations!r}")
-        if self.max_iterations < 0:
-            raise ValueError(f"max_iterations must be >= 0, got {self.max_iterations}")
+        require_at_least("max_iterations", self.max_iterations, 0)
         for name in ("relative_tolerance", "absolute_tolerance"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
@@ -145,8 +145,8 @@ class OptimizerConfig:
             raise ValueError(f"chart must be one of {sorted(_CHARTS)}, got {self.chart!r}")
         if self.robust_scale is None:
             object.__setattr__(self, "robust_scale", _DEFAULT_SCALE[self.robust])
-        elif not (math.isfinite(self.robust_scale) and self.robust_scale > 0):
-            raise ValueError(f"robust_scale must be a positive number, got {self.robust_scale}")
+        else:
+            require_positive_finite("robust_scale", self.robust_scale)
 
     @property
     def scale(self) -> float:
@@ -941,7 +941,18 @@ class PoseGraph2D:
 
     def error(self) -> float:
         """Current cost ``0.5 * sum rho(e' Omega e)`` (GTSAM's convention)."""
-        x, ei, ej, z, om, rb = self._arrays()
+        return self._cost(*self._arrays())
+
+    def _cost(
+        self,
+        x: FloatArray,
+        ei: IntArray,
+        ej: IntArray,
+        z: FloatArray,
+        om: FloatArray,
+        rb: BoolArray,
+    ) -> float:
+        """The cost at poses ``x`` of the edges :meth:`_arrays` gives."""
         cfg = self.config
         scratch = np.empty(self._m), np.empty(self._m)
         return float(
@@ -982,21 +993,14 @@ class PoseGraph2D:
         """
         t0 = time.perf_counter()
         its = self.config.max_iterations if max_iterations is None else int(max_iterations)
-        if its < 0:
-            raise ValueError(f"max_iterations must be >= 0, got {its}")
+        require_at_least("max_iterations", its, 0)
         x, ei, ej, z, om, rb = self._arrays()
         if self._n == 0:
             raise ValueError("the graph has no nodes")
         system = self._normal_equations(ei, ej)
-        cfg = self.config
-        scratch = np.empty(self._m), np.empty(self._m)
-        F0 = float(
-            _k.graph_cost(
-                x, ei, ej, z, om, _CHARTS[cfg.chart], _KERNELS[cfg.robust], cfg.scale, rb, *scratch
-            )
-        )
+        F0 = self._cost(x, ei, ej, z, om, rb)
         out, F, n_it, conv, msg, chi2, w = _levenberg_marquardt(
-            x, ei, ej, z, om, rb, system, cfg, its
+            x, ei, ej, z, om, rb, system, self.config, its
         )
         self._poses[: self._n] = out
         return OptimizeResult(out.copy(), F0, F, n_it, time.perf_counter() - t0, conv, w, chi2, msg)

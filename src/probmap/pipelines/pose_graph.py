@@ -19,7 +19,6 @@ from probmap.datasets.g2o import PoseGraph, PoseGraphArrays, pose_graph_arrays
 from probmap.slam.posegraph import (
     OptimizerConfig,
     OptimizeResult,
-    RobustKernel,
     optimize_pose_graph,
 )
 
@@ -27,10 +26,10 @@ __all__ = ["PoseGraphConfig", "PoseGraphRun", "optimize_graph"]
 
 
 @dataclass(frozen=True)
-class PoseGraphConfig:
-    """Settings of ``probmap optimize``: the optimizer's (:class:`OptimizerConfig`, whose
-    fields and defaults these are) and the command's own; loadable from and dumpable to YAML
-    with :mod:`probmap.config`::
+class PoseGraphConfig(OptimizerConfig):
+    """Settings of ``probmap optimize``: the optimizer's (inherited from
+    :class:`OptimizerConfig`, the one home of their fields and defaults) and the command's own;
+    loadable from and dumpable to YAML with :mod:`probmap.config`::
 
         robust: huber
         max_iterations: 50
@@ -56,19 +55,11 @@ class PoseGraphConfig:
         robust to false edges).
     """
 
-    max_iterations: int = 100
-    relative_tolerance: float = 1e-6
-    absolute_tolerance: float = 1e-12
-    initial_lambda: float = 1e-9
-    max_lambda: float = 1e10
-    damping: Literal["identity", "diagonal"] = "identity"
-    robust: RobustKernel = "none"
-    robust_scale: float | None = None
-    chart: Literal["logmap", "xyt"] = "logmap"
     robust_edges: Literal["all", "closures"] = "all"
     init: Literal["auto", "given", "lago"] = "auto"
 
     def __post_init__(self) -> None:
+        # not OptimizerConfig's, which would resolve robust_scale: it stays None here
         self.optimizer()  # the optimizer's own rules on its fields
         if self.robust_edges not in ("all", "closures"):
             raise ValueError(f"robust_edges must be 'all' or 'closures', got {self.robust_edges!r}")
@@ -79,6 +70,11 @@ class PoseGraphConfig:
         """The optimizer's configuration (its robust scale resolved)."""
         names = [f.name for f in fields(OptimizerConfig)]
         return OptimizerConfig(**{name: getattr(self, name) for name in names})
+
+    @property
+    def scale(self) -> float:
+        """The resolved robust scale (the kernel's default when :attr:`robust_scale` is None)."""
+        return self.optimizer().scale
 
     @property
     def start(self) -> Literal["given", "lago"]:

@@ -134,18 +134,30 @@ def load_laser_log(
     ValueError
         A log without odometry (every pose the same) or with fewer than two scans.
     """
+    batch = _open_laser_scans(path, "corrected", end_time, bag_options, skip_bad_lines)
+    _require_odometry(path, batch)
+    return batch
+
+
+def _open_laser_scans(
+    path: str | os.PathLike[str],
+    poses: str,
+    end_time: float | None,
+    bag_options: dict[str, Any] | None,
+    skip_bad_lines: bool,
+) -> Any:
+    """:func:`probmap.datasets.open_scans` as both grid SLAMs read a log: float32 ranges, the
+    scans posed as ``poses`` says (``"corrected"`` or ``"odometry"``)."""
     from probmap.datasets.scans import open_scans
 
-    batch = open_scans(
+    return open_scans(
         path,
-        poses="corrected",
+        poses=poses,
         dtype=np.float32,
         skip_bad_lines=skip_bad_lines,
         bag_options=bag_options,
         end_time=end_time,
     )
-    _require_odometry(path, batch)
-    return batch
 
 
 def _require_odometry(path: object, batch: Any) -> None:
@@ -302,18 +314,10 @@ def slam_log(
     bag's topics and frames (guessed when not given). ``readings``, when given, is called with
     the :class:`~probmap.datasets.validate.ReadingReport` of the scans used.
     """
-    from probmap.datasets.scans import open_scans
     from probmap.geometry.se2 import between
     from probmap.slam.gridslam import run_grid_slam
 
-    batch = open_scans(
-        path,
-        poses="odometry",
-        dtype=np.float32,
-        skip_bad_lines=skip_bad_lines,
-        bag_options=bag_options,
-        end_time=end_time,
-    )
+    batch = _open_laser_scans(path, "odometry", end_time, bag_options, skip_bad_lines)
     times = np.asarray(batch.times, dtype=np.float64)
     angles = np.asarray(batch.angles, dtype=np.float64)
     if angles.ndim != 1:

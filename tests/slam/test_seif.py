@@ -538,13 +538,18 @@ def test_weakest_deactivation_within_1_3x_of_ekf_on_hard_seeds(sim_runs):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("kind", ["seif", "context"])
-def test_monte_carlo_rmse_within_1_3x_of_ekf(sim_runs, kind):
-    # the goal at max_active = 10, as the Monte Carlo RMSE over ten seeded runs (the mean
-    # squared error over runs; single-run ratios scatter 0.4x-4x, BENCHMARKS.md); Table 12.4
-    # (seif) and the one-hop context (context_hops = 1)
+@pytest.mark.parametrize(
+    "kind, seeds", [("seif", tuple(range(10))), ("context", (3, 4, 5))], ids=["seif", "context"]
+)
+def test_monte_carlo_rmse_within_1_3x_of_ekf(sim_runs, kind, seeds):
+    # the goal at max_active = 10, as the Monte Carlo RMSE over seeded runs (the mean
+    # squared error over runs; single-run ratios scatter 0.4x-4x, BENCHMARKS.md). Table 12.4
+    # (seif) over ten seeds: robot 1.22x, landmark 1.22x. The one-hop context (context_hops = 1;
+    # each run costs 3-4 EKF runs) over the hard seeds 3-5, where the bound tells it from
+    # Table 12.4 (context 1.07x / 0.81x; Table 12.4 1.18x / 1.43x fails), which ten seeds do not
+    # (context 0.98x / 0.95x; Table 12.4 passes as well)
     mse = np.zeros((2, 2))
-    for seed in range(10):
+    for seed in seeds:
         mse[0] += _rmse(sim_runs("ekf", seed))
         mse[1] += _rmse(sim_runs(kind, seed))
     ratio = np.sqrt(mse[1] / mse[0])

@@ -165,11 +165,7 @@ def brute_force(base, cx, cy, nl, min_score, out):  # pragma: no cover - compile
     of equal scores wins (the smallest ``(a, kx, ky)``). Scores are means ``sum / N``.
     """
     n = cx.shape[1]
-    best = -math.inf
-    found = False
-    ba = 0
-    bx = 0
-    by = 0
+    best, found, ba, bx, by = _NOTHING_FOUND
     count = 0
     for a in range(cx.shape[0]):
         cxa = cx[a]
@@ -178,12 +174,9 @@ def brute_force(base, cx, cy, nl, min_score, out):  # pragma: no cover - compile
             for ky in range(-nl, nl + 1):
                 m = leaf_sum(base, cxa, cya, kx, ky) / n
                 count += 1
-                if m >= min_score and m > best:
-                    best = m
-                    found = True
-                    ba = a
-                    bx = kx
-                    by = ky
+                best, found, ba, bx, by = _keep_best(
+                    m, a, kx, ky, min_score, best, found, ba, bx, by
+                )
     _store(out, found, ba, bx, by, best, count)
 
 
@@ -195,6 +188,21 @@ def _key_less(a1, x1, y1, a2, x2, y2):  # pragma: no cover - compiled
     if x1 != x2:
         return x1 < x2
     return y1 < y2
+
+
+#: ``(best, found, a, kx, ky)`` before any candidate is scored.
+_NOTHING_FOUND = (-math.inf, False, 0, 0, 0)
+
+
+@njit(cache=True, inline="always")
+def _keep_best(m, a, kx, ky, min_score, best, found, ba, bx, by):  # pragma: no cover - compiled
+    """The best candidate ``(best, found, ba, bx, by)`` once candidate ``(a, kx, ky)`` scored
+    ``m``: the highest score of at least ``min_score``, then the smallest key; the one rule
+    of both searches. (Brute force visits keys in ascending order, so for it a tie never
+    replaces the best.)"""
+    if m >= min_score and (m > best or (m == best and _key_less(a, kx, ky, ba, bx, by))):
+        return m, True, a, kx, ky
+    return best, found, ba, bx, by
 
 
 @njit(cache=True)
@@ -221,11 +229,7 @@ def branch_and_bound(
     side = 1 << top
     per_axis = (2 * nl) // side + 1
     n_roots = n_angles * per_axis * per_axis
-    best = -math.inf
-    found = False
-    ba = 0
-    bx = 0
-    by = 0
+    best, found, ba, bx, by = _NOTHING_FOUND
     count = 0
 
     # roots: every heading at the top depth, scored, then sorted best first
@@ -254,15 +258,9 @@ def branch_and_bound(
     if top == 0:  # the roots are the candidates
         for q in range(n_roots):
             k = order[q]
-            m = rs[k]
-            if m >= min_score and (
-                m > best or (m == best and _key_less(ra[k], rx[k], ry[k], ba, bx, by))
-            ):
-                best = m
-                found = True
-                ba = ra[k]
-                bx = rx[k]
-                by = ry[k]
+            best, found, ba, bx, by = _keep_best(
+                rs[k], ra[k], rx[k], ry[k], min_score, best, found, ba, bx, by
+            )
         _store(out, found, ba, bx, by, best, count)
         return
 
@@ -312,14 +310,9 @@ def branch_and_bound(
                         break
                     m = leaf_sum(base, cxa, cya, kx, ky) / n
                     count += 1
-                    if m >= min_score and (
-                        m > best or (m == best and _key_less(a, kx, ky, ba, bx, by))
-                    ):
-                        best = m
-                        found = True
-                        ba = a
-                        bx = kx
-                        by = ky
+                    best, found, ba, bx, by = _keep_best(
+                        m, a, kx, ky, min_score, best, found, ba, bx, by
+                    )
             continue
         # inner node: score the children at depth h - 1, sort them best first
         lev = h - 1

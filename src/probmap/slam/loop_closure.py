@@ -230,7 +230,7 @@ def default_angular_step(points: ArrayLike, resolution: float) -> float:
     return math.acos(max(1.0 - resolution**2 / (2.0 * d_max**2), -1.0))
 
 
-def _validate(
+def _window(
     grids: PrecomputedGrids,
     points: ArrayLike,
     center: ArrayLike,
@@ -238,8 +238,9 @@ def _validate(
     angular_window: float,
     angular_step: float | None,
     min_score: float,
-) -> tuple[NDArray, NDArray, int, int, float]:
-    """Checked inputs: points (N, 2), centre (3,), ``nl``, ``na`` and the heading step."""
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray, int, int, float]:
+    """The window both searches scan, from their checked inputs: the points' cells per heading
+    ``cx, cy`` (2 na + 1, N), the centre (3,), ``nl``, ``na`` and the heading step."""
     if not isinstance(grids, PrecomputedGrids):
         raise TypeError(f"grids must be PrecomputedGrids, got {type(grids).__name__}")
     pts = np.ascontiguousarray(points, dtype=np.float64)
@@ -276,7 +277,8 @@ def _validate(
             f"the window has {2 * na + 1} headings for {pts.shape[0]} points: too many, "
             "give a larger angular_step"
         )
-    return pts, c, nl, na, step
+    cx, cy = _cell_tables(grids, pts, c, na, step)
+    return cx, cy, c, nl, na, step
 
 
 def _cell_tables(
@@ -361,10 +363,9 @@ def branch_and_bound_search(
     """
     from probmap.slam import _bnb_kernels as K
 
-    pts, c, nl, na, step = _validate(
+    cx, cy, c, nl, na, step = _window(
         grids, points, center, linear_window, angular_window, angular_step, min_score
     )
-    cx, cy = _cell_tables(grids, pts, c, na, step)
     # start where the window holds at least two blocks per axis: a coarser start sorts its
     # roots on loose bounds, so the depth-first descent meets a good pose late
     top = max(0, min(grids.depth - 1, nl.bit_length() - 1))
@@ -375,6 +376,7 @@ def branch_and_bound_search(
     return _result(out, c, grids.resolution, na, nl, step)
 
 
+# The parameters of branch_and_bound_search, on purpose: the reference takes what it checks.
 def brute_force_search(
     grids: PrecomputedGrids,
     points: ArrayLike,
@@ -392,10 +394,9 @@ def brute_force_search(
     """
     from probmap.slam import _bnb_kernels as K
 
-    pts, c, nl, na, step = _validate(
+    cx, cy, c, nl, na, step = _window(
         grids, points, center, linear_window, angular_window, angular_step, min_score
     )
-    cx, cy = _cell_tables(grids, pts, c, na, step)
     out = np.zeros(6)
     K.brute_force(grids.values, cx, cy, nl, float(min_score), out)
     return _result(out, c, grids.resolution, na, nl, step)

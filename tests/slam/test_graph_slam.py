@@ -173,6 +173,26 @@ def test_nodes_trajectory_and_counters(world, run):
     np.testing.assert_allclose(est[i], expect, atol=1e-12)
 
 
+def test_anchor_edges_grow_with_their_length(world, run):
+    # every node-to-anchor edge (not to the previous node) carries local_sd grown by
+    # anchor_sd_rate per metre of its length in translation, local_sd in rotation
+    slam, _ = run
+    cfg = slam.config
+    g = slam.graph
+    anchors = {sm.anchor for sm in slam.submaps}
+    closure = set(slam._closure_edges)
+    checked = 0
+    for e, (i, j) in enumerate(g.edges):
+        if e in closure or j - i < 2 or int(i) not in anchors:
+            continue
+        z = g.measurements[e]
+        sxy = cfg.local_sd[0] + cfg.anchor_sd_rate * math.hypot(z[0], z[1])
+        expect = np.diag([sxy**-2, sxy**-2, cfg.local_sd[1] ** -2])
+        np.testing.assert_allclose(g.information[e], expect, rtol=1e-12)
+        checked += 1
+    assert checked > slam.nodes  # two per node, less the first ones of each submap
+
+
 def test_write_g2o_reads_back(world, run, tmp_path):
     from probmap.datasets.g2o import read_g2o
 
@@ -228,6 +248,7 @@ def test_inverse_mount_undoes_the_mount():
         ({"robust_scale": -1.0}, "robust_scale must be a positive number, got -1.0"),
         ({"min_distance": -0.1}, "min_distance must be >= 0, got -0.1"),
         ({"max_clear_range": float("inf")}, "max_clear_range must be >= 0, got inf"),
+        ({"anchor_sd_rate": -0.1}, "anchor_sd_rate must be >= 0, got -0.1"),
         ({"closure_min_score": 1.5}, "closure_min_score must lie in [0, 1], got 1.5"),
         ({"min_match_score": -0.1}, "min_match_score must lie in [0, 1], got -0.1"),
         ({"local_sd": (0.02, 0.0)}, "local_sd must be two positive numbers, got (0.02, 0.0)"),

@@ -111,6 +111,13 @@ class GraphSlamConfig:
     local_sd : tuple of float
         Standard deviations ``(metres, radians)`` of the local-SLAM edges (node to previous node
         and node to submap anchor).
+    anchor_sd_rate : float
+        Growth of a node-to-anchor edge's translational standard deviation per metre between
+        the two poses (metres per metre): the edge spans up to a submap's length of local SLAM,
+        whose drift (a scale the laser and the wheels disagree on, a corridor that constrains
+        the motion along it poorly) grows with the distance, so a long edge claims no more than
+        local SLAM can hold. 0.1 assumes a drift of local SLAM under about 10 % of the distance
+        (the closure windows assume 15 %).
     odometry_sd, odometry_sd_rate : tuple of float
         The odometry increment between consecutive nodes is an edge too, with standard
         deviations ``odometry_sd + odometry_sd_rate * (distance, |rotation|)`` (metres and
@@ -184,6 +191,7 @@ class GraphSlamConfig:
     recover_score: float = 0.4
     recover_window: tuple[float, float] = (0.6, 0.35)
     local_sd: tuple[float, float] = (0.02, 0.005)
+    anchor_sd_rate: float = 0.1
     odometry_sd: tuple[float, float] = (0.02, 0.005)
     odometry_sd_rate: tuple[float, float] = (0.02, 0.02)
     closure_sd: tuple[float, float] = (0.05, 0.01)
@@ -214,7 +222,7 @@ class GraphSlamConfig:
     def __post_init__(self) -> None:
         for name in ("resolution", "robust_scale", "near_window"):
             require_positive_finite(name, getattr(self, name))
-        for name in ("min_distance", "min_rotation", "max_clear_range"):
+        for name in ("min_distance", "min_rotation", "max_clear_range", "anchor_sd_rate"):
             require_nonnegative_finite(name, getattr(self, name))
         for name in ("min_match_score", "recover_score", "closure_min_score", "wide_min_score"):
             v = getattr(self, name)
@@ -465,7 +473,7 @@ class GraphSlam:
             in_sub = between(self.local[sm.anchor], local)
             sm.insert(k, in_sub, r_sub, a, self.max_range)
             if sm.anchor != k and sm.anchor != k - 1:
-                self.graph.add_edge(sm.anchor, k, in_sub, self._local_info)
+                self.graph.add_edge(sm.anchor, k, in_sub, self._anchor_information(in_sub))
         while self.active and self.active[0].size >= cfg.submap_scans:
             self._retire_oldest()
         # closure endpoints: an even subsample of the scan
@@ -480,6 +488,16 @@ class GraphSlam:
             self._since_optimize >= cfg.optimize_every or self._pending_correction
         ):
             self.optimize()
+
+    def _anchor_information(self, rel: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Information of a node-to-anchor edge with relative pose ``rel``: ``local_sd`` with
+        the translation part grown by ``anchor_sd_rate`` per metre of the edge's length."""
+        cfg = self.config
+        rate = getattr(cfg, "anchor_sd_rate", 0.0)  # sessions saved before the setting: 0
+        if rate == 0.0:
+            return self._local_info
+        sxy = cfg.local_sd[0] + rate * math.hypot(float(rel[0]), float(rel[1]))
+        return _information((sxy, cfg.local_sd[1]))
 
     def _retire_oldest(self) -> None:
         """Finish the oldest active submap and make it a closure-search candidate."""

@@ -866,6 +866,7 @@ def ldl_solve(Lp, Li, Lx, Dinv, b, x):  # pragma: no cover - compiled
 # ----------------------------------------------------------------------------- LM and LAGO
 
 
+# Its first arguments are accumulate_normal_equations', passed on: kernels take plain arrays.
 @njit(cache=True)
 def levenberg_marquardt(
     poses,

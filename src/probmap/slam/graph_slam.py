@@ -65,6 +65,7 @@ SESSION_FORMAT = "probmap.GraphSlam session"
 SESSION_VERSION = 1
 
 
+# Like gridslam._default_matcher, with graph SLAM's own values (a wider window for local SLAM).
 def _local_matcher() -> MatcherConfig:
     return MatcherConfig(
         sigma=0.05,

@@ -908,6 +908,7 @@ class PoseGraph2D:
             raise IndexError(f"node {index} out of range for {self._n} nodes")
         return self._poses[index % self._n].copy()
 
+    # One property per edge array (alike but for the array): each has its own shape and type.
     @property
     def edges(self) -> IntArray:
         """Node indices ``(E, 2)`` of the edges (a copy)."""

@@ -49,11 +49,13 @@ def test_mrclam_landmark_mcl_against_vicon(shared_data, robot):
     exact = VelocityMotionModel(0, 0, 0, 0, 0, 0)
     rng = np.random.default_rng(1)
     dead = ds.initial_pose.copy()
+    with_dead_reckoning = robot == 1  # the only robot whose odometry is checked (below)
     times, est, dr = [], [], []
     for step in ds:
         if step.dt > 0:
             mcl.predict(step.control, step.dt)
-            dead = exact.sample(dead[None], step.control, step.dt, rng)[0]
+            if with_dead_reckoning:
+                dead = exact.sample(dead[None], step.control, step.dt, rng)[0]
         if step.z.shape[0]:
             mcl.correct(step.z, step.ids)
             mcl.resample_if_needed()
@@ -62,9 +64,9 @@ def test_mrclam_landmark_mcl_against_vicon(shared_data, robot):
             dr.append(dead)
     gt = interpolate_poses(ds.gt_trajectory, np.array(times))
     err = np.hypot(*(np.array(est)[:, :2] - gt[:, :2]).T)
-    dr_err = np.hypot(*(np.array(dr)[:, :2] - gt[:, :2]).T)
     assert len(times) > 250
     assert np.median(err) < MRCLAM_BOUND[robot]
     assert np.percentile(err, 95) < 0.5
-    if robot == 1:  # the robot whose odometry drifts by metres within 200 s
+    if with_dead_reckoning:  # robot 1, whose odometry drifts by metres within 200 s
+        dr_err = np.hypot(*(np.array(dr)[:, :2] - gt[:, :2]).T)
         assert np.median(dr_err) > 10 * np.median(err)

@@ -4,6 +4,7 @@ against our EKF (exact oracle), the bounded filter's sparsity, memory and accura
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 import pytest
@@ -450,7 +451,11 @@ def test_memory_per_landmark_constant():
 # The accuracy tests below compare filters run over the same seeded worlds (150 landmarks, 600
 # steps): each (filter, seed) run is made once per module and its per-step errors kept, so every
 # test reads the same numbers it would compute on its own (the filters are deterministic).
-_SEIF_KW = {"seif": {}, "context": {"context_hops": 1}, "weakest": {"deactivation": "weakest"}}
+_SEIF_KW: dict[str, dict[str, Any]] = {
+    "seif": {},
+    "context": {"context_hops": 1},
+    "weakest": {"deactivation": "weakest"},
+}
 
 
 def _run_errors(f, ds, with_nees: bool) -> dict[str, np.ndarray]:

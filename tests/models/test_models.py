@@ -77,6 +77,32 @@ def test_ackermann_jacobians_numerical(ref):
     assert np.allclose(V, num_jac(lambda s: m.predict(x, s, 0.025)[0], u), atol=1e-7)
 
 
+def test_ackermann_rates_kernel_closed_form_derivatives_and_singularity():
+    """The shared speed-conversion kernel: closed forms, numerical derivatives, the singular case."""
+    from probmap.models._motion_kernels import ackermann_rates
+
+    L, H = 2.83, 0.76
+
+    def rates(ve, al):
+        ok, vc, k, *_ = ackermann_rates(ve, np.tan(al), H, L)
+        assert ok
+        return np.array([vc, k])
+
+    ve, al = 3.0, 0.25
+    ok, vc, k, dvc_dve, dvc_dal, dk_dve, dk_dal = ackermann_rates(ve, np.tan(al), H, L)
+    assert ok
+    assert np.isclose(vc, ve / (1 - np.tan(al) * H / L), rtol=1e-15)
+    assert np.isclose(k, vc * np.tan(al) / L, rtol=1e-15)
+    J = num_jac(lambda s: rates(s[0], s[1]), np.array([ve, al]))
+    assert np.allclose([[dvc_dve, dvc_dal], [dk_dve, dk_dal]], J, rtol=1e-7, atol=1e-9)
+    # tan(alpha) = L / H: v_e / 0, flagged (the model raises, the chain kernel returns a status)
+    assert ackermann_rates(ve, L / H, H, L) == (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    with pytest.raises(ValueError, match="singular"):
+        AckermannModel(wheelbase=L, encoder_offset=H).predict(
+            np.zeros(3), [ve, np.arctan(L / H)], 0.1
+        )
+
+
 def test_ackermann_circle_radius():
     # constant steering: the rear-axle centre drives a circle of radius L / tan(alpha)
     m = AckermannModel(encoder_offset=0.0)

@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike
 
 from probmap._typing import FloatArray
 from probmap.geometry.se2 import wrap_angle
+from probmap.models._motion_kernels import ackermann_rates
 
 __all__ = ["AckermannModel", "VelocityModel"]
 
@@ -248,18 +249,11 @@ class AckermannModel(_MotionModel):
         ve, al = u
         L, H = self.wheelbase, self.encoder_offset
         a, b = self.reference_point
-        t = np.tan(al)
-        den = 1.0 - t * H / L
-        if abs(den) < 1e-6:
+        # v_c, k = v_c tan(alpha) / L and their derivatives in (v_e, alpha): the one kernel
+        # that GraphSLAM's compiled chain calls too
+        ok, vc, k, dvc_dve, dvc_dal, dk_dve, dk_dal = ackermann_rates(ve, np.tan(al), H, L)
+        if not ok:
             raise ValueError(f"steering angle {al} makes the encoder speed conversion singular")
-        vc = ve / den
-        # derivatives of v_c and of k = v_c tan(alpha) / L with respect to (v_e, alpha)
-        dt_dal = 1.0 + t * t
-        dvc_dve = 1.0 / den
-        dvc_dal = ve * (H / L) * dt_dal / (den * den)
-        k = vc * t / L
-        dk_dve = dvc_dve * t / L
-        dk_dal = (dvc_dal * t + vc * dt_dal) / L
         c, s = np.cos(x[2]), np.sin(x[2])
         ox = a * s + b * c  # lateral lever terms of the reference point
         oy = a * c - b * s

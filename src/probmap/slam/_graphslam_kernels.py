@@ -26,6 +26,7 @@ import math
 import numpy as np
 from numba import njit
 
+from probmap.models._motion_kernels import ackermann_rates
 from probmap.slam._landmark_kernels import ZERO_RANGE, gemm, range_bearing, wrap
 
 KIND_VELOCITY = 0
@@ -91,17 +92,9 @@ def model_step(kind, p, x, u0, u1, dt, xn, G, Q):  # pragma: no cover - compiled
         H = p[1]
         a = p[2]
         b = p[3]
-        t = math.tan(al)
-        den = 1.0 - t * H / L
-        if abs(den) < 1e-6:
+        ok, vc, k, dvc_dve, dvc_dal, dk_dve, dk_dal = ackermann_rates(ve, math.tan(al), H, L)
+        if not ok:
             return STATUS_SINGULAR_STEERING
-        vc = ve / den
-        dt_dal = 1.0 + t * t
-        dvc_dve = 1.0 / den
-        dvc_dal = ve * (H / L) * dt_dal / (den * den)
-        k = vc * t / L
-        dk_dve = dvc_dve * t / L
-        dk_dal = (dvc_dal * t + vc * dt_dal) / L
         ox = a * s + b * c
         oy = a * c - b * s
         xn[0] = x[0] + dt * (vc * c - k * ox)

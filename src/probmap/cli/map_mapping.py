@@ -131,10 +131,9 @@ def fit_sensor_model_command(
         from probmap.cli._provenance import command_line
         from probmap.cli.common import Stopwatch, resolve_config
         from probmap.config import dump_config, package_version
-        from probmap.datasets.scans import open_scans
         from probmap.errors import BadLinesWarning
         from probmap.pipelines import check_output_prefix
-        from probmap.pipelines.fit import FitConfig, fit_scans
+        from probmap.pipelines.fit import FitConfig, fit_scans, read_fit_scans
 
         watch = Stopwatch()
         log = laser_input(log)
@@ -144,13 +143,7 @@ def fit_sensor_model_command(
         with watch("read"), warnings.catch_warnings():
             # the summary reports skipped lines; no Python warning text on the terminal
             warnings.simplefilter("ignore", BadLinesWarning)
-            batch = open_scans(
-                log,
-                poses=cfg.poses,
-                max_range=cfg.max_range,
-                skip_bad_lines=skip_bad_lines,
-                bag_options=bag_options,
-            )
+            batch = read_fit_scans(log, cfg, skip_bad_lines=skip_bad_lines, bag_options=bag_options)
         with watch("compute"):
             fit = fit_scans(batch, cfg)
         params = dataclasses.asdict(fit.params)

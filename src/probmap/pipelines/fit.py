@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from probmap.datasets.records import ScanBatch
     from probmap.datasets.validate import ReadingReport
 
-__all__ = ["FitConfig", "fit_log", "fit_scans"]
+__all__ = ["FitConfig", "fit_log", "fit_scans", "read_fit_scans"]
 
 
 @dataclass(frozen=True)
@@ -72,6 +72,31 @@ class FitConfig:
             raise ValueError(f"max_iterations must be an integer >= 1, got {self.max_iterations!r}")
         if not (math.isfinite(self.tol) and self.tol >= 0):
             raise ValueError(f"tol must be a number >= 0, got {self.tol}")
+
+
+def read_fit_scans(
+    path: str | os.PathLike[str],
+    config: FitConfig,
+    *,
+    skip_bad_lines: bool = False,
+    bag_options: dict[str, Any] | None = None,
+) -> ScanBatch:
+    """The scans a fit reads: :func:`probmap.datasets.open_scans` of ``path`` (a CARMEN log, a
+    ROS 1/2 bag or a registry name) with the poses and maximum range ``config`` names, for
+    :func:`fit_scans` (``bag_options``: a bag's topics and frames, guessed when not given).
+
+    Raises
+    ------
+    DatasetError
+        A malformed log, or one without a single usable reading (naming the file).
+    """
+    return open_scans(
+        path,
+        poses=config.poses,
+        max_range=config.max_range,
+        skip_bad_lines=skip_bad_lines,
+        bag_options=bag_options,
+    )
 
 
 def fit_scans(
@@ -139,13 +164,7 @@ def fit_log(
     if config is not None and keywords != FitConfig():
         raise ValueError("give the settings either in config or as keywords, not both")
     cfg = config if config is not None else keywords
-    batch = open_scans(
-        path,
-        poses=cfg.poses,
-        max_range=cfg.max_range,
-        skip_bad_lines=skip_bad_lines,
-        bag_options=bag_options,
-    )
+    batch = read_fit_scans(path, cfg, skip_bad_lines=skip_bad_lines, bag_options=bag_options)
     if readings is not None and batch.readings is not None:
         readings(batch.readings)
     return fit_scans(batch, cfg, init=init)

@@ -11,17 +11,14 @@ from probmap.cli import options as opt
 from probmap.cli.common import cli_errors
 from probmap.cli.slam import (
     DATASET_HELP,
-    data_dir_option,
-    end_time_option,
+    LandmarkSource,
+    landmark_source_options,
     limit_threads,
-    plot_option,
     read_landmark_dataset,
-    robot_option,
+    report_options,
     slam_app,
     threads_option,
-    unknown_option,
 )
-from probmap.cli.watch import live_view_options
 
 MAX_ACTIVE_HELP = "Bound on the active landmarks (Table 12.4); 0 = unbounded (no sparsification)."
 CONTEXT_HELP = (
@@ -103,15 +100,9 @@ def seif_command(
         None, "--context-hops", help=CONTEXT_HELP + " [default: 0]"
     ),
     config: Path | None = opt.config_option(CONFIG_HELP),
-    # the options of every landmark command, from one factory each (typer reads each signature)
-    data_dir: Path | None = data_dir_option(),
-    robot: int = robot_option(),
-    unknown: bool = unknown_option(),
-    end_time: float | None = end_time_option(),
+    source: LandmarkSource = landmark_source_options(),
     threads: int = threads_option(),
-    plot: bool = plot_option(),
-    tum: bool = opt.tum_option(),
-    live: dict[str, Any] = live_view_options(),
+    report: dict[str, Any] = report_options(),
 ) -> None:
     """SEIF SLAM (Probabilistic Robotics Tables 12.1-12.5): writes trajectory.csv,
     landmarks.csv, metrics.json, config.yaml and slam.png (and trajectory.tum with --tum) into
@@ -124,12 +115,9 @@ def seif_command(
         from probmap.cli.slam import run_and_report
 
         cfg = _seif_config(config, max_active, context_hops)
-        ds = read_landmark_dataset(watch, output, dataset, data_dir, robot, unknown, end_time)
+        ds = read_landmark_dataset(watch, output, dataset, source)
         title = f"SEIF SLAM ({_label(cfg)})"
-        run_and_report(
-            _seif(ds, cfg), ds, output, title, plot, tum=tum, watch=watch,
-            **live,
-        )  # fmt: skip
+        run_and_report(_seif(ds, cfg), ds, output, title, watch=watch, **report)
 
 
 def _state_bytes(estimator: Any) -> int:
@@ -140,6 +128,7 @@ def _state_bytes(estimator: Any) -> int:
 
 
 @slam_app.command("compare")
+@opt.with_option_groups
 def compare_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
     max_active: int | None = typer.Option(
@@ -154,11 +143,7 @@ def compare_command(
         "method's dataset defaults), or SEIF's SeifConfig fields alone; --max-active and "
         "--context-hops override SEIF's."
     ),
-    # the options of every landmark command, from one factory each (typer reads each signature)
-    data_dir: Path | None = data_dir_option(),
-    robot: int = robot_option(),
-    unknown: bool = unknown_option(),
-    end_time: float | None = end_time_option(),
+    source: LandmarkSource = landmark_source_options(),
     threads: int = threads_option(),
     methods: str = typer.Option(
         "ekf,seif", "--methods", help="Comma-separated estimators: ekf, seif, graphslam, fastslam."
@@ -197,7 +182,7 @@ def compare_command(
                     set_["max_active"] = None
                 seif_cfg = dataclasses.replace(base, **set_)
         own = sections or {}
-        ds = read_landmark_dataset(watch, None, dataset, data_dir, robot, unknown, end_time)
+        ds = read_landmark_dataset(watch, None, dataset, source)
         runs = []
         seif_name = f"SEIF-{seif_cfg.max_active or 'unbounded'}" + (
             f"-ctx{seif_cfg.context_hops}" if seif_cfg.context_hops else ""

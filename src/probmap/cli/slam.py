@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -52,11 +53,56 @@ def plot_option() -> Any:
     return typer.Option(True, "--plot/--no-plot", help="Write slam.png.")
 
 
-def unknown_option(
-    help: str = "Ignore given landmark ids: maximum-likelihood association.",
-) -> Any:
+UNKNOWN_HELP = "Ignore given landmark ids: maximum-likelihood association."
+
+
+def unknown_option(help: str = UNKNOWN_HELP) -> Any:
     """``--unknown``: the estimator associates the observations itself (``help`` says how)."""
     return typer.Option(False, "--unknown", help=help)
+
+
+@dataclass(frozen=True)
+class LandmarkSource:
+    """Where a landmark command's data come from: ``--data-dir``, ``--robot``, ``--unknown``
+    and ``--end-time``, as one parameter (:func:`landmark_source_options`).
+
+    Attributes
+    ----------
+    data_dir : Path or None
+        Data directory for registered names (None: ``$PROBMAP_DATA``).
+    robot : int
+        MRCLAM robot number (1-5).
+    unknown : bool
+        Ignore the dataset's landmark ids (the estimator associates the observations).
+    end_time : float or None
+        Stop after this many seconds of data (None: the whole log).
+    """
+
+    data_dir: Path | None
+    robot: int
+    unknown: bool
+    end_time: float | None
+
+
+def landmark_source_options(unknown_help: str = UNKNOWN_HELP) -> Any:
+    """The four options every landmark command reads its dataset with, as one
+    :class:`LandmarkSource` (an :func:`~probmap.cli.options.option_group`; ``unknown_help``
+    says how the command associates without ids)."""
+    return opt.option_group(
+        LandmarkSource,
+        data_dir=(Path | None, data_dir_option()),
+        robot=(int, robot_option()),
+        unknown=(bool, unknown_option(unknown_help)),
+        end_time=(float | None, end_time_option()),
+    )
+
+
+def report_options() -> Any:
+    """``--plot/--no-plot``, ``--tum`` and the live view's options (:func:`live_view_options`):
+    what every landmark command writes and shows, as one dict of :func:`run_and_report`'s
+    keywords (an :func:`~probmap.cli.options.option_group`)."""
+    live = {name: (ann, option) for name, ann, option in live_view_options().options}
+    return opt.option_group(dict, plot=(bool, plot_option()), tum=(bool, opt.tum_option()), **live)
 
 
 def limit_threads(threads: int) -> None:
@@ -93,13 +139,7 @@ def open_landmark_dataset(
 
 
 def read_landmark_dataset(
-    watch: Stopwatch,
-    output: Path | None,
-    dataset: str,
-    data_dir: Path | None,
-    robot: int,
-    unknown: bool,
-    end_time: float | None,
+    watch: Stopwatch, output: Path | None, dataset: str, source: LandmarkSource
 ) -> Any:
     """The steps every landmark-SLAM command takes once its configuration is known: check
     the ``output`` folder (when it writes one) before any work, then read the dataset
@@ -109,7 +149,9 @@ def read_landmark_dataset(
 
         check_output_folder(output)
     with watch("read"):
-        return open_landmark_dataset(dataset, data_dir, robot, unknown, end_time)
+        return open_landmark_dataset(
+            dataset, source.data_dir, source.robot, source.unknown, source.end_time
+        )
 
 
 def _fmt(v: Any, unit: str = "") -> str:
@@ -301,19 +343,13 @@ def run_and_report(
 def ekf_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
     output: Path = opt.output_option("Output folder (created when missing)."),
-    # the options of every landmark command, from one factory each (typer reads each signature)
-    data_dir: Path | None = data_dir_option(),
-    robot: int = robot_option(),
-    unknown: bool = unknown_option(),
-    end_time: float | None = end_time_option(),
+    source: LandmarkSource = landmark_source_options(),
     threads: int = threads_option(),
-    plot: bool = plot_option(),
-    tum: bool = opt.tum_option(),
     config: Path | None = opt.config_option(
         "A YAML file of the estimator's configuration (as OUTPUT/config.yaml records it) "
         "instead of the dataset's defaults."
     ),
-    live: dict[str, Any] = live_view_options(),
+    report: dict[str, Any] = report_options(),
 ) -> None:
     """EKF SLAM (Probabilistic Robotics Table 10.1/10.2): writes trajectory.csv, landmarks.csv,
     metrics.json and slam.png (and trajectory.tum with --tum) into OUTPUT."""
@@ -325,7 +361,7 @@ def ekf_command(
         from probmap.slam.ekf import EKFSLAM, EKFConfig
 
         file_cfg = None if config is None else load_config(EKFConfig, config)
-        ds = read_landmark_dataset(watch, output, dataset, data_dir, robot, unknown, end_time)
+        ds = read_landmark_dataset(watch, output, dataset, source)
         ekf = EKFSLAM(
             ds.motion_model,
             ds.measurement_model,
@@ -333,9 +369,7 @@ def ekf_command(
             ds.initial_covariance,
             file_cfg if file_cfg is not None else default_ekf_config(ds),
         )
-        run_and_report(
-            ekf, ds, output, "EKF SLAM", plot, tum=tum, watch=watch, **live
-        )  # fmt: skip
+        run_and_report(ekf, ds, output, "EKF SLAM", watch=watch, **report)
 
 
 @slam_app.command("graphslam")
@@ -343,24 +377,18 @@ def ekf_command(
 def graphslam_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
     output: Path = opt.output_option("Output folder (created when missing)."),
-    # the options of every landmark command, from one factory each (typer reads each signature)
-    data_dir: Path | None = data_dir_option(),
-    robot: int = robot_option(),
-    unknown: bool = unknown_option(
+    source: LandmarkSource = landmark_source_options(
         "Ignore given landmark ids: Table 11.9's correspondence test (small maps only)."
     ),
     robust: str = typer.Option(
         "none", "--robust", help="Robust kernel on the measurements: none, huber or cauchy."
     ),
-    end_time: float | None = end_time_option(),
     threads: int = threads_option(),
-    plot: bool = plot_option(),
-    tum: bool = opt.tum_option(),
     config: Path | None = opt.config_option(
         "A YAML file of GraphSLAMConfig (as OUTPUT/config.yaml records it) instead of the "
         "dataset's defaults; --robust still applies."
     ),
-    live: dict[str, Any] = live_view_options(),
+    report: dict[str, Any] = report_options(),
 ) -> None:
     """GraphSLAM over the whole log (Probabilistic Robotics Tables 11.1-11.5, known landmark
     ids): writes trajectory.csv (smoothed), landmarks.csv, metrics.json and slam.png (and
@@ -375,13 +403,10 @@ def graphslam_command(
         from probmap.slam.graphslam import GraphSLAMConfig, build_graphslam
 
         file_cfg = None if config is None else load_config(GraphSLAMConfig, config)
-        ds = read_landmark_dataset(watch, output, dataset, data_dir, robot, unknown, end_time)
+        ds = read_landmark_dataset(watch, output, dataset, source)
         base = file_cfg if file_cfg is not None else default_graphslam_config(ds)
         gcfg = replace(base, robust=robust, robust_scale=None)
-        run_and_report(
-            build_graphslam(ds, gcfg), ds, output, "GraphSLAM", plot, tum=tum, watch=watch,
-            **live,
-        )  # fmt: skip
+        run_and_report(build_graphslam(ds, gcfg), ds, output, "GraphSLAM", watch=watch, **report)
 
 
 @slam_app.command("fastslam")
@@ -389,18 +414,15 @@ def graphslam_command(
 def fastslam_command(
     dataset: str = typer.Argument(..., help=DATASET_HELP),
     output: Path = opt.output_option("Output folder (created when missing)."),
-    # the options of every landmark command, from one factory each (typer reads each signature)
-    data_dir: Path | None = data_dir_option(),
-    robot: int = robot_option(),
+    source: LandmarkSource = landmark_source_options(
+        "Ignore the dataset's landmark ids: per-particle maximum-likelihood association "
+        "(Table 13.2; Victoria Park has no ids and always runs so)."
+    ),
     particles: int | None = opt.particles_option("Particles [default: 100]."),
     version: int | None = typer.Option(
         None, "--version", help="FastSLAM 1 or 2 (Tables 13.1, 13.3) [default: 2]."
     ),
     seed: int | None = opt.seed_option(),
-    unknown: bool = unknown_option(
-        "Ignore the dataset's landmark ids: per-particle maximum-likelihood association "
-        "(Table 13.2; Victoria Park has no ids and always runs so)."
-    ),
     p0: float | None = typer.Option(
         None,
         "--p0",
@@ -410,10 +432,7 @@ def fastslam_command(
         "A YAML file of FastSLAMConfig (as OUTPUT/config.yaml records it); the options "
         "given here override it."
     ),
-    end_time: float | None = end_time_option(),
-    plot: bool = plot_option(),
-    tum: bool = opt.tum_option(),
-    live: dict[str, Any] = live_view_options(),
+    report: dict[str, Any] = report_options(),
 ) -> None:
     """FastSLAM 1.0 / 2.0 (Probabilistic Robotics ch. 13), known or unknown landmark ids:
     writes trajectory.csv (weighted mean pose), landmarks.csv (heaviest particle), metrics.json
@@ -430,16 +449,14 @@ def fastslam_command(
             "new_landmark_likelihood": p0,
         }
         cfg = resolve_config(FastSLAMConfig, config, overrides)
-        ds = read_landmark_dataset(watch, output, dataset, data_dir, robot, unknown, end_time)
+        ds = read_landmark_dataset(watch, output, dataset, source)
         if config is None:  # a file gives every field; without one, the dataset's defaults
             from probmap.pipelines.landmark_slam import default_fastslam_config
 
             cfg = default_fastslam_config(ds, cfg)
         slam = FastSLAM(ds.motion_model, ds.measurement_model, ds.initial_pose, cfg)
         title = f"FastSLAM {cfg.version}.0 ({cfg.n_particles} particles)"
-        run_and_report(
-            slam, ds, output, title, plot, tum=tum, watch=watch, **live
-        )  # fmt: skip
+        run_and_report(slam, ds, output, title, watch=watch, **report)
 
 
 def register(app: typer.Typer) -> None:

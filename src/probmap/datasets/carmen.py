@@ -566,6 +566,8 @@ def _dataset_name(path: Path) -> str:
 # ---------------------------------------------------------------------------- batch
 
 
+# load_share takes these keywords too (public, typed, documented once here): a share reads as
+# the whole log does.
 def load_scans(
     path: str | os.PathLike[str],
     *,
@@ -754,6 +756,7 @@ def split_log(path: str | os.PathLike[str], n_shares: int) -> list[LogShare]:
     return shares
 
 
+# load_scans' keywords, repeated so that each public reader keeps a typed signature.
 def load_share(
     share: LogShare,
     *,

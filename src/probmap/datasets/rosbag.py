@@ -614,6 +614,8 @@ class RosBag:
         outside the tf buffer; a laser frame not connected to the fixed frame.
     """
 
+    # load_bag_scans takes these keywords too and hands them here: both are public, typed
+    # entry points.
     def __init__(
         self,
         path: str | os.PathLike[str],
@@ -1061,6 +1063,7 @@ def _implausible(
     return None
 
 
+# BagReader's keywords first (passed to it as they are), then the batch's own.
 def load_bag_scans(
     path: str | os.PathLike[str],
     *,

@@ -202,6 +202,8 @@ def integrate_one_scan(lo, stamp, sid, pose, ranges, angles, max_range, params):
     return SCAN_OK, counts[0], counts[1], counts[2], counts[3]
 
 
+# _semantic_kernels.integrate_labelled_scans takes the scan arguments (sid0 .. thickness) in this
+# order: both hand them to the one classify_scan, and kernels take plain arrays.
 @njit(cache=True)
 def integrate_scans(
     lo_hit,

@@ -14,6 +14,7 @@ from probmap._deprecation import moved
 __getattr__ = moved(
     __name__,
     {
+        # the old path's names, spelled out: a shim imports nothing of the new home (its __all__)
         **dict.fromkeys(
             [
                 "BeamIndex",

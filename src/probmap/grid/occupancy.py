@@ -528,6 +528,7 @@ class OccupancyGrid(_ScanGrid):
         return first
 
     # ------------------------------------------------------------------ updates
+    # integrate_scans' arguments for one scan (public; the batch path shares the kernel).
     def integrate_scan(
         self,
         pose: ArrayLike,
@@ -617,6 +618,7 @@ class OccupancyGrid(_ScanGrid):
         self._fast = (key, params)
         return params
 
+    # integrate_scan's arguments stacked per scan: the one-scan and batch entry points.
     def integrate_scans(
         self,
         poses: ArrayLike,

@@ -42,6 +42,7 @@ from probmap.models.beam import BeamModelParams
 if TYPE_CHECKING:  # pragma: no cover
     from probmap.grid.occupancy import InverseSensorModel, OccupancyGrid
 
+# grid/map_mapping.py (the one-release shim) names these again: it must not import this module.
 __all__ = [
     "BeamIndex",
     "MapMapper",
@@ -261,6 +262,7 @@ class BeamIndex:
         self.dropped = int(dropped)
         self.constant = float(constant)
 
+    # map_mapping's scan arguments (it builds its index with them): both are public.
     @classmethod
     def build(
         cls,
@@ -547,6 +549,7 @@ class MapMappingResult:
         return float(sum(r.seconds for r in self.history))
 
 
+# BeamIndex.build's arguments first, which it hands on, then the sweep's own.
 def map_mapping(
     poses: ArrayLike,
     ranges: ArrayLike,

@@ -159,6 +159,7 @@ class ScanLikelihood:
     contiguous float64), and may supply a faster ``_log_likelihood_sum``.
     """
 
+    # log_likelihood_sum takes the same inputs: one interface, per beam or summed.
     def log_likelihood(
         self,
         poses: ArrayLike,

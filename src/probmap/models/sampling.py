@@ -157,6 +157,8 @@ def odometry_noise_std(
     )
 
 
+# Docstring sections and particle-array check as in sample_motion_model_velocity: each sampler
+# documents its own inputs; the shared work is in _poses and the noise helpers.
 def sample_motion_model_odometry(
     poses: ArrayLike,
     odom_prev: ArrayLike,
@@ -215,6 +217,7 @@ def _velocity_arc(
     return np.stack([x_new, y_new, th_new], axis=-1)
 
 
+# Docstring sections and particle-array check as in sample_motion_model_odometry (see there).
 def sample_motion_model_velocity(
     poses: ArrayLike,
     control: ArrayLike,
@@ -317,6 +320,8 @@ def motion_model_velocity(
     return p1 * p2 * p3
 
 
+# The class tier over the functions (as VelocityMotionModel): typed alpha fields, one line a
+# method; the checks are _check_alphas.
 @dataclass(frozen=True)
 class OdometryMotionModel:
     """Odometry motion model (Tables 5.5 and 5.6) with noise parameters ``alpha1..alpha4``.
@@ -358,6 +363,7 @@ class OdometryMotionModel:
         return motion_model_odometry(pose_new, odom_prev, odom_cur, pose_old, self.alphas)
 
 
+# The class tier over the functions, as OdometryMotionModel (see there).
 @dataclass(frozen=True)
 class VelocityMotionModel:
     """Velocity motion model (Tables 5.1 and 5.3) with noise parameters ``alpha1..alpha6``."""

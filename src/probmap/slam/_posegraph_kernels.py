@@ -264,6 +264,7 @@ def _add_transposed_product(X, v, out, base):  # pragma: no cover - compiled
         out[base + r0] += acc
 
 
+# levenberg_marquardt takes these arguments first and passes them on: kernels take plain arrays.
 @njit(cache=True)
 def accumulate_normal_equations(
     poses,

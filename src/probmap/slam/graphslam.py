@@ -1907,6 +1907,7 @@ class GraphSLAM:
     config : GraphSLAMConfig, optional
     """
 
+    # every landmark estimator's first four arguments (EKFSLAM, SEIFSlam): one way to build them.
     def __init__(
         self,
         motion_model: Any,

@@ -458,6 +458,8 @@ class SEIFSlam:
         See :class:`SeifConfig`.
     """
 
+    # every landmark estimator's first four arguments (EKFSLAM, GraphSLAM); then SeifConfig's
+    # fields as keywords, a public signature.
     def __init__(
         self,
         motion_model: Any,

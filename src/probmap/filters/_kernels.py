@@ -11,6 +11,8 @@ import math
 
 from numba import njit
 
+from probmap.models._likelihood_field_kernels import scan_log_likelihood
+
 
 @njit(cache=True, fastmath=True)
 def odometry_predict_and_weight(
@@ -23,7 +25,6 @@ def odometry_predict_and_weight(
     the valid beam endpoints in the robot frame; ``lw`` (N,) receives the scan
     log-likelihood added to the previous log weight.
     """
-    h, w = table.shape
     two_pi = 2.0 * math.pi
     for n in range(particles.shape[0]):
         h1 = rot1 - sd1 * noise[n, 0]
@@ -39,15 +40,7 @@ def odometry_predict_and_weight(
         particles[n, 2] = th
         c = math.cos(th)
         s = math.sin(th)
-        acc = 0.0
-        for b in range(lx.shape[0]):
-            fx = (x + c * lx[b] - s * ly[b] - x0) * inv_res
-            fy = (y + s * lx[b] + c * ly[b] - y0) * inv_res
-            if fx >= 0.0 and fy >= 0.0 and fx < w and fy < h:
-                acc += table[int(fy), int(fx)]
-            else:
-                acc += outside
-        lw[n] += acc
+        lw[n] += scan_log_likelihood(x, y, c, s, lx, ly, table, x0, y0, inv_res, outside)
 
 
 @njit(cache=True)

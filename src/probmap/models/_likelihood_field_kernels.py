@@ -35,6 +35,27 @@ def endpoints_in_robot_frame(ranges, angles, offset, max_range, lx, ly, valid):
         ly[b] = offset[1] + s * px + c * py
 
 
+@njit(cache=True, fastmath=True, inline="always")
+def scan_log_likelihood(x, y, c, s, lx, ly, table, x0, y0, inv_res, outside):
+    """Sum of the table's log-likelihoods at the endpoints ``lx, ly`` (B,) (robot frame) seen
+    from the pose ``(x, y)`` with heading cosine and sine ``c, s``; ``outside`` for each endpoint
+    off the table (Table 6.3, lines 3-8, summed in log space).
+
+    The one lookup loop of the likelihood field: :func:`likelihood_field_sum` and MCL's fused
+    step (:func:`probmap.filters._kernels.odometry_predict_and_weight`) inline it.
+    """
+    h, w = table.shape
+    acc = 0.0
+    for b in range(lx.shape[0]):
+        fx = (x + c * lx[b] - s * ly[b] - x0) * inv_res
+        fy = (y + s * lx[b] + c * ly[b] - y0) * inv_res
+        if fx >= 0.0 and fy >= 0.0 and fx < w and fy < h:
+            acc += table[int(fy), int(fx)]
+        else:
+            acc += outside
+    return acc
+
+
 @njit(cache=True, fastmath=True)
 def likelihood_field_per_beam(poses, lx, ly, valid, table, x0, y0, inv_res, outside, out):
     """Per-beam log-likelihoods ``out[n, b]`` by lookup in a log-likelihood table ``(H, W)``."""
@@ -61,7 +82,6 @@ def likelihood_field_per_beam(poses, lx, ly, valid, table, x0, y0, inv_res, outs
 @njit(cache=True, fastmath=True)
 def likelihood_field_sum(poses, lx, ly, valid, table, x0, y0, inv_res, outside, out):
     """Sum over beams of the per-beam log-likelihoods: ``out[n]`` (one particle per row)."""
-    h, w = table.shape
     nb = 0
     for b in range(lx.shape[0]):
         if valid[b]:
@@ -75,16 +95,8 @@ def likelihood_field_sum(poses, lx, ly, valid, table, x0, y0, inv_res, outside, 
             by[k] = ly[b]
             k += 1
     for n in range(poses.shape[0]):
-        x = poses[n, 0]
-        y = poses[n, 1]
         c = math.cos(poses[n, 2])
         s = math.sin(poses[n, 2])
-        acc = 0.0
-        for b in range(nb):
-            fx = (x + c * bx[b] - s * by[b] - x0) * inv_res
-            fy = (y + s * bx[b] + c * by[b] - y0) * inv_res
-            if fx >= 0.0 and fy >= 0.0 and fx < w and fy < h:
-                acc += table[int(fy), int(fx)]
-            else:
-                acc += outside
-        out[n] = acc
+        out[n] = scan_log_likelihood(
+            poses[n, 0], poses[n, 1], c, s, bx, by, table, x0, y0, inv_res, outside
+        )

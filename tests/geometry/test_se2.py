@@ -80,3 +80,20 @@ def test_jacobians_match_numerical(seed):
 def test_bad_shape_raises():
     with pytest.raises(ValueError, match="shape"):
         se2.compose([1.0, 2.0], [0.0, 0.0, 0.0])
+
+
+def test_pose_batch_checks_and_passes_contiguous_arrays_through():
+    """The one pose-batch check (MCL's and the range-finder models' poses, the pose graph's)."""
+    p = np.arange(6.0).reshape(2, 3)
+    assert se2.pose_batch(p) is p  # already C-contiguous float64: no copy
+    q = se2.pose_batch([[1, 2, 3]])
+    assert q.dtype == np.float64 and q.flags.c_contiguous and q.tolist() == [[1.0, 2.0, 3.0]]
+    t = np.asfortranarray(np.ones((4, 3)))
+    assert se2.pose_batch(t).flags.c_contiguous and np.array_equal(se2.pose_batch(t), t)
+    assert se2.pose_batch([0.0, 1.0, 0.5], single=True).tolist() == [[0.0, 1.0, 0.5]]
+    with pytest.raises(ValueError, match=r"poses must have shape \(N, 3\) .* got \(3,\)"):
+        se2.pose_batch([0.0, 1.0, 0.5])  # one pose only where single=True says so
+    with pytest.raises(ValueError, match=r"got \(2, 2\)"):
+        se2.pose_batch(np.zeros((2, 2)), single=True)
+    with pytest.raises(ValueError, match="poses must be finite"):
+        se2.pose_batch([[0.0, np.nan, 0.0]])

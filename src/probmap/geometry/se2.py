@@ -23,6 +23,7 @@ __all__ = [
     "compose_jacobians",
     "inverse",
     "inverse_jacobian",
+    "pose_batch",
     "transform_point",
     "wrap_angle",
 ]
@@ -55,6 +56,41 @@ def _as_pose(p: ArrayLike, name: str) -> FloatArray:
     if arr.ndim == 0 or arr.shape[-1] != 3:
         raise ValueError(f"{name} must have shape (..., 3) (x, y, theta), got {arr.shape}")
     return arr
+
+
+def pose_batch(poses: ArrayLike, *, single: bool = False) -> FloatArray:
+    """Finite poses checked, as a C-contiguous float64 ``(N, 3)`` array.
+
+    Parameters
+    ----------
+    poses : array_like, shape (N, 3)
+        Poses ``(x, y, theta)`` (m, rad).
+    single : bool, optional
+        Also take one pose of shape ``(3,)``, returned as ``(1, 3)``.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        ``poses`` itself when it already is such an array, else a copy.
+
+    Raises
+    ------
+    ValueError
+        ``"poses must have shape (N, 3) (x, y, theta), got ..."`` or ``"poses must be finite"``.
+
+    Examples
+    --------
+    >>> pose_batch([0.0, 1.0, 0.5], single=True).shape
+    (1, 3)
+    """
+    p = np.ascontiguousarray(poses, dtype=np.float64)
+    if single and p.ndim == 1:
+        p = p.reshape(1, -1)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"poses must have shape (N, 3) (x, y, theta), got {np.shape(poses)}")
+    if not np.all(np.isfinite(p)):
+        raise ValueError("poses must be finite")
+    return p
 
 
 def compose(a: ArrayLike, b: ArrayLike) -> FloatArray:

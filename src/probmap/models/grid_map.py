@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from probmap._typing import FloatArray
+from probmap.geometry.se2 import pose_batch
 
 __all__ = ["GridGeometry", "ScanLikelihood", "occupied_mask"]
 
@@ -118,15 +119,9 @@ def distance_field(occupied: NDArray[np.bool_], resolution: float) -> NDArray[np
 
 
 def poses_array(poses: ArrayLike) -> NDArray[np.float64]:
-    """Finite poses as a contiguous float64 ``(N, 3)`` array (one pose ``(3,)`` -> ``(1, 3)``)."""
-    p = np.ascontiguousarray(poses, dtype=np.float64)
-    if p.ndim == 1:
-        p = p.reshape(1, -1)
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise ValueError(f"poses must have shape (N, 3), got {np.shape(poses)}")
-    if not np.all(np.isfinite(p)):
-        raise ValueError("poses must be finite")
-    return p
+    """Finite poses as a contiguous float64 ``(N, 3)`` array (one pose ``(3,)`` -> ``(1, 3)``;
+    :func:`probmap.geometry.se2.pose_batch`)."""
+    return pose_batch(poses, single=True)
 
 
 def scan_arrays(

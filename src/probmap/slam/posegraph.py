@@ -50,6 +50,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from probmap._checks import require_at_least, require_positive_finite
 from probmap._typing import BoolArray, FloatArray, IntArray
+from probmap.geometry.se2 import pose_batch
 from probmap.slam import _posegraph_kernels as _k
 
 __all__ = [
@@ -198,15 +199,6 @@ class OptimizeResult:
 
 
 # --------------------------------------------------------------------------- validation
-
-
-def _as_poses(poses: ArrayLike) -> FloatArray:
-    arr = np.ascontiguousarray(poses, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise ValueError(f"poses must have shape (N, 3) (x, y, theta), got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError("poses must be finite")
-    return arr
 
 
 def _as_edges(
@@ -453,7 +445,7 @@ def lago_initialization(
            [ 1.        ,  1.        , -3.14159265],
            [ 0.        ,  1.        , -1.57079633]])
     """
-    x = _as_poses(poses)
+    x = pose_batch(poses)
     ei, ej, z, om = _as_edges(edges, measurements, information, len(x))
     f = _as_fixed(fixed, len(x))
     return _lago(x, ei, ej, z, om, _NormalEquations(len(x), ei, ej, f))
@@ -489,7 +481,7 @@ def edge_residuals(
     """
     if chart not in _CHARTS:
         raise ValueError(f"chart must be one of {sorted(_CHARTS)}, got {chart!r}")
-    x = _as_poses(poses)
+    x = pose_batch(poses)
     z = np.ascontiguousarray(measurements, dtype=np.float64)
     n_edges = z.shape[0] if z.ndim == 2 else 0
     ei, ej, z, _ = _as_edges(edges, z, np.tile(np.eye(3), (n_edges, 1, 1)), len(x))
@@ -533,7 +525,7 @@ def graph_error(
     float
     """
     cfg = config or OptimizerConfig()
-    x = _as_poses(poses)
+    x = pose_batch(poses)
     ei, ej, z, om = _as_edges(edges, measurements, information, len(x))
     mask = _as_mask(robust_mask, ei.shape[0])
     chi2 = np.empty(ei.shape[0])
@@ -607,7 +599,7 @@ def optimize_pose_graph(
     cfg = config or _DEFAULT_CONFIG
     if init not in ("given", "lago"):
         raise ValueError(f"init must be 'given' or 'lago', got {init!r}")
-    x = _as_poses(poses)
+    x = pose_batch(poses)
     ei, ej, z, om = _as_edges(edges, measurements, information, len(x))
     mask = _as_mask(robust_mask, ei.shape[0])
     f = _as_fixed(fixed, len(x))
@@ -676,7 +668,7 @@ def write_pose_graph_g2o(
     """
     from probmap._atomic import atomic_write
 
-    x = _as_poses(poses)
+    x = pose_batch(poses)
     vid = _as_ids(ids, len(x), 0, "ids")
     lm = np.zeros((0, 2)) if landmarks is None else np.asarray(landmarks, dtype=np.float64)
     if lm.ndim != 2 or lm.shape[1] != 2:
@@ -897,7 +889,7 @@ class PoseGraph2D:
 
     @poses.setter
     def poses(self, value: ArrayLike) -> None:
-        p = _as_poses(value)
+        p = pose_batch(value)
         if p.shape[0] != self._n:
             raise ValueError(f"poses must have shape ({self._n}, 3), got {p.shape}")
         self._poses[: self._n] = p

@@ -464,6 +464,7 @@ def mcl_resample(
     return new
 
 
+# MonteCarloLocalization.predict_and_weight is the class tier over this function: same inputs.
 def mcl_sample_and_weight_scan(
     particles: NDArray[np.float64],
     odom_prev: ArrayLike,
@@ -764,6 +765,7 @@ class MonteCarloLocalization:
         self.resample_if_needed()
         return est
 
+    # the class tier over mcl_sample_and_weight_scan: its inputs, less the filter's own state
     def predict_and_weight(
         self,
         odom_prev: ArrayLike,

@@ -283,6 +283,7 @@ def _image_name(yaml_path: Path, image: str | os.PathLike[str] | None) -> str:
     return name
 
 
+# save_map takes these thresholds too (the same encoding, _yaml_text and _map_images): public.
 def write_map_server(
     yaml_path: str | os.PathLike[str],
     grid: GridLike,
@@ -741,6 +742,7 @@ def save_png(path: str | os.PathLike[str], grid: GridLike, *, scale: int = 1) ->
 # ---------------------------------------------------------------------------- all at once
 
 
+# write_map_server's thresholds (the same encoding helpers), then the preview's png_scale.
 def save_map(
     prefix: str | os.PathLike[str],
     grid: GridLike,

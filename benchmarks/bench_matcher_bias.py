@@ -12,8 +12,10 @@ only) are compared with the truth:
 - ``lateral``: its error across the corridor.
 
 Run: ``python benchmarks/bench_matcher_bias.py [--fov 180 360] [--set matcher.sigma=0.1]
-[--seeds 3]``; every ``--fov`` is a row (``--heading`` rotates the whole world: a check that
-nothing depends on the map frame, since the submaps are laid out in their anchor's frame).
+[--seeds 3] [--field known]``; every ``--fov`` is a row (``--heading`` rotates the whole world:
+a check that nothing depends on the map frame, since the submaps are laid out in their anchor's
+frame). ``--field VARIANT --diagnose --log clinic`` runs ``graph_slam_diagnose.py`` on a real
+log with the same change to the submaps' match field.
 """
 
 from __future__ import annotations
@@ -199,6 +201,46 @@ def configure(settings: list[str]) -> Any:
     return cfg
 
 
+FIELD_VARIANTS = ("default", "exact", "known", "exact-known")
+
+
+def use_field_variant(name: str) -> None:
+    """Replace how active submaps keep their match field (an experiment, process-wide).
+
+    ``default`` leaves the library alone (new occupied cells splat onto the kept field; cells
+    freed since keep their values until every ``Submap.refresh_every``-th insert recomputes
+    it); ``exact`` recomputes the field from the grid after every insert; ``known`` sets the
+    field to 0 in cells the submap never observed (log odds exactly 0), kept incrementally as
+    ``default``; ``exact-known`` does both.
+    """
+    from probmap.slam import submaps as S
+
+    if name not in FIELD_VARIANTS:
+        raise ValueError(f"field variant must be one of {FIELD_VARIANTS}, got {name!r}")
+    if name == "default":
+        return
+    insert0, field0 = S.Submap.insert, S.Submap.field
+    exact = name.startswith("exact")
+    known = name.endswith("known")
+
+    def insert(self: Any, *args: Any, **kwargs: Any) -> None:
+        insert0(self, *args, **kwargs)
+        if exact:
+            self._field = None
+        elif known and self._field is not None and self.grid is not None:
+            self._field.values[self.grid.log_odds == 0.0] = 0.0
+
+    def field(self: Any) -> Any:
+        fresh = self._field is None
+        f = field0(self)
+        if known and fresh and self.grid is not None:
+            f.values[self.grid.log_odds == 0.0] = 0.0
+        return f
+
+    S.Submap.insert = insert  # type: ignore[method-assign]
+    S.Submap.field = field  # type: ignore[method-assign]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--fov", type=float, nargs="+", default=[180.0, 360.0], help="degrees")
@@ -210,9 +252,25 @@ def main() -> None:
     ap.add_argument("--weave", type=float, default=0.15, help="amplitude of the weave, m")
     ap.add_argument("--plain", action="store_true", help="no door recesses or pillars")
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
+    ap.add_argument("--field", choices=FIELD_VARIANTS, default="default",
+                    help="how active submaps keep their match field (see use_field_variant)")  # fmt: skip
+    ap.add_argument("--diagnose", nargs=argparse.REMAINDER, default=None,
+                    help="run graph_slam_diagnose.py with the rest of the line instead, under "
+                    "--field (e.g. --field known --diagnose --log clinic --end 600)")  # fmt: skip
     args = ap.parse_args()
+    use_field_variant(args.field)
+    if args.diagnose is not None:
+        import runpy
+        import sys
+        from pathlib import Path
+
+        script = Path(__file__).with_name("graph_slam_diagnose.py")
+        sys.argv = [str(script), *args.diagnose]
+        print(f"field {args.field}")
+        runpy.run_path(str(script), run_name="__main__")
+        return
     cfg = configure(args.set)
-    print(f"settings: {' '.join(args.set) or 'default'}; odometry noise {args.odo_noise}/m, "
+    print(f"field {args.field}, settings: {' '.join(args.set) or 'default'}; odometry noise {args.odo_noise}/m, "
           f"range noise {args.range_noise} m")  # fmt: skip
     print("| FOV deg | heading deg | step ratio (1 m) | drift along m (% of travel) "
           "| lateral m | failed | s |")  # fmt: skip

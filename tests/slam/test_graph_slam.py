@@ -249,6 +249,7 @@ def test_inverse_mount_undoes_the_mount():
         ({"min_distance": -0.1}, "min_distance must be >= 0, got -0.1"),
         ({"max_clear_range": float("inf")}, "max_clear_range must be >= 0, got inf"),
         ({"anchor_sd_rate": -0.1}, "anchor_sd_rate must be >= 0, got -0.1"),
+        ({"trust_drift": float("nan")}, "trust_drift must be >= 0, got nan"),
         ({"closure_min_score": 1.5}, "closure_min_score must lie in [0, 1], got 1.5"),
         ({"min_match_score": -0.1}, "min_match_score must lie in [0, 1], got -0.1"),
         ({"local_sd": (0.02, 0.0)}, "local_sd must be two positive numbers, got (0.02, 0.0)"),
@@ -329,6 +330,45 @@ def test_consensus_check_skips_an_earlier_blind_scan():
         slam.add_scan(0.2 * i, r, w.angles, w.poses[i])
     slam.finish()
     assert slam.closures and any(c.far for c in slam.closures)
+
+
+@pytest.fixture(scope="module")
+def floorplan():
+    from probmap.sim.floorplan import simulate_laser_world
+
+    return simulate_laser_world(seed=1, size=(12.0, 8.0), step=0.2, range_noise=0.01)
+
+
+def _far_closures(world, config):
+    """Run on ``world`` with exact odometry; per far closure, its error against the truth
+    (metres) and whether its edge is robust after the final optimization."""
+    slam = GraphSlam(config, max_range=world.max_range)
+    for i in range(len(world.poses)):
+        slam.add_scan(0.2 * i, world.ranges[i], world.angles, world.poses[i])
+    slam.finish()
+    robust = slam.graph.robust_mask
+    scan = np.asarray(slam.node_scan)
+    out = []
+    for c, edge in zip(slam.closures, slam._closure_edges, strict=True):
+        if c.far:
+            d = between(between(world.poses[scan[c.anchor]], world.poses[scan[c.node]]), c.pose)
+            out.append((math.hypot(d[0], d[1]), bool(robust[edge])))
+    return slam, out
+
+
+def test_trusted_far_closures_are_the_right_ones(floorplan):
+    """With exact odometry every estimate is right, so a confirmed far closure that would move
+    one by metres is an aliased match (consensus confirms those too: the earlier nodes see the
+    same repeating rooms). The trust bound keeps exactly the right ones quadratic and leaves
+    the wrong ones to the robust cost; ``trust_drift = 0`` trusts none."""
+    slam, far = _far_closures(floorplan, GraphSlamConfig())
+    right = [robust for err, robust in far if err < 0.05]
+    wrong = [robust for err, robust in far if err > 1.0]
+    assert right and wrong and len(right) + len(wrong) == len(far)
+    assert not any(right) and all(wrong)
+    assert slam.trusted == len(right)
+    slam0, far0 = _far_closures(floorplan, GraphSlamConfig(trust_drift=0.0))
+    assert slam0.trusted == 0 and far0 and all(robust for _, robust in far0)
 
 
 def test_session_resumed_equals_one_run_and_bad_files_are_named(world, tmp_path):

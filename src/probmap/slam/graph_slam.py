@@ -23,7 +23,8 @@ Per scan that passes the motion filter (the sensor moved ``min_distance`` metres
    the map. A *far* match (wide window) must be confirmed: earlier nodes, moved by the
    correction it implies, must match the same part of the map within a small window; the
    confirmed closures then act quadratically for one optimization (a robust kernel would
-   discount a large correction by its very size) and robustly after it.
+   discount a large correction by its very size), and after it stay quadratic when the
+   correction is within a plausible drift (``trust_drift``), robust otherwise.
 4. **Optimization** every ``optimize_every`` nodes and after a closure that moves the estimate
    (Levenberg-Marquardt on the sparse normal equations, :mod:`probmap.slam.posegraph`), warm
    started from the last solution.
@@ -158,6 +159,17 @@ class GraphSlamConfig:
         The earlier nodes checked lie up to this many nodes back.
     consensus_checks : int
         Confirmations a far closure needs.
+    trust_drift : float
+        A confirmed far closure whose correction (how far it moves the node's current
+        estimate, metres) is at most ``closure_window[0] + trust_drift * travel`` (``travel``
+        as for the windows) is *trusted*: it and its confirmations stay quadratic for good. A
+        drift of a few percent of the distance is what local SLAM and odometry plausibly
+        accumulate (a scale the laser and the wheels disagree on); a robust cost would weigh
+        such a correction against the stiffness of the whole loop, which independent edges
+        overstate, and drop it. A larger correction (the wide search or a long window found
+        it) is taken quadratically for one optimization and then guarded by the robust cost.
+        0 trusts none. 0.05 is a third of ``window_growth``: the search windows allow for the
+        worst drift, the trust bound for a plausible one.
     closure_every : int
         Search closures for every ``closure_every``-th node.
     closure_candidates : int
@@ -208,6 +220,7 @@ class GraphSlamConfig:
     consensus: tuple[float, float] = (0.3, 0.05)
     consensus_nodes: int = 10
     consensus_checks: int = 2
+    trust_drift: float = 0.05
     closure_every: int = 1
     closure_candidates: int = 3
     closure_points: int = 90
@@ -223,7 +236,9 @@ class GraphSlamConfig:
     def __post_init__(self) -> None:
         for name in ("resolution", "robust_scale", "near_window"):
             require_positive_finite(name, getattr(self, name))
-        for name in ("min_distance", "min_rotation", "max_clear_range", "anchor_sd_rate"):
+        for name in (
+            "min_distance", "min_rotation", "max_clear_range", "anchor_sd_rate", "trust_drift",
+        ):  # fmt: skip
             require_nonnegative_finite(name, getattr(self, name))
         for name in ("min_match_score", "recover_score", "closure_min_score", "wide_min_score"):
             v = getattr(self, name)
@@ -345,6 +360,8 @@ class GraphSlam:
         self.far_searched = 0  # far searches run
         self.far_found = 0  # far searches that found a match (before consensus)
         self.rejected = 0  # far matches that earlier nodes did not confirm
+        self.trusted = 0  # confirmed far closures kept quadratic (trust_drift)
+        self._trusted_edges: set[int] = set()  # their edge indices
         self._unguarded: list[int] = []
         self._closure_edges: list[
             int
@@ -712,12 +729,21 @@ class GraphSlam:
             self.rejected += 1
             return
         # confirmed: the next optimization takes these closures quadratically, so that a
-        # large drift is corrected (a robust kernel would discount them by their size); they
-        # are guarded by the robust cost again from the optimization after it on
+        # large drift is corrected (a robust kernel would discount them by their size). A
+        # correction within a plausible drift (trust_drift) keeps them quadratic for good;
+        # a larger one is guarded by the robust cost again from the optimization after it on
+        implied = compose(poses[sm.anchor], pose)
+        shift = math.hypot(implied[0] - poses[k][0], implied[1] - poses[k][1])
+        travel = float(self._submap_travel(k)[sm.index])
+        rate = getattr(cfg, "trust_drift", 0.0)  # sessions saved before the setting: 0
+        trusted = rate > 0 and shift <= cfg.closure_window[0] + rate * travel
         added = [self._accept(k, sm, pose, score, True)]
         for j, cand, pj, sj in confirmed:
             added.append(self._accept(j, cand, pj, sj, True))
         self.graph.set_robust(added, False)
+        if trusted:
+            self.trusted += len(added)
+            self.__dict__.setdefault("_trusted_edges", set()).update(added)
         self._unguarded.extend(added)
         self._pending_correction = True
 
@@ -772,7 +798,10 @@ class GraphSlam:
         t0 = time.perf_counter()
         result = self.graph.optimize(max_iterations if not self._unguarded else 20)
         if self._unguarded:
-            self.graph.set_robust(self._unguarded, True)
+            kept: set[int] = getattr(self, "_trusted_edges", set())
+            guard = [e for e in self._unguarded if e not in kept]
+            if guard:
+                self.graph.set_robust(guard, True)
             self._unguarded = []
         self._weights = result.weights
         self.optimize_seconds += time.perf_counter() - t0

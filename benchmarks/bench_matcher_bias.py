@@ -174,33 +174,6 @@ def local_slam_bias(world: dict[str, Any], cfg: Any) -> dict[str, float]:
     }
 
 
-def _value(text: str) -> Any:
-    vals: list[Any] = []
-    for p in text.split(","):
-        try:
-            vals.append(int(p))
-        except ValueError:
-            try:
-                vals.append(float(p))
-            except ValueError:
-                vals.append(p)
-    return tuple(vals) if len(vals) > 1 else vals[0]
-
-
-def configure(settings: list[str]) -> Any:
-    """The default GraphSlamConfig with ``field=value`` / ``matcher.field=value`` applied."""
-    from probmap.slam.graph_slam import GraphSlamConfig
-
-    cfg = GraphSlamConfig()
-    for s in settings:
-        key, _, text = s.partition("=")
-        if key.startswith("matcher."):
-            cfg = replace(cfg, matcher=replace(cfg.matcher, **{key[8:]: _value(text)}))
-        else:
-            cfg = replace(cfg, **{key: _value(text)})
-    return cfg
-
-
 FIELD_VARIANTS = ("default", "exact", "known", "exact-known")
 
 
@@ -269,6 +242,8 @@ def main() -> None:
         print(f"field {args.field}")
         runpy.run_path(str(script), run_name="__main__")
         return
+    from graph_slam_diagnose import configure  # the same --set parser (this folder)
+
     cfg = configure(args.set)
     print(f"field {args.field}, settings: {' '.join(args.set) or 'default'}; odometry noise {args.odo_noise}/m, "
           f"range noise {args.range_noise} m")  # fmt: skip

@@ -737,9 +737,12 @@ class GraphSlam:
         travel = float(self._submap_travel(k)[sm.index])
         rate = getattr(cfg, "trust_drift", 0.0)  # sessions saved before the setting: 0
         trusted = rate > 0 and shift <= cfg.closure_window[0] + rate * travel
-        added = [self._accept(k, sm, pose, score, True)]
+        # an untrusted cluster does not shorten the submap graph's travel: if it is a wrong
+        # (aliased) match, a shortcut through it would make every later window and trust
+        # bound too small
+        added = [self._accept(k, sm, pose, score, True, link=trusted)]
         for j, cand, pj, sj in confirmed:
-            added.append(self._accept(j, cand, pj, sj, True))
+            added.append(self._accept(j, cand, pj, sj, True, link=trusted))
         self.graph.set_robust(added, False)
         if trusted:
             self.trusted += len(added)
@@ -755,9 +758,12 @@ class GraphSlam:
                 out.append(self.submaps[i])
         return out
 
-    def _accept(self, k: int, sm: Submap, pose: NDArray, score: float, far: bool) -> int:
-        """Add the closure edge (robust) and link the submaps it ties together; returns the
-        edge index."""
+    def _accept(
+        self, k: int, sm: Submap, pose: NDArray, score: float, far: bool, link: bool = True
+    ) -> int:
+        """Add the closure edge (robust) and, with ``link``, link the submaps it ties together
+        (the travel that sizes later search windows and the trust bound then runs through
+        it); returns the edge index."""
         cfg = self.config
         edge = self.graph.add_edge(sm.anchor, k, pose, self._closure_info, robust=True)
         self._closure_edges.append(edge)
@@ -766,7 +772,7 @@ class GraphSlam:
                 k, sm.index, sm.anchor, (float(pose[0]), float(pose[1]), float(pose[2])), score, far
             )
         )
-        for other in self.submaps[-2:]:
+        for other in self.submaps[-2:] if link else ():
             if k in other.nodes:
                 self._link(sm.index, other.index, self._travel[k] - self._travel[other.anchor])
         # optimize now only when the closure moves the estimate by a good part of the

@@ -341,7 +341,8 @@ def floorplan():
 
 def _far_closures(world, config):
     """Run on ``world`` with exact odometry; per far closure, its error against the truth
-    (metres) and whether its edge is robust after the final optimization."""
+    (metres), whether its edge is robust after the final optimization, and whether its submap
+    is linked to a submap holding its node in the travel graph."""
     slam = GraphSlam(config, max_range=world.max_range)
     for i in range(len(world.poses)):
         slam.add_scan(0.2 * i, world.ranges[i], world.angles, world.poses[i])
@@ -352,7 +353,9 @@ def _far_closures(world, config):
     for c, edge in zip(slam.closures, slam._closure_edges, strict=True):
         if c.far:
             d = between(between(world.poses[scan[c.anchor]], world.poses[scan[c.node]]), c.pose)
-            out.append((math.hypot(d[0], d[1]), bool(robust[edge])))
+            holding = [sm.index for sm in slam.submaps if c.node in sm.nodes]
+            linked = any(i in slam._sub_links[c.submap] for i in holding)
+            out.append((math.hypot(d[0], d[1]), bool(robust[edge]), linked))
     return slam, out
 
 
@@ -360,15 +363,18 @@ def test_trusted_far_closures_are_the_right_ones(floorplan):
     """With exact odometry every estimate is right, so a confirmed far closure that would move
     one by metres is an aliased match (consensus confirms those too: the earlier nodes see the
     same repeating rooms). The trust bound keeps exactly the right ones quadratic and leaves
-    the wrong ones to the robust cost; ``trust_drift = 0`` trusts none."""
+    the wrong ones to the robust cost, and only the right ones link their submaps in the travel
+    graph (a wrong link would be a shortcut that shrinks every later window and trust bound);
+    ``trust_drift = 0`` trusts none."""
     slam, far = _far_closures(floorplan, GraphSlamConfig())
-    right = [robust for err, robust in far if err < 0.05]
-    wrong = [robust for err, robust in far if err > 1.0]
+    right = [(robust, linked) for err, robust, linked in far if err < 0.05]
+    wrong = [(robust, linked) for err, robust, linked in far if err > 1.0]
     assert right and wrong and len(right) + len(wrong) == len(far)
-    assert not any(right) and all(wrong)
+    assert all(not robust and linked for robust, linked in right)
+    assert all(robust and not linked for robust, linked in wrong)
     assert slam.trusted == len(right)
     slam0, far0 = _far_closures(floorplan, GraphSlamConfig(trust_drift=0.0))
-    assert slam0.trusted == 0 and far0 and all(robust for _, robust in far0)
+    assert slam0.trusted == 0 and far0 and all(robust for _, robust, _ in far0)
 
 
 def test_session_resumed_equals_one_run_and_bad_files_are_named(world, tmp_path):

@@ -744,8 +744,8 @@ class GraphSlam:
         for j, cand, pj, sj in confirmed:
             added.append(self._accept(j, cand, pj, sj, True, link=trusted))
         self.graph.set_robust(added, False)
-        if trusted:
-            self.trusted += len(added)
+        if trusted:  # getattr / setdefault: sessions saved before trust_drift lack both
+            self.trusted = getattr(self, "trusted", 0) + len(added)
             self.__dict__.setdefault("_trusted_edges", set()).update(added)
         self._unguarded.extend(added)
         self._pending_correction = True

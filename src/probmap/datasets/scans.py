@@ -15,7 +15,6 @@ True
 
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import replace
 from pathlib import Path
@@ -24,7 +23,13 @@ from typing import Any
 import numpy as np
 
 from probmap.datasets.records import ScanBatch
-from probmap.datasets.validate import PoseLimits, ReadingReport, require_usable, validate_ranges
+from probmap.datasets.validate import (
+    PoseLimits,
+    ReadingReport,
+    check_end_time,
+    require_usable,
+    validate_ranges,
+)
 
 __all__ = ["BAG_OPTIONS", "open_scans", "resolve_log"]
 
@@ -128,8 +133,7 @@ def open_scans(
         raise ValueError(f"poses must be 'corrected' or 'odometry', got {poses!r}")
     if max_range is not None and not max_range > 0:
         raise ValueError(f"max_range must be > 0 m, got {max_range}")
-    if end_time is not None and not (math.isfinite(end_time) and end_time > 0):
-        raise ValueError(f"end_time must be a positive number of seconds, got {end_time}")
+    check_end_time(end_time)
     given = _given(bag_options)
     p = resolve_log(path, data_directory)
     shown = path if p == Path(path) else p  # errors name the path as given, or the file

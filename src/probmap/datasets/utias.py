@@ -22,11 +22,9 @@ Modelling choices:
 
 from __future__ import annotations
 
-import math
 import os
 import warnings
 from collections.abc import Iterator
-from pathlib import Path
 
 import numpy as np
 
@@ -36,6 +34,7 @@ from probmap.datasets.landmarks import (
     merge_events,
     read_numeric_table,
 )
+from probmap.datasets.validate import check_end_time, dataset_directory
 from probmap.errors import DatasetError
 from probmap.geometry.timesync import interpolate_poses
 from probmap.models.measurement import RangeBearingModel
@@ -74,13 +73,10 @@ class MRCLAM:
         motion_model: VelocityModel | None = None,
         measurement_model: RangeBearingModel | None = None,
     ) -> None:
-        d = Path(directory)
-        if not d.is_dir():
-            raise DatasetError("not a directory", path=d)
+        d = dataset_directory(directory)
         if robot not in ROBOT_SUBJECTS:
             raise ValueError(f"robot must be 1-5, got {robot}")
-        if end_time is not None and not (math.isfinite(end_time) and end_time > 0):
-            raise ValueError(f"end_time must be a positive number of seconds, got {end_time}")
+        check_end_time(end_time)
         self.directory = d
         self.robot = robot
         self.name = f"mrclam-{d.name}-robot{robot}"

@@ -55,6 +55,8 @@ __all__ = [
     "PoseLimits",
     "PoseTracker",
     "ReadingReport",
+    "check_end_time",
+    "dataset_directory",
     "number_rows",
     "require_usable",
     "text_lines",
@@ -275,6 +277,22 @@ def validate_ranges(
     if n_posinf and math.isfinite(max_range):
         out[posinf] = _at_least(max_range, out.dtype)
     return out.reshape(r.shape), report
+
+
+def check_end_time(end_time: float | None) -> None:
+    """Raise :class:`ValueError` unless ``end_time`` (seconds after a log's start, the readers'
+    "first seconds only" option) is None or a positive finite number."""
+    if end_time is not None and not (math.isfinite(end_time) and end_time > 0):
+        raise ValueError(f"end_time must be a positive number of seconds, got {end_time}")
+
+
+def dataset_directory(directory: str | os.PathLike[str]) -> Path:
+    """``directory`` as a :class:`~pathlib.Path`; a :class:`DatasetError` naming it unless it is
+    an existing folder (the readers of datasets stored as a folder of files)."""
+    d = Path(directory)
+    if not d.is_dir():
+        raise DatasetError("not a directory", path=d)
+    return d
 
 
 def _at_least(value: float, dtype: np.dtype) -> float:

@@ -22,7 +22,6 @@ Modelling choices:
 
 from __future__ import annotations
 
-import math
 import os
 import warnings
 from collections.abc import Iterator
@@ -36,6 +35,7 @@ from probmap.datasets.landmarks import (
     merge_events,
     read_numeric_table,
 )
+from probmap.datasets.validate import check_end_time, dataset_directory
 from probmap.errors import DatasetError
 from probmap.models.measurement import RangeBearingModel
 from probmap.models.motion import AckermannModel
@@ -97,11 +97,8 @@ class VictoriaPark:
         motion_model: AckermannModel | None = None,
         measurement_model: RangeBearingModel | None = None,
     ) -> None:
-        d = Path(directory)
-        if not d.is_dir():
-            raise DatasetError("not a directory", path=d)
-        if end_time is not None and not (math.isfinite(end_time) and end_time > 0):
-            raise ValueError(f"end_time must be a positive number of seconds, got {end_time}")
+        d = dataset_directory(directory)
+        check_end_time(end_time)
         self.directory = d
         if source == "dat":
             inputs, bad_in = read_numeric_table(d / "inputs.dat", ("time", "speed", "steering"))

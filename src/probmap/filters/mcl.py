@@ -724,6 +724,8 @@ class MonteCarloLocalization:
         )
         self._reset(new)
 
+    # ParticleFilter.resample_if_needed's ESS rule, plus augmented MCL's random particles and
+    # the KLD resampler (Tables 8.3, 8.4): MCL keeps its own particle set and weights.
     def resample_if_needed(self) -> bool:
         """Resample when ESS < ``resample_threshold * N`` (always, when augmented MCL wants
         random particles); return whether it did."""

@@ -163,6 +163,8 @@ class ParticleFilter:
         self.particles = self.particles[idx]
         self.log_weights = np.full(self.n, -np.log(self.n))
 
+    # MonteCarloLocalization has its own (the same ESS rule, plus augmented MCL's random
+    # particles and KLD sampling): the generic filter stays the plain Table 4.3.
     def resample_if_needed(self) -> bool:
         """Resample when the effective sample size is below the threshold; return whether."""
         if self.ess < self.resample_threshold * self.n:

@@ -89,6 +89,8 @@ def floor_plan_route(size: tuple[float, float] = (20.0, 12.0)) -> NDArray[np.flo
     return np.asarray(pts)
 
 
+# simulate_labelled_world (sim/semantic.py) takes these keywords too, with the same meaning: the
+# same floor plan and tour; each world keeps its own typed, documented signature.
 def simulate_laser_world(
     *,
     seed: int = 0,

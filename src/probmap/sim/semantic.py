@@ -126,6 +126,8 @@ def labelled_floor_plan(
     return lab, spec
 
 
+# simulate_laser_world's keywords (the same floor plan and tour), then the labels' own: each world
+# keeps its own typed, documented signature.
 def simulate_labelled_world(
     *,
     seed: int = 0,

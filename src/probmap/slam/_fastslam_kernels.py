@@ -397,6 +397,7 @@ def fastslam_update(
     """
     k = z.shape[0]
     n_part = particles.shape[0]
+    # scratch of the small block products, allocated once before the loop over particles
     hm = np.empty((2, 2))
     hx = np.empty((2, 3))
     P = np.empty((3, 3))

@@ -220,6 +220,7 @@ def smooth_steps(
     ``P_node[j]``): the fixed-interval smoother of the linearized chain, exact for a linear
     model. Returns a status.
     """
+    # scratch of the small block products, allocated once before the loop over segments
     Sj_inv = np.empty((3, 3))
     Psi = np.eye(3)
     C = np.empty((3, 3))

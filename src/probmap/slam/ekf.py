@@ -413,6 +413,7 @@ class EKFSLAM:
     ids and the association logic.
     """
 
+    # every landmark estimator's first four arguments (SEIFSlam, GraphSLAM): one way to build them.
     def __init__(
         self,
         motion_model: EKFMotionModel,

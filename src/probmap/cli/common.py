@@ -34,6 +34,18 @@ def cli_errors() -> Iterator[None]:
         raise typer.Exit(1) from None
 
 
+def check_choice(option: str, value: str | None, choices: Iterable[str]) -> None:
+    """Raise :class:`ValueError` unless ``value`` is one of ``choices`` or None (the option not
+    given): ``--method must be 'graph' or 'rbpf', got 'x'``, one message form for every
+    command's word options."""
+    allowed = tuple(choices)
+    if value is None or value in allowed:
+        return
+    words = [repr(c) for c in allowed]
+    either = words[0] if len(words) == 1 else f"{', '.join(words[:-1])} or {words[-1]}"
+    raise ValueError(f"{option} must be {either}, got {value!r}")
+
+
 def resolve_config(cls: type, path: Any = None, overrides: dict[str, Any] | None = None) -> Any:
     """The configuration a command runs with: ``cls`` loaded from the YAML file ``path``
     (:func:`probmap.config.load_config`; the class defaults without one), then the options the

@@ -10,7 +10,14 @@ import typer
 
 from probmap.cli import options as opt
 from probmap.cli._provenance import command_line
-from probmap.cli.common import cli_errors, input_rows, laser_input, print_summary, resolve_config
+from probmap.cli.common import (
+    check_choice,
+    cli_errors,
+    input_rows,
+    laser_input,
+    print_summary,
+    resolve_config,
+)
 from probmap.cli.slam import slam_app
 from probmap.cli.watch import (
     open_view,
@@ -97,8 +104,7 @@ def grid_command(
 
     watch = Stopwatch()  # the summary time covers the whole command
     with cli_errors():
-        if method not in ("graph", "rbpf"):
-            raise ValueError(f"--method must be 'graph' or 'rbpf', got {method!r}")
+        check_choice("--method", method, ("graph", "rbpf"))
         log = laser_input(log)
         from probmap.pipelines import check_output_prefix
 

@@ -13,6 +13,7 @@ from probmap.cli import options as opt
 from probmap.cli._provenance import command_line
 from probmap.cli.common import (
     Stopwatch,
+    check_choice,
     cli_errors,
     laser_input,
     mapping_rows,
@@ -128,8 +129,7 @@ def map_command(
                 "--viz and --viz-save watch the log-odds method on one log (no --method map, "
                 "--workers, --scheduler, --chunks or several logs)"
             )
-        if method not in ("log-odds", "map"):
-            raise ValueError(f"--method must be 'log-odds' or 'map', got {method!r}")
+        check_choice("--method", method, ("log-odds", "map"))
         if not local:
             several = len(logs) > 1 or chunks > 1
             cluster: dict[str, Any] = dict(

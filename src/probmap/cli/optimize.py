@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from probmap.cli import options as opt
-from probmap.cli.common import cli_errors
+from probmap.cli.common import check_choice, cli_errors
 
 ROBUST_HELP = (
     "Robust kernel for every edge: none, huber, cauchy or dcs (dynamic covariance scaling)."
@@ -65,12 +65,9 @@ def optimize_command(
         target = check_output_prefix(output, "optimized.g2o")
         stem = target.name[: -len(".g2o")] if target.name.endswith(".g2o") else target.name
         config_path = target.with_name(f"{stem}.config.yaml")
-        if init is not None and init not in ("auto", "given", "lago"):
-            raise ValueError(f"--init must be auto, given or lago, got {init!r}")
-        if robust is not None and robust not in ("none", "huber", "cauchy", "dcs"):
-            raise ValueError(f"--robust must be none, huber, cauchy or dcs, got {robust!r}")
-        if robust_edges is not None and robust_edges not in ("all", "closures"):
-            raise ValueError(f"--robust-edges must be 'all' or 'closures', got {robust_edges!r}")
+        check_choice("--init", init, ("auto", "given", "lago"))
+        check_choice("--robust", robust, ("none", "huber", "cauchy", "dcs"))
+        check_choice("--robust-edges", robust_edges, ("all", "closures"))
         overrides = {
             "robust": robust,
             "robust_scale": robust_scale,

@@ -377,6 +377,33 @@ def test_trusted_far_closures_are_the_right_ones(floorplan):
     assert slam0.trusted == 0 and far0 and all(robust for _, robust, _ in far0)
 
 
+def test_far_travel_is_not_shortened_by_closures_to_the_submap_just_behind(world):
+    """Before the loop is closed the robot has only driven away from every submap, so the
+    travel that sizes far windows (and the trust bound) must be about the path length: each
+    closure against the submap just behind links it to the newest one, and counted as no
+    travel (as near searches count it) a chain of those shrinks 43 m of path to about 5 m.
+    The far graph counts each closure's distance from its submap's anchor: never more than
+    the path, never much less (corners make the straight distance shorter than the path)."""
+    _, _, truth, odo, ranges, angles, max_range, n_lap = world
+    slam = GraphSlam(max_range=max_range)
+    for i in range(int(0.8 * n_lap)):  # the first lap, no revisit yet
+        slam.add_scan(0.1 * i, ranges[i], angles, odo[i])
+    assert slam.closures and not any(c.far for c in slam.closures)
+    k = slam.nodes - 1
+    path = np.array([slam._travel[k] - slam._travel[sm.anchor] for sm in slam.submaps])
+    near, far = slam._submap_travel(k), slam._submap_travel(k, far=True)
+    assert path[0] > 40.0
+    assert np.all(far >= 0.85 * path - 1e-9) and np.all(far <= path + 1e-9)
+    assert np.all(near <= far + 1e-9) and near[0] < 0.25 * path[0]
+    # a session saved before the far graph existed starts it from the near one and goes on
+    del slam.__dict__["_far_links"], slam.__dict__["_far_dist"], slam.__dict__["_far_dist_at"]
+    np.testing.assert_array_equal(slam._submap_travel(k, far=True), near)
+    n = int(0.8 * n_lap)
+    for i in range(n, n + 30):
+        slam.add_scan(0.1 * i, ranges[i], angles, odo[i])
+    assert len(slam._far_links) == len(slam._sub_links) == len(slam.submaps)
+
+
 def test_session_resumed_equals_one_run_and_bad_files_are_named(world, tmp_path):
     """Half a log, saved and loaded, then the other half: exactly the whole-log run."""
     _, _, truth, odo, ranges, angles, max_range, _ = world

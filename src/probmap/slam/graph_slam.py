@@ -137,7 +137,11 @@ class GraphSlamConfig:
     window_growth : tuple of float
         Growth of those half-widths per metre of travel between the node and the submap along
         the shortest chain of local-SLAM links and accepted closures (the uncertainty the
-        odometry and scan matching accumulate).
+        odometry and scan matching accumulate). Near searches count a closure as no travel
+        between its submap and the node's; far searches and the trust bound count the
+        closure's distance from its submap's anchor too, because a chain of closures each
+        against the submap just behind it (local SLAM handing the robot from one submap to
+        the next) is no shortcut: drift grows along it as it does along the trajectory.
     max_window : tuple of float
         Largest half-widths of that window.
     wide_window : tuple of float
@@ -150,7 +154,9 @@ class GraphSlamConfig:
         (*far*) searches run for one submap every ``far_every`` nodes (the one searched least
         recently) and must be confirmed by consensus.
     far_every : int
-        Nodes between far searches.
+        Nodes between far searches (their windows reach ``max_window`` after a long stretch
+        without a loop, so each is a costly search; 4 keeps every log at 40x real time or
+        more).
     consensus : tuple of float
         ``(metres, radians)``: a far closure is accepted once ``consensus_checks`` earlier
         nodes, moved by the correction it implies (the rigid motion from the current estimate
@@ -169,7 +175,7 @@ class GraphSlamConfig:
         overstate, and drop it. A larger correction (the wide search or a long window found
         it) is taken quadratically for one optimization and then guarded by the robust cost.
         0 trusts none. 0.05 is a third of ``window_growth``: the search windows allow for the
-        worst drift, the trust bound for a plausible one.
+        worst drift, the trust bound for a plausible one. ``travel`` is the far searches'.
     closure_every : int
         Search closures for every ``closure_every``-th node.
     closure_candidates : int
@@ -216,7 +222,7 @@ class GraphSlamConfig:
     wide_window: tuple[float, float] = (20.0, 0.5)
     wide_search_every: int = 50
     near_window: float = 2.0
-    far_every: int = 1
+    far_every: int = 4
     consensus: tuple[float, float] = (0.3, 0.05)
     consensus_nodes: int = 10
     consensus_checks: int = 2
@@ -356,6 +362,11 @@ class GraphSlam:
         self._sub_links: list[dict[int, float]] = []  # submap graph: neighbour -> travel
         self._sub_dist: NDArray[np.float64] | None = None  # travel from the newest submap
         self._sub_dist_at = 0.0  # node travel when _sub_dist was computed
+        # the same graph for far searches and the trust bound: a closure link also counts
+        # the closure's distance from its submap's anchor (see window_growth)
+        self._far_links: list[dict[int, float]] = []
+        self._far_dist: NDArray[np.float64] | None = None
+        self._far_dist_at = 0.0
         self._last_searched: list[int] = []  # per submap, the last node that searched it
         self.far_searched = 0  # far searches run
         self.far_found = 0  # far searches that found a match (before consensus)
@@ -478,7 +489,9 @@ class GraphSlam:
             sm = Submap(
                 len(self.submaps), k, cfg.resolution, m.sigma, cfg.field_radius, self._model
             )
+            far_links = self._far_graph()  # (before the append: an old session copies it)
             self._sub_links.append({})
+            far_links.append({})
             self._last_searched.append(-1)
             if self.submaps:
                 last = self.submaps[-1]
@@ -582,22 +595,36 @@ class GraphSlam:
             self._cache.popitem(last=False)
         return fld, grids
 
-    def _link(self, a: int, b: int, travel: float) -> None:
-        """Link submaps ``a`` and ``b`` in the submap graph with the travel between them."""
-        travel = max(float(travel), 0.0)
-        if travel < self._sub_links[a].get(b, math.inf):
-            self._sub_links[a][b] = travel
-            self._sub_links[b][a] = travel
-        self._sub_dist = None
+    def _far_graph(self) -> list[dict[int, float]]:
+        """The far searches' submap graph (a session saved before it existed starts from a
+        copy of the near one)."""
+        if "_far_links" not in self.__dict__:
+            self._far_links = [dict(links) for links in self._sub_links]
+            self._far_dist = None
+            self._far_dist_at = 0.0
+        return self._far_links
 
-    def _submap_travel(self, k: int) -> NDArray[np.float64]:
+    def _link(self, a: int, b: int, travel: float, extent: float = 0.0) -> None:
+        """Link submaps ``a`` and ``b`` in the submap graphs with the travel between them;
+        the far graph adds ``extent`` (a closure's distance from its submap's anchor)."""
+        for links, t in ((self._sub_links, travel), (self._far_graph(), travel + extent)):
+            t = max(float(t), 0.0)
+            if t < links[a].get(b, math.inf):
+                links[a][b] = t
+                links[b][a] = t
+        self._sub_dist = None
+        self._far_dist = None
+
+    def _submap_travel(self, k: int, far: bool = False) -> NDArray[np.float64]:
         """Travel (metres) from node ``k`` to each submap along the shortest chain of local
-        links and accepted closures (Dijkstra on the submap graph, cached until it changes)."""
+        links and accepted closures (Dijkstra on the submap graph, cached until it changes);
+        ``far``: on the far searches' graph (closures count their extent)."""
         import heapq
 
         newest = self.active[-1]
-        here = self._travel[k]
-        if self._sub_dist is None or len(self._sub_dist) != len(self.submaps):
+        links = self._far_graph() if far else self._sub_links
+        dist = self._far_dist if far else self._sub_dist
+        if dist is None or len(dist) != len(self.submaps):
             dist = np.full(len(self.submaps), np.inf)
             dist[newest.index] = 0.0
             heap = [(0.0, newest.index)]
@@ -605,13 +632,16 @@ class GraphSlam:
                 d, a = heapq.heappop(heap)
                 if d > dist[a]:
                     continue
-                for b, w in self._sub_links[a].items():
+                for b, w in links[a].items():
                     if d + w < dist[b]:
                         dist[b] = d + w
                         heapq.heappush(heap, (d + w, b))
-            self._sub_dist = dist
-            self._sub_dist_at = self._travel[newest.anchor]
-        return self._sub_dist + (here - self._sub_dist_at)
+            if far:
+                self._far_dist, self._far_dist_at = dist, self._travel[newest.anchor]
+            else:
+                self._sub_dist, self._sub_dist_at = dist, self._travel[newest.anchor]
+        at = self._far_dist_at if far else self._sub_dist_at
+        return dist + (self._travel[k] - at)
 
     def _search_closures(self, k: int) -> None:
         """Search node ``k``'s scan against finished submaps (near every node, far every
@@ -644,7 +674,15 @@ class GraphSlam:
         near = near[np.argsort(dist[near], kind="stable")][: cfg.closure_candidates]
         jobs = [(int(i), False) for i in near]
         if wide or k % cfg.far_every == 0:
-            far = np.flatnonzero(reach & (lin > cfg.near_window))
+            # far searches: windows from the far graph's travel (never smaller)
+            beyond = lin > cfg.near_window
+            travel_f = self._submap_travel(k, far=True)[idx]
+            lin_f = cfg.closure_window[0] + cfg.window_growth[0] * travel_f
+            ang_f = cfg.closure_window[1] + cfg.window_growth[1] * travel_f
+            lin = np.where(beyond, np.maximum(lin, np.minimum(lin_f, cfg.max_window[0])), lin)
+            ang = np.where(beyond, np.maximum(ang, np.minimum(ang_f, cfg.max_window[1])), ang)
+            reach = dist <= lin + radius
+            far = np.flatnonzero(reach & beyond)
             if far.size:
                 last = np.asarray(self._last_searched)[idx[far]]
                 jobs.append((int(far[np.argmin(last)]), True))
@@ -734,7 +772,7 @@ class GraphSlam:
         # a larger one is guarded by the robust cost again from the optimization after it on
         implied = compose(poses[sm.anchor], pose)
         shift = math.hypot(implied[0] - poses[k][0], implied[1] - poses[k][1])
-        travel = float(self._submap_travel(k)[sm.index])
+        travel = float(self._submap_travel(k, far=True)[sm.index])
         rate = getattr(cfg, "trust_drift", 0.0)  # sessions saved before the setting: 0
         trusted = rate > 0 and shift <= cfg.closure_window[0] + rate * travel
         # an untrusted cluster does not shorten the submap graph's travel: if it is a wrong
@@ -774,7 +812,12 @@ class GraphSlam:
         )
         for other in self.submaps[-2:] if link else ():
             if k in other.nodes:
-                self._link(sm.index, other.index, self._travel[k] - self._travel[other.anchor])
+                self._link(
+                    sm.index,
+                    other.index,
+                    self._travel[k] - self._travel[other.anchor],
+                    math.hypot(pose[0], pose[1]),
+                )
         # optimize now only when the closure moves the estimate by a good part of the
         # near window; smaller corrections wait for the next periodic optimization
         implied = compose(self.graph.pose(sm.anchor), pose)

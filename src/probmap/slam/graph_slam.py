@@ -643,6 +643,16 @@ class GraphSlam:
         at = self._far_dist_at if far else self._sub_dist_at
         return dist + (self._travel[k] - at)
 
+    def _windows(
+        self, travel: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Search half-widths (metres, radians) after ``travel`` metres: ``closure_window``
+        grown by ``window_growth`` per metre, capped at ``max_window``."""
+        cfg = self.config
+        lin = np.minimum(cfg.closure_window[0] + cfg.window_growth[0] * travel, cfg.max_window[0])
+        ang = np.minimum(cfg.closure_window[1] + cfg.window_growth[1] * travel, cfg.max_window[1])
+        return lin, ang
+
     def _search_closures(self, k: int) -> None:
         """Search node ``k``'s scan against finished submaps (near every node, far every
         ``far_every`` nodes) and add the closures that pass (far ones after consensus)."""
@@ -662,9 +672,7 @@ class GraphSlam:
         cx = pa[:, 0] + c * local_c[:, 0] - s_ * local_c[:, 1]
         cy = pa[:, 1] + s_ * local_c[:, 0] + c * local_c[:, 1]
         dist = np.hypot(cx - xk[0], cy - xk[1])
-        travel = self._submap_travel(k)[idx]
-        lin = np.minimum(cfg.closure_window[0] + cfg.window_growth[0] * travel, cfg.max_window[0])
-        ang = np.minimum(cfg.closure_window[1] + cfg.window_growth[1] * travel, cfg.max_window[1])
+        lin, ang = self._windows(self._submap_travel(k)[idx])
         wide = bool(cfg.wide_search_every) and k % cfg.wide_search_every == 0
         if wide:
             lin = np.maximum(lin, cfg.wide_window[0])
@@ -676,11 +684,9 @@ class GraphSlam:
         if wide or k % cfg.far_every == 0:
             # far searches: windows from the far graph's travel (never smaller)
             beyond = lin > cfg.near_window
-            travel_f = self._submap_travel(k, far=True)[idx]
-            lin_f = cfg.closure_window[0] + cfg.window_growth[0] * travel_f
-            ang_f = cfg.closure_window[1] + cfg.window_growth[1] * travel_f
-            lin = np.where(beyond, np.maximum(lin, np.minimum(lin_f, cfg.max_window[0])), lin)
-            ang = np.where(beyond, np.maximum(ang, np.minimum(ang_f, cfg.max_window[1])), ang)
+            lin_f, ang_f = self._windows(self._submap_travel(k, far=True)[idx])
+            lin = np.where(beyond, np.maximum(lin, lin_f), lin)
+            ang = np.where(beyond, np.maximum(ang, ang_f), ang)
             reach = dist <= lin + radius
             far = np.flatnonzero(reach & beyond)
             if far.size:

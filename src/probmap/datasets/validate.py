@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from probmap._records import field_sums
 from probmap.errors import DatasetError
 
 __all__ = [
@@ -163,16 +164,7 @@ class ReadingReport:
         counts: dict[int, int] = dict(self.beam_counts)
         for b, n in other.beam_counts:
             counts[b] = counts.get(b, 0) + n
-        return ReadingReport(
-            self.scans + other.scans,
-            self.readings + other.readings,
-            self.usable + other.usable,
-            self.no_return + other.no_return,
-            self.zero + other.zero,
-            self.invalid + other.invalid,
-            _sorted_counts(counts),
-            self.skipped_lines + other.skipped_lines,
-        )
+        return field_sums(self, other, beam_counts=_sorted_counts(counts))
 
     @property
     def dropped(self) -> int:

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap._records import field_sums
 from probmap._typing import FloatArray
 from probmap.errors import GridBoundsError  # re-exported: its old home
 from probmap.grid.logodds import logit, prob
@@ -108,14 +109,7 @@ class ScanStats:
         )
 
     def __add__(self, other: ScanStats) -> ScanStats:
-        return ScanStats(
-            self.scans + other.scans,
-            self.beams + other.beams,
-            self.hits + other.hits,
-            self.max_range + other.max_range,
-            self.dropped + other.dropped,
-            self.cell_updates + other.cell_updates,
-        )
+        return field_sums(self, other)
 
 
 MAX_EXTENT_M = 3000.0

@@ -436,3 +436,22 @@ def test_bad_model():
         LabelledInverseModel(p_correct=0.0)
     with pytest.raises(ValueError, match="p_hit"):
         LabelledInverseModel(p_hit=1.0)
+
+
+@pytest.mark.parametrize(
+    "field,bad,good,rule",
+    [
+        ("p_hit", 1.0, 0.6, "must lie in (0, 1), got 1.0"),
+        ("p_miss", 0.0, 0.3, "must lie in (0, 1), got 0.0"),
+        ("thickness", math.inf, 0.1, "must be >= 0 m, got inf"),
+        ("thickness", math.nan, 0.0, "must be >= 0 m, got nan"),
+        ("max_clear_range", -1.0, None, "must be >= 0 m or None, got -1.0"),
+    ],
+)
+def test_both_inverse_models_share_the_beam_fields_rules(field, bad, good, rule):
+    # the fields both inverse models have mean the same: one verdict, each naming its class
+    for cls in (InverseSensorModel, LabelledInverseModel):
+        with pytest.raises(ValueError) as err:
+            cls(**{field: bad})
+        assert str(err.value) == f"{cls.__name__}.{field} {rule}"
+        assert getattr(cls(**{field: good}), field) == good

@@ -25,6 +25,38 @@ from probmap.grid.logodds import logit, prob
 from probmap.grid.spec import GridSpec
 
 
+def check_beam_model_fields(model: Any, owner: str) -> None:
+    """The checks of the fields every inverse sensor model of a range beam has.
+
+    :class:`InverseSensorModel` and :class:`~probmap.grid.semantic.LabelledInverseModel` share
+    ``p_hit``, ``p_miss``, ``thickness`` and ``max_clear_range`` with one meaning, so one set
+    of rules.
+
+    Parameters
+    ----------
+    model : InverseSensorModel or LabelledInverseModel
+        The model being built (its ``__post_init__`` calls this).
+    owner : str
+        The class name the messages start with.
+
+    Raises
+    ------
+    ValueError
+        ``p_hit`` or ``p_miss`` not in (0, 1); ``thickness`` negative, infinite or NaN;
+        ``max_clear_range`` neither None nor >= 0 m.
+    """
+    for name in ("p_hit", "p_miss"):
+        v = getattr(model, name)
+        if not 0.0 < v < 1.0:
+            raise ValueError(f"{owner}.{name} must lie in (0, 1), got {v}")
+    if not (model.thickness >= 0.0 and math.isfinite(model.thickness)):
+        raise ValueError(f"{owner}.thickness must be >= 0 m, got {model.thickness}")
+    if model.max_clear_range is not None and not model.max_clear_range >= 0.0:
+        raise ValueError(
+            f"{owner}.max_clear_range must be >= 0 m or None, got {model.max_clear_range}"
+        )
+
+
 @dataclass(frozen=True)
 class InverseSensorModel:
     """Inverse range-sensor model for laser beams (Probabilistic Robotics, Table 9.2, simplified).
@@ -50,16 +82,7 @@ class InverseSensorModel:
     max_clear_range: float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("p_hit", "p_miss"):
-            v = getattr(self, name)
-            if not 0.0 < v < 1.0:
-                raise ValueError(f"InverseSensorModel.{name} must lie in (0, 1), got {v}")
-        if not (self.thickness >= 0.0 and math.isfinite(self.thickness)):
-            raise ValueError(f"InverseSensorModel.thickness must be >= 0 m, got {self.thickness}")
-        if self.max_clear_range is not None and not self.max_clear_range >= 0.0:
-            raise ValueError(
-                f"InverseSensorModel.max_clear_range must be >= 0 m or None, got {self.max_clear_range}"
-            )
+        check_beam_model_fields(self, "InverseSensorModel")
 
     @property
     def l_hit(self) -> float:

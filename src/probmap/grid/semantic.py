@@ -33,6 +33,7 @@ from probmap.grid.occupancy import (
     ScanStats,
     _ScanGrid,
     check_angles_and_max_range,
+    check_beam_model_fields,
     check_one_scan,
     check_poses,
     effective_clear_range,
@@ -234,20 +235,10 @@ class LabelledInverseModel:
     label_floor: float = 1e-4
 
     def __post_init__(self) -> None:
-        for name in ("p_hit", "p_miss"):
-            v = getattr(self, name)
-            if not 0.0 < v < 1.0:
-                raise ValueError(f"LabelledInverseModel.{name} must lie in (0, 1), got {v}")
+        check_beam_model_fields(self, "LabelledInverseModel")
         if not 0.0 < self.p_correct <= 1.0:
             raise ValueError(
                 f"LabelledInverseModel.p_correct must lie in (0, 1], got {self.p_correct}"
-            )
-        if not (self.thickness >= 0.0 and math.isfinite(self.thickness)):
-            raise ValueError(f"LabelledInverseModel.thickness must be >= 0 m, got {self.thickness}")
-        if self.max_clear_range is not None and not self.max_clear_range >= 0.0:
-            raise ValueError(
-                "LabelledInverseModel.max_clear_range must be >= 0 m or None, "
-                f"got {self.max_clear_range}"
             )
         if not 0.0 <= self.label_floor < 1.0:
             raise ValueError(

@@ -11,7 +11,7 @@ from probmap.models.measurement import RangeBearingModel
 from probmap.models.motion import VelocityModel
 from probmap.slam.association import NEW, REJECTED, associate_ml, chi2_gate, mahalanobis_squared
 from probmap.slam.base import LandmarkSLAM
-from probmap.slam.ekf import EKFSLAM, EKFConfig
+from probmap.slam.ekf import EKFSLAM, EKFConfig, build_ekf
 
 
 class DenseReferenceEKF:
@@ -85,10 +85,25 @@ def _one_blas_thread():
         yield
 
 
-def make(sim, **kw):
-    return EKFSLAM(
-        sim.motion_model, sim.measurement_model, sim.initial_pose, sim.initial_covariance, **kw
+def make(sim, config=None):
+    # build_ekf, the dataset's EKF, is what the tests below check against their oracles
+    return build_ekf(sim, config)
+
+
+def test_build_ekf_is_the_constructor_on_the_datasets_models():
+    sim = simulate_landmarks(10, 20, seed=5, density=0.08)
+    cfg = EKFConfig(visibility_range=10.0)
+    built = build_ekf(sim, cfg)
+    direct = EKFSLAM(
+        sim.motion_model, sim.measurement_model, sim.initial_pose, sim.initial_covariance, cfg
     )
+    assert built.config is cfg and built.motion_model is sim.motion_model
+    for step in sim:
+        for ekf in (built, direct):
+            ekf.predict(step.control, step.dt)
+            ekf.update(step.z, step.ids)
+    assert np.array_equal(built.mean, direct.mean)
+    assert np.array_equal(built.covariance, direct.covariance)
 
 
 def test_matches_dense_reference():

@@ -162,7 +162,7 @@ def compare_command(
 
         from probmap.cli.common import progress_bar
         from probmap.pipelines.landmark_slam import default_ekf_config, evaluate, run_landmark_slam
-        from probmap.slam.ekf import EKFSLAM
+        from probmap.slam.ekf import build_ekf
 
         chosen = [m.strip().lower() for m in methods.split(",") if m.strip()]
         if not chosen or any(m not in COMPARED for m in chosen):
@@ -192,16 +192,12 @@ def compare_command(
             if method == "ekf":
                 from probmap.slam.ekf import EKFConfig
 
-                est: Any = EKFSLAM(
-                    ds.motion_model,
-                    ds.measurement_model,
-                    ds.initial_pose,
-                    ds.initial_covariance,
+                ekf_cfg = (
                     _section_config(EKFConfig, own, "ekf", config)
                     if "ekf" in own
-                    else default_ekf_config(ds),
+                    else default_ekf_config(ds)
                 )
-                estimators.append(("EKF", est))
+                estimators.append(("EKF", build_ekf(ds, ekf_cfg)))
             elif method == "seif":
                 estimators.append((seif_name, _seif(ds, seif_cfg)))
             elif method == "fastslam":

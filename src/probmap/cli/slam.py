@@ -358,17 +358,11 @@ def ekf_command(
     with cli_errors():
         from probmap.config import load_config
         from probmap.pipelines.landmark_slam import default_ekf_config
-        from probmap.slam.ekf import EKFSLAM, EKFConfig
+        from probmap.slam.ekf import EKFConfig, build_ekf
 
         file_cfg = None if config is None else load_config(EKFConfig, config)
         ds = read_landmark_dataset(watch, output, dataset, source)
-        ekf = EKFSLAM(
-            ds.motion_model,
-            ds.measurement_model,
-            ds.initial_pose,
-            ds.initial_covariance,
-            file_cfg if file_cfg is not None else default_ekf_config(ds),
-        )
+        ekf = build_ekf(ds, file_cfg if file_cfg is not None else default_ekf_config(ds))
         run_and_report(ekf, ds, output, "EKF SLAM", watch=watch, **report)
 
 

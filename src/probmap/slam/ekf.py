@@ -28,7 +28,7 @@ it is built with are typed by the protocols :class:`EKFMotionModel` and
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -50,6 +50,7 @@ __all__ = [
     "EKFMeasurementModel",
     "EKFMotionModel",
     "EKFSLAM",
+    "build_ekf",
     "ekf_slam_augment",
     "ekf_slam_correct",
     "ekf_slam_innovation_covariances",
@@ -650,3 +651,29 @@ class EKFSLAM:
         self._n_updates += 1
         if self._n_updates % self.config.symmetrize_every == 0:
             self._P = np.ascontiguousarray(0.5 * (self._P + self._P.T))
+
+
+def build_ekf(dataset: Any, config: EKFConfig | None = None) -> EKFSLAM:
+    """An :class:`EKFSLAM` for a landmark dataset (its models, initial pose and covariance), as
+    :func:`~probmap.slam.graphslam.build_graphslam` and :func:`~probmap.slam.seif.build_seif`
+    build theirs.
+
+    Parameters
+    ----------
+    dataset : landmark dataset
+        Anything with ``motion_model``, ``measurement_model``, ``initial_pose`` (3,) and
+        ``initial_covariance`` (3, 3) (a simulated world, UTIAS MRCLAM, Victoria Park).
+    config : EKFConfig, optional
+        The filter's settings (default: ``EKFConfig()``).
+
+    Returns
+    -------
+    EKFSLAM
+    """
+    return EKFSLAM(
+        dataset.motion_model,
+        dataset.measurement_model,
+        dataset.initial_pose,
+        dataset.initial_covariance,
+        config,
+    )

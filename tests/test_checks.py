@@ -10,11 +10,20 @@ from __future__ import annotations
 import math
 import re
 
+import numpy as np
 import pytest
 
-from probmap._checks import require_at_least, require_nonnegative_finite, require_positive_finite
+from probmap._checks import (
+    require_at_least,
+    require_integer,
+    require_nonnegative_finite,
+    require_positive_finite,
+)
 from probmap.filters.mcl import MCLConfig
+from probmap.pipelines.fit import FitConfig
+from probmap.slam.graphslam import GraphSLAMConfig
 from probmap.slam.scan_matching import MatcherConfig
+from probmap.slam.seif import SeifConfig
 
 VALUES = [-math.inf, -2.5, -1, -1e-12, 0, 0.0, 1e-300, 0.5, 1, 2, 7.25, 1e300, math.inf, math.nan]
 
@@ -76,3 +85,50 @@ def test_matcher_config_refuses_through_the_helpers():
     # a config the helpers do not serve keeps its own words
     with pytest.raises(ValueError, match="n_particles must be positive"):
         MCLConfig(n_particles=0)
+
+
+INTEGERS = [
+    *VALUES,
+    -3,
+    3,
+    10**20,
+    True,
+    False,
+    np.int64(2),
+    np.int32(-1),
+    np.uint8(1),
+    np.float64(2.0),
+    "2",
+    None,
+]
+
+
+@pytest.mark.parametrize("low", [0, 1])
+@pytest.mark.parametrize("value", INTEGERS, ids=repr)
+def test_integer_matches_reference(value, low):
+    # a count: Python or numpy integers, not bools, not floats that happen to be whole
+    ok = type(value) in (int, np.int64, np.int32, np.uint8) and value >= low
+    msg = _raises(require_integer, "max_misses", value, low)
+    assert (msg is None) == ok
+    if not ok:
+        assert msg == f"max_misses must be an integer >= {low}, got {value!r}"
+
+
+@pytest.mark.parametrize(
+    "build,field,low",
+    [
+        (GraphSLAMConfig, "max_iterations", 0),
+        (GraphSLAMConfig, "outlier_rounds", 0),
+        (GraphSLAMConfig, "min_observations", 1),
+        (GraphSLAMConfig, "max_misses", 0),
+        (SeifConfig, "context_hops", 0),
+        (FitConfig, "every", 1),
+        (FitConfig, "max_iterations", 1),
+    ],
+)
+def test_configs_refuse_counts_through_the_integer_helper(build, field, low):
+    for bad in (low - 1, float(low), True):
+        with pytest.raises(ValueError) as err:
+            build(**{field: bad})
+        assert str(err.value) == f"{field} must be an integer >= {low}, got {bad!r}"
+    assert getattr(build(**{field: np.int64(low)}), field) == low

@@ -11,8 +11,14 @@ This module imports only the standard library, so that any layer may import it.
 from __future__ import annotations
 
 import math
+import numbers
 
-__all__ = ["require_at_least", "require_nonnegative_finite", "require_positive_finite"]
+__all__ = [
+    "require_at_least",
+    "require_integer",
+    "require_nonnegative_finite",
+    "require_positive_finite",
+]
 
 
 def require_positive_finite(name: str, value: float) -> None:
@@ -80,3 +86,33 @@ def require_at_least(name: str, value: float, low: float, unit: str = "") -> Non
     if not value >= low:
         bound = f"{low} {unit}" if unit else f"{low}"
         raise ValueError(f"{name} must be >= {bound}, got {value}")
+
+
+def require_integer(name: str, value: object, low: int) -> None:
+    """Raise unless ``value`` is an integer (Python or numpy, not a bool) ``>= low``.
+
+    Parameters
+    ----------
+    name : str
+        The argument or field, for the message.
+    value : object
+        The value to check: a count of iterations, rounds, observations, pixels ...
+    low : int
+        The smallest value allowed.
+
+    Raises
+    ------
+    ValueError
+        ``"{name} must be an integer >= {low}, got {value!r}"`` (a float such as ``3.0``, a
+        bool or a string is refused too: a count is not a length).
+
+    Examples
+    --------
+    >>> require_integer("max_misses", 3, 0)
+    >>> require_integer("min_observations", 2.0, 1)
+    Traceback (most recent call last):
+    ...
+    ValueError: min_observations must be an integer >= 1, got 2.0
+    """
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or int(value) < low:
+        raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")

@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from probmap._atomic import atomic_files
+from probmap._checks import require_integer
 from probmap.errors import DatasetError, MapFileError
 from probmap.grid.spec import GridSpec
 
@@ -718,8 +719,7 @@ def preview_image(grid: GridLike, scale: int = 1) -> NDArray[np.uint8]:
 def _preview_pixels(
     p: NDArray[np.float64], seen: NDArray[np.bool_], scale: int
 ) -> NDArray[np.uint8]:
-    if isinstance(scale, bool) or not isinstance(scale, (int, np.integer)) or scale < 1:
-        raise ValueError(f"scale must be a positive integer, got {scale!r}")
+    require_integer("scale", scale, 1)
     q = np.clip((PREVIEW_OCCUPIED_P - p) / (PREVIEW_OCCUPIED_P - PREVIEW_FREE_P), 0.0, 1.0)
     v = np.where(seen, np.rint(255.0 * q), PREVIEW_UNKNOWN).astype(np.uint8)[::-1]
     if scale > 1:

@@ -39,6 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from probmap._atomic import atomic_files, atomic_outputs
+from probmap._checks import require_integer
 from probmap.errors import SemanticFileError
 from probmap.grid.io import check_npz_format, npz_array, open_npz
 from probmap.grid.semantic import (
@@ -182,8 +183,7 @@ def semantic_image(grid: SemanticGrid, *, scale: int = 1, legend: bool = True) -
     Unknown cells are grey (205). With ``legend`` a panel on the right lists each class's colour
     and name. ``scale`` enlarges every cell to ``scale x scale`` pixels.
     """
-    if isinstance(scale, bool) or not isinstance(scale, (int, np.integer)) or scale < 1:
-        raise ValueError(f"scale must be a positive integer, got {scale!r}")
+    require_integer("scale", scale, 1)
     cls = grid.classify()
     rgb = np.empty((*cls.shape, 3), dtype=np.uint8)
     rgb[...] = UNKNOWN_RGB

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
+from probmap._checks import require_integer
 from probmap.datasets.scans import open_scans
 from probmap.models.beam import BeamModelParams, FitResult, fit_beam_model
 
@@ -56,20 +57,14 @@ class FitConfig:
     def __post_init__(self) -> None:
         if not (math.isfinite(self.resolution) and self.resolution > 0):
             raise ValueError(f"resolution must be a number > 0, got {self.resolution}")
-        if isinstance(self.every, bool) or not isinstance(self.every, int) or self.every < 1:
-            raise ValueError(f"every must be an integer >= 1, got {self.every!r}")
+        require_integer("every", self.every, 1)
         if self.max_range is not None and not (
             math.isfinite(self.max_range) and self.max_range > 0
         ):
             raise ValueError(f"max_range must be a number > 0 or null, got {self.max_range}")
         if self.poses not in ("corrected", "odometry"):
             raise ValueError(f"poses must be 'corrected' or 'odometry', got {self.poses!r}")
-        if (
-            isinstance(self.max_iterations, bool)
-            or not isinstance(self.max_iterations, int)
-            or self.max_iterations < 1
-        ):
-            raise ValueError(f"max_iterations must be an integer >= 1, got {self.max_iterations!r}")
+        require_integer("max_iterations", self.max_iterations, 1)
         if not (math.isfinite(self.tol) and self.tol >= 0):
             raise ValueError(f"tol must be a number >= 0, got {self.tol}")
 

@@ -71,6 +71,7 @@ import scipy.sparse as sp
 from numpy.typing import ArrayLike
 from scipy.sparse.linalg import splu
 
+from probmap._checks import require_integer
 from probmap._typing import BoolArray, FloatArray, IntArray
 from probmap.geometry.se2 import wrap_angle
 from probmap.models.measurement import RangeBearingModel
@@ -196,9 +197,7 @@ class GraphSLAMConfig:
     max_misses: int = 3
 
     def __post_init__(self) -> None:
-        mi = self.max_iterations
-        if isinstance(mi, bool) or not isinstance(mi, (int, np.integer)) or mi < 0:
-            raise ValueError(f"max_iterations must be an integer >= 0, got {mi!r}")
+        require_integer("max_iterations", self.max_iterations, 0)
         if not (_finite_number(self.relative_tolerance) and self.relative_tolerance >= 0):
             raise ValueError(
                 f"relative_tolerance must be a finite number >= 0, got {self.relative_tolerance}"
@@ -219,12 +218,7 @@ class GraphSLAMConfig:
             raise ValueError(
                 f"outlier_probability must lie in (0, 1), got {self.outlier_probability}"
             )
-        if isinstance(self.outlier_rounds, bool) or not isinstance(
-            self.outlier_rounds, (int, np.integer)
-        ):
-            raise ValueError(f"outlier_rounds must be an integer, got {self.outlier_rounds!r}")
-        if self.outlier_rounds < 0:
-            raise ValueError(f"outlier_rounds must be >= 0, got {self.outlier_rounds}")
+        require_integer("outlier_rounds", self.outlier_rounds, 0)
         floor = tuple(self.motion_noise_floor)
         if len(floor) != 3 or not all(_finite_number(v) and v >= 0 for v in floor):
             raise ValueError(
@@ -259,9 +253,7 @@ class GraphSLAMConfig:
                 "need 0 < association_probability <= new_landmark_probability < 1, got "
                 f"{self.association_probability} and {self.new_landmark_probability}"
             )
-        mo = self.min_observations
-        if isinstance(mo, bool) or not isinstance(mo, (int, np.integer)) or mo < 1:
-            raise ValueError(f"min_observations must be an integer >= 1, got {mo!r}")
+        require_integer("min_observations", self.min_observations, 1)
         if not (_finite_number(self.merge_radius) and self.merge_radius > 0):
             raise ValueError(f"merge_radius must be a positive number, got {self.merge_radius}")
         if self.visibility_range is not None and not (
@@ -272,9 +264,7 @@ class GraphSLAMConfig:
             )
         if not (_finite_number(self.visibility_fov) and self.visibility_fov > 0):
             raise ValueError(f"visibility_fov must be a positive number, got {self.visibility_fov}")
-        mm = self.max_misses
-        if isinstance(mm, bool) or not isinstance(mm, (int, np.integer)) or mm < 0:
-            raise ValueError(f"max_misses must be an integer >= 0, got {mm!r}")
+        require_integer("max_misses", self.max_misses, 0)
 
     @property
     def scale(self) -> float:

@@ -41,7 +41,6 @@ sparsification", IROS 2005 (why sparsification is overconfident).
 from __future__ import annotations
 
 import math
-import numbers
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -51,6 +50,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import linalg as sla
 
+from probmap._checks import require_integer
 from probmap._typing import FloatArray, IntArray
 from probmap.errors import SingularInformationError
 from probmap.geometry.se2 import wrap_angle
@@ -418,10 +418,7 @@ class SeifConfig:
     context_hops: int = 0
 
     def __post_init__(self) -> None:
-        if isinstance(self.context_hops, bool) or not (
-            isinstance(self.context_hops, numbers.Integral) and self.context_hops >= 0
-        ):
-            raise ValueError(f"context_hops must be an integer >= 0, got {self.context_hops!r}")
+        require_integer("context_hops", self.context_hops, 0)
         object.__setattr__(self, "context_hops", int(self.context_hops))
         if self.deactivation not in ("oldest", "weakest"):
             raise ValueError(

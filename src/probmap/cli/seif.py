@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -34,21 +35,24 @@ CONFIG_HELP = (
 )
 
 
-def _seif_config(config: Path | None, max_active: int | None, context_hops: int | None) -> Any:
-    """SEIF's configuration: the file ``config`` (SeifConfig fields; the class defaults
-    without one), then the options given (``--max-active 0``: unbounded)."""
+def _seif_config(file_cfg: Any, max_active: int | None, context_hops: int | None) -> Any:
+    """SEIF's configuration: ``file_cfg`` (the SeifConfig of ``--config``, or of the ``seif``
+    section of ``slam compare``'s file; the class defaults when None), then the options given
+    (``--max-active 0``: unbounded)."""
     import dataclasses
 
-    from probmap.cli.common import resolve_config
     from probmap.slam.seif import SeifConfig
 
     if max_active is not None and max_active < 0:
         raise ValueError(f"--max-active must be >= 0, got {max_active}")
     if context_hops is not None and context_hops < 0:
         raise ValueError(f"--context-hops must be >= 0, got {context_hops}")
-    options = {"max_active": max_active or None, "context_hops": context_hops}
-    cfg = resolve_config(SeifConfig, config, options)
-    return dataclasses.replace(cfg, max_active=None) if max_active == 0 else cfg
+    cfg = file_cfg if file_cfg is not None else SeifConfig()
+    if max_active is not None:
+        cfg = dataclasses.replace(cfg, max_active=max_active or None)
+    if context_hops is not None:
+        cfg = dataclasses.replace(cfg, context_hops=context_hops)
+    return cfg
 
 
 COMPARED = ("ekf", "seif", "graphslam", "fastslam")
@@ -71,7 +75,17 @@ def _sections(config: Path | None) -> dict[str, str] | None:
     return {k: yaml.safe_dump(v if v is not None else {}) for k, v in data.items()}
 
 
-def _section_config(cls: type, sections: dict[str, str], method: str, config: Path | None) -> Any:
+def _method_config(
+    cls: type,
+    sections: dict[str, str],
+    method: str,
+    config: Path | None,
+    default: Callable[[], Any],
+) -> Any:
+    """``method``'s configuration in ``slam compare``: its section of the file ``config`` when
+    there is one, else ``default()`` (the dataset's settings)."""
+    if method not in sections:
+        return default()
     from probmap.config import load_config
 
     return load_config(cls, sections[method], source=f"{config}: {method}")
@@ -113,8 +127,11 @@ def seif_command(
     limit_threads(threads)
     with cli_errors():
         from probmap.cli.slam import run_and_report
+        from probmap.config import load_config
+        from probmap.slam.seif import SeifConfig
 
-        cfg = _seif_config(config, max_active, context_hops)
+        file_cfg = None if config is None else load_config(SeifConfig, config)
+        cfg = _seif_config(file_cfg, max_active, context_hops)
         ds = read_landmark_dataset(watch, output, dataset, source)
         title = f"SEIF SLAM ({_label(cfg)})"
         run_and_report(_seif(ds, cfg), ds, output, title, watch=watch, **report)
@@ -161,27 +178,21 @@ def compare_command(
         from rich.table import Table
 
         from probmap.cli.common import progress_bar
+        from probmap.config import load_config
         from probmap.pipelines.landmark_slam import default_ekf_config, evaluate, run_landmark_slam
         from probmap.slam.ekf import build_ekf
+        from probmap.slam.seif import SeifConfig
 
         chosen = [m.strip().lower() for m in methods.split(",") if m.strip()]
         if not chosen or any(m not in COMPARED for m in chosen):
             raise ValueError(f"--methods takes a list of {', '.join(COMPARED)}, got {methods!r}")
         sections = _sections(config)
-        if sections is None:
-            seif_cfg = _seif_config(config, max_active, context_hops)
-        else:
-            seif_cfg = _seif_config(None, max_active, context_hops)
-            if "seif" in sections:
-                import dataclasses
-
-                base = _section_config(type(seif_cfg), sections, "seif", config)
-                options = {"max_active": max_active, "context_hops": context_hops}
-                set_: dict[str, Any] = {k: v for k, v in options.items() if v is not None}
-                if set_.get("max_active") == 0:
-                    set_["max_active"] = None
-                seif_cfg = dataclasses.replace(base, **set_)
         own = sections or {}
+        if sections is None:  # a plain SeifConfig file, or none
+            seif_file = None if config is None else load_config(SeifConfig, config)
+        else:  # its seif section, or SEIF's defaults
+            seif_file = _method_config(SeifConfig, own, "seif", config, SeifConfig)
+        seif_cfg = _seif_config(seif_file, max_active, context_hops)
         ds = read_landmark_dataset(watch, None, dataset, source)
         runs = []
         seif_name = f"SEIF-{seif_cfg.max_active or 'unbounded'}" + (
@@ -192,10 +203,8 @@ def compare_command(
             if method == "ekf":
                 from probmap.slam.ekf import EKFConfig
 
-                ekf_cfg = (
-                    _section_config(EKFConfig, own, "ekf", config)
-                    if "ekf" in own
-                    else default_ekf_config(ds)
+                ekf_cfg = _method_config(
+                    EKFConfig, own, "ekf", config, lambda: default_ekf_config(ds)
                 )
                 estimators.append(("EKF", build_ekf(ds, ekf_cfg)))
             elif method == "seif":
@@ -204,10 +213,8 @@ def compare_command(
                 from probmap.pipelines.landmark_slam import default_fastslam_config
                 from probmap.slam.fastslam import FastSLAM, FastSLAMConfig
 
-                fs_cfg = (
-                    _section_config(FastSLAMConfig, own, "fastslam", config)
-                    if "fastslam" in own
-                    else default_fastslam_config(ds)
+                fs_cfg = _method_config(
+                    FastSLAMConfig, own, "fastslam", config, lambda: default_fastslam_config(ds)
                 )
                 fs = FastSLAM(ds.motion_model, ds.measurement_model, ds.initial_pose, fs_cfg)
                 estimators.append((f"FastSLAM-{fs_cfg.version}.0", fs))
@@ -215,10 +222,8 @@ def compare_command(
                 from probmap.pipelines.landmark_slam import default_graphslam_config
                 from probmap.slam.graphslam import GraphSLAMConfig, build_graphslam
 
-                gs_cfg = (
-                    _section_config(GraphSLAMConfig, own, "graphslam", config)
-                    if "graphslam" in own
-                    else default_graphslam_config(ds)
+                gs_cfg = _method_config(
+                    GraphSLAMConfig, own, "graphslam", config, lambda: default_graphslam_config(ds)
                 )
                 estimators.append(("GraphSLAM", build_graphslam(ds, gs_cfg)))
         for k, (name, est) in enumerate(estimators, start=1):

@@ -253,6 +253,8 @@ _MR7_FILES = [f"{_MR7}/Barcodes.dat", f"{_MR7}/Landmark_Groundtruth.dat"] + [
     for kind in ("Groundtruth", "Measurement", "Odometry")
 ]
 
+# Not registry.DATASETS (what a command reads, with its format): this table is what `datasets
+# fetch` downloads (relations, graph collections and "all" too; no generated data).
 DATASETS: dict[str, RemoteDataset] = {
     d.name: d
     for d in (

@@ -112,6 +112,8 @@ class DatasetInfo:
     options: dict[str, Any] = field(default_factory=dict)
 
 
+# Not fetch.DATASETS (the files `datasets fetch` downloads): this table is what a command reads
+# and with which loader (simulation included, relation files and graph collections not).
 DATASETS: dict[str, DatasetInfo] = {
     d.name: d
     for d in (

@@ -260,6 +260,8 @@ def _crop_task(total: IncrementGrid) -> IncrementGrid:
 
 
 # ------------------------------------------------------------------ results and the pipeline
+# SemanticMappingResult repeats part of these fields: a shared base would put its fields first
+# and so reorder the positional fields of both public result classes.
 @dataclass(frozen=True)
 class DistributedMappingResult:
     """A map built on a cluster, which inputs went into it and which did not.
@@ -686,6 +688,8 @@ def _merge_semantic(*parts: SemanticIncrements) -> SemanticIncrements:
     return out
 
 
+# Part of DistributedMappingResult's fields (no mode, workers or skipped lines: labelled scans
+# are .npz files mapped on a cluster only); a shared base would reorder the public fields.
 @dataclass(frozen=True)
 class SemanticMappingResult:
     """A semantic map built on a cluster, and which inputs went into it."""

@@ -34,6 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from probmap._atomic import atomic_write
 from probmap.datasets.validate import number_rows
 from probmap.errors import DatasetError
+from probmap.geometry.se2 import wrap_angle
 
 __all__ = ["TUM_HEADER", "read_tum", "write_tum", "yaw_quaternion", "quaternion_yaw"]
 
@@ -41,17 +42,12 @@ TUM_HEADER = "# timestamp tx ty tz qx qy qz qw"
 """The comment line :func:`write_tum` puts first (``evo`` skips ``#`` lines)."""
 
 
-def _wrap(theta: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Angles wrapped to ``[-pi, pi)``."""
-    return np.asarray((theta + np.pi) % (2.0 * np.pi) - np.pi, dtype=np.float64)
-
-
 def yaw_quaternion(theta: ArrayLike) -> NDArray[np.float64]:
     """Unit quaternions ``(qx, qy, qz, qw)`` of rotations by ``theta`` about z, shape (..., 4).
 
     ``theta`` is wrapped to ``[-pi, pi)`` first, so ``qw = cos(theta/2) >= 0``.
     """
-    half = 0.5 * _wrap(np.asarray(theta, dtype=np.float64))
+    half = 0.5 * wrap_angle(theta)
     zero = np.zeros_like(half)
     return np.stack([zero, zero, np.sin(half), np.cos(half)], axis=-1)
 
@@ -62,7 +58,7 @@ def quaternion_yaw(q: ArrayLike) -> NDArray[np.float64]:
     a = np.asarray(q, dtype=np.float64)
     x, y, z, w = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
     yaw = np.arctan2(2.0 * (w * z + x * y), (w * w + x * x) - (y * y + z * z))
-    return _wrap(yaw)
+    return wrap_angle(yaw)
 
 
 def write_tum(path: str | os.PathLike[str], times: ArrayLike, poses: ArrayLike) -> Path:

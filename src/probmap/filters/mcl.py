@@ -45,6 +45,7 @@ from probmap.filters.particle import (
     weighted_pose_covariance,
     weighted_pose_mean,
 )
+from probmap.geometry.se2 import wrap_angle
 from probmap.models.grid_map import GridGeometry
 from probmap.models.likelihood_field import LikelihoodField
 from probmap.models.sampling import OdometryMotionModel, odometry_deltas, odometry_noise_std
@@ -260,7 +261,7 @@ class RangeBearingLandmarks:
         r_hat = np.hypot(dx, dy)
         b_hat = np.arctan2(dy, dx) - p[:, None, 2]
         er = (zz[None, :, 0] - r_hat) / self.sigma_range
-        eb = ((zz[None, :, 1] - b_hat + np.pi) % (2 * np.pi) - np.pi) / self.sigma_bearing
+        eb = wrap_angle(zz[None, :, 1] - b_hat) / self.sigma_bearing
         norm = math.log(2 * math.pi * self.sigma_range * self.sigma_bearing)
         ll = -0.5 * (er * er + eb * eb) - norm
         eps = self.outlier_probability
@@ -303,7 +304,7 @@ def sample_pose_gaussian(
     if mu.shape != (3,) or cov.shape != (3, 3):
         raise ValueError(f"mean must be (3,) and covariance (3, 3), got {mu.shape}, {cov.shape}")
     p = rng.multivariate_normal(mu, cov, size=n, method="eigh")
-    p[:, 2] = (p[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    p[:, 2] = wrap_angle(p[:, 2])
     return np.asarray(p)
 
 

@@ -17,6 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from probmap.errors import ParticleFilterWarning
 from probmap.filters.resampling import Resampler, log_normalize, low_variance_resample
+from probmap.geometry.se2 import wrap_angle
 
 __all__ = [
     "ParticleFilter",
@@ -63,7 +64,7 @@ def weighted_pose_covariance(
     w = np.asarray(weights, dtype=np.float64)
     mu = weighted_pose_mean(p, w) if mean is None else np.asarray(mean, dtype=np.float64)
     d = p - mu
-    d[:, 2] = (d[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    d[:, 2] = wrap_angle(d[:, 2])
     return np.asarray((d * w[:, None]).T @ d)
 
 

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap.geometry.se2 import wrap_angle  # re-exported: a name of this module
+
 __all__ = [
     "OdometryMotionModel",
     "VelocityMotionModel",
@@ -40,11 +42,6 @@ _MIN_VARIANCE = 1e-12
 # taken as zero instead of the atan2 of that noise (a turn in place would otherwise be read
 # as "turn by up to pi, creep, turn back", and the noise terms scale with those rotations).
 _MIN_TRANSLATION = 0.01
-
-
-def wrap_angle(a: ArrayLike) -> NDArray[np.float64]:
-    """Wrap angles (rad) to ``[-pi, pi)``."""
-    return (np.asarray(a, dtype=np.float64) + np.pi) % (2.0 * np.pi) - np.pi
 
 
 def _poses(p: ArrayLike, name: str) -> NDArray[np.float64]:

@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from probmap._checks import require_at_least
+from probmap.geometry.se2 import wrap_angle
 from probmap.models.grid_map import GridGeometry
 
 __all__ = [
@@ -371,7 +372,7 @@ def laser_offset_of(
         than ``tolerance`` (laser poses corrected by SLAM next to raw odometry, say), so that
         they describe no mounting.
     """
-    from probmap.geometry.se2 import between, wrap_angle
+    from probmap.geometry.se2 import between
 
     robot = np.asarray(robot_poses, dtype=np.float64).reshape(-1, 3)
     laser = np.asarray(laser_poses, dtype=np.float64).reshape(-1, 3)
@@ -627,5 +628,5 @@ def trajectory_errors(
     ok = np.sort(ok[first])
     est = run.laser_poses if laser else run.poses
     d = est[ok] - rp[j[ok]]
-    heading = np.abs((d[:, 2] + np.pi) % (2 * np.pi) - np.pi)
+    heading = np.abs(wrap_angle(d[:, 2]))
     return np.hypot(d[:, 0], d[:, 1]), heading

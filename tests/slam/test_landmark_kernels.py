@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from probmap.geometry._kernels import wrap
 from probmap.geometry.se2 import wrap_angle
-from probmap.slam._landmark_kernels import ZERO_RANGE, gemm, range_bearing, wrap
+from probmap.slam._landmark_kernels import ZERO_RANGE, gemm, range_bearing
 
 
 def _loop(base, A, B, sign):

@@ -32,7 +32,8 @@ import math
 import numpy as np
 from numba import njit
 
-from probmap.slam._landmark_kernels import gemm, range_bearing, wrap
+from probmap.geometry._kernels import wrap
+from probmap.slam._landmark_kernels import gemm, range_bearing
 
 _TWO_PI = 2.0 * math.pi
 

@@ -26,8 +26,9 @@ import math
 import numpy as np
 from numba import njit
 
+from probmap.geometry._kernels import wrap
 from probmap.models._motion_kernels import ackermann_rates
-from probmap.slam._landmark_kernels import ZERO_RANGE, gemm, range_bearing, wrap
+from probmap.slam._landmark_kernels import ZERO_RANGE, gemm, range_bearing
 
 KIND_VELOCITY = 0
 KIND_ACKERMANN = 1

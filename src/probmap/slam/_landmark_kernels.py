@@ -1,8 +1,9 @@
 """Numba primitives shared by the landmark SLAM kernels (private).
 
-:mod:`probmap.slam._graphslam_kernels` and :mod:`probmap.slam._fastslam_kernels` both wrap
-angles, predict range-bearing measurements with their Jacobians and multiply small dense blocks
-inside compiled loops; this module is the one home of those pieces. Inputs are plain float64
+:mod:`probmap.slam._graphslam_kernels` and :mod:`probmap.slam._fastslam_kernels` both
+predict range-bearing measurements with their Jacobians and multiply small dense blocks inside
+compiled loops; this module is the one home of those pieces (the angle wrap they share with the
+pose-graph kernels is :func:`probmap.geometry._kernels.wrap`). Inputs are plain float64
 arrays and scalars, validated by the public functions that call the kernels.
 """
 
@@ -12,13 +13,7 @@ import math
 
 from numba import njit
 
-_TWO_PI = 2.0 * math.pi
-
-
-@njit(cache=True)
-def wrap(a):  # pragma: no cover - compiled
-    """Angle wrapped to ``[-pi, pi)``."""
-    return a - _TWO_PI * math.floor((a + math.pi) / _TWO_PI)
+from probmap.geometry._kernels import wrap
 
 
 @njit(cache=True)

@@ -33,6 +33,8 @@ import math
 import numpy as np
 from numba import njit
 
+from probmap.geometry._kernels import wrap
+
 CHART_LOGMAP = 0
 CHART_XYT = 1
 
@@ -40,14 +42,6 @@ KERNEL_NONE = 0
 KERNEL_HUBER = 1
 KERNEL_CAUCHY = 2
 KERNEL_DCS = 3
-
-_TWO_PI = 2.0 * math.pi
-
-
-@njit(cache=True)
-def wrap(a):  # pragma: no cover - compiled
-    """Angle wrapped to ``[-pi, pi)``."""
-    return a - _TWO_PI * math.floor((a + math.pi) / _TWO_PI)
 
 
 @njit(cache=True)

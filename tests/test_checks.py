@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from probmap._checks import (
+    is_finite_number,
     require_at_least,
     require_integer,
     require_nonnegative_finite,
@@ -132,3 +133,32 @@ def test_configs_refuse_counts_through_the_integer_helper(build, field, low):
             build(**{field: bad})
         assert str(err.value) == f"{field} must be an integer >= {low}, got {bad!r}"
     assert getattr(build(**{field: np.int64(low)}), field) == low
+
+
+@pytest.mark.parametrize(
+    "value,ok",
+    [
+        (0, True),
+        (-3, True),
+        (10**20, True),
+        (2.5, True),
+        (-1e300, True),
+        (np.float32(1.5), True),
+        (np.int64(-2), True),
+        (np.array(2.0), True),
+        (math.inf, False),
+        (-math.inf, False),
+        (math.nan, False),
+        (np.float64("nan"), False),
+        (True, False),
+        (False, False),
+        ("2", True),  # float("2") is 2.0: YAML and CLI text are numbers to this check
+        ("x", False),
+        (None, False),
+        (1j, False),
+        ((1.0, 2.0), False),
+    ],
+    ids=repr,
+)
+def test_is_finite_number(value, ok):
+    assert is_finite_number(value) is ok

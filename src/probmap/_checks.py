@@ -14,11 +14,27 @@ import math
 import numbers
 
 __all__ = [
+    "is_finite_number",
     "require_at_least",
     "require_integer",
     "require_nonnegative_finite",
     "require_positive_finite",
 ]
+
+
+def is_finite_number(value: object) -> bool:
+    """Whether ``value`` is a real, finite number: anything ``float()`` takes (a numpy scalar, a
+    0-d array) but a bool, NaN, an infinity or what ``float()`` refuses.
+
+    Examples
+    --------
+    >>> [is_finite_number(v) for v in (2, 0.5, float("nan"), True, "x", None)]
+    [True, True, False, False, False, False]
+    """
+    try:
+        return not isinstance(value, bool) and math.isfinite(float(value))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return False
 
 
 def require_positive_finite(name: str, value: float) -> None:

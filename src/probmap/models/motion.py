@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from probmap._checks import is_finite_number
 from probmap._typing import FloatArray
 from probmap.geometry.se2 import wrap_angle
 from probmap.models._motion_kernels import ackermann_rates
@@ -59,24 +60,16 @@ def _check(x: ArrayLike, u: ArrayLike, dt: float) -> tuple[FloatArray, FloatArra
     return x, u, dt
 
 
-def _finite(v: object) -> bool:
-    """A real, finite number (bools and NaN excluded)."""
-    try:
-        return not isinstance(v, bool) and math.isfinite(float(v))  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        return False
-
-
 def _check_noise(model: Any, a: str, b: str) -> None:
     """Raise unless the noise floors ``model.<a>`` and ``model.<b>`` are finite and >= 0 and
     ``model.reference_dt`` is None or a finite number > 0 (seconds)."""
     va, vb = getattr(model, a), getattr(model, b)
-    if not (_finite(va) and _finite(vb)):
+    if not (is_finite_number(va) and is_finite_number(vb)):
         raise ValueError(f"{a} and {b} must be finite, got {va}, {vb}")
     if va < 0 or vb < 0:
         raise ValueError(f"{a} and {b} must be >= 0")
     dt = model.reference_dt
-    if dt is not None and not (_finite(dt) and dt > 0):
+    if dt is not None and not (is_finite_number(dt) and dt > 0):
         raise ValueError(f"reference_dt must be a finite number > 0 s, got {dt}")
 
 
@@ -161,7 +154,7 @@ class VelocityModel(_MotionModel):
     reference_dt: float | None = None
 
     def __post_init__(self) -> None:
-        if len(self.alphas) != 4 or not all(_finite(a) and a >= 0 for a in self.alphas):
+        if len(self.alphas) != 4 or not all(is_finite_number(a) and a >= 0 for a in self.alphas):
             raise ValueError(f"alphas must be 4 finite non-negative numbers, got {self.alphas}")
         _check_noise(self, "sigma_v", "sigma_w")
 
@@ -233,11 +226,13 @@ class AckermannModel(_MotionModel):
     reference_dt: float | None = None
 
     def __post_init__(self) -> None:
-        if not (_finite(self.wheelbase) and self.wheelbase > 0):
+        if not (is_finite_number(self.wheelbase) and self.wheelbase > 0):
             raise ValueError(f"wheelbase must be a finite number > 0, got {self.wheelbase}")
-        if not _finite(self.encoder_offset):
+        if not is_finite_number(self.encoder_offset):
             raise ValueError(f"encoder_offset must be finite, got {self.encoder_offset}")
-        if len(self.reference_point) != 2 or not all(_finite(v) for v in self.reference_point):
+        if len(self.reference_point) != 2 or not all(
+            is_finite_number(v) for v in self.reference_point
+        ):
             raise ValueError(
                 f"reference_point must be 2 finite numbers, got {self.reference_point}"
             )

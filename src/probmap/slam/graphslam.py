@@ -71,7 +71,7 @@ import scipy.sparse as sp
 from numpy.typing import ArrayLike
 from scipy.sparse.linalg import splu
 
-from probmap._checks import require_integer
+from probmap._checks import is_finite_number, require_integer
 from probmap._typing import BoolArray, FloatArray, IntArray
 from probmap.geometry.se2 import wrap_angle
 from probmap.models.measurement import RangeBearingModel
@@ -105,13 +105,6 @@ __all__ = [
 GraphSLAMRobust = Literal["none", "huber", "cauchy"]
 # Huber and Cauchy at 95 % asymptotic efficiency (Mahalanobis-distance units), as the pose graph
 _DEFAULT_SCALE = {"none": 1.0, "huber": 1.345, "cauchy": 2.3849}
-
-
-def _finite_number(v: object) -> bool:
-    try:
-        return not isinstance(v, bool) and math.isfinite(float(v))  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        return False
 
 
 @dataclass(frozen=True)
@@ -198,11 +191,11 @@ class GraphSLAMConfig:
 
     def __post_init__(self) -> None:
         require_integer("max_iterations", self.max_iterations, 0)
-        if not (_finite_number(self.relative_tolerance) and self.relative_tolerance >= 0):
+        if not (is_finite_number(self.relative_tolerance) and self.relative_tolerance >= 0):
             raise ValueError(
                 f"relative_tolerance must be a finite number >= 0, got {self.relative_tolerance}"
             )
-        if not (_finite_number(self.initial_lambda) and self.initial_lambda >= 0):
+        if not (is_finite_number(self.initial_lambda) and self.initial_lambda >= 0):
             raise ValueError(
                 f"initial_lambda must be a finite number >= 0, got {self.initial_lambda}"
             )
@@ -210,17 +203,17 @@ class GraphSLAMConfig:
             raise ValueError(f"robust must be one of {sorted(_DEFAULT_SCALE)}, got {self.robust!r}")
         if self.robust_scale is None:
             object.__setattr__(self, "robust_scale", _DEFAULT_SCALE[self.robust])
-        elif not (_finite_number(self.robust_scale) and self.robust_scale > 0):
+        elif not (is_finite_number(self.robust_scale) and self.robust_scale > 0):
             raise ValueError(f"robust_scale must be a positive number, got {self.robust_scale}")
         if self.outlier_probability is not None and not (
-            _finite_number(self.outlier_probability) and 0 < self.outlier_probability < 1
+            is_finite_number(self.outlier_probability) and 0 < self.outlier_probability < 1
         ):
             raise ValueError(
                 f"outlier_probability must lie in (0, 1), got {self.outlier_probability}"
             )
         require_integer("outlier_rounds", self.outlier_rounds, 0)
         floor = tuple(self.motion_noise_floor)
-        if len(floor) != 3 or not all(_finite_number(v) and v >= 0 for v in floor):
+        if len(floor) != 3 or not all(is_finite_number(v) and v >= 0 for v in floor):
             raise ValueError(
                 f"motion_noise_floor must be 3 finite numbers >= 0, got {self.motion_noise_floor}"
             )
@@ -235,18 +228,18 @@ class GraphSLAMConfig:
                 f"{self.initialization!r}"
             )
         if not (
-            _finite_number(self.correspondence_probability)
+            is_finite_number(self.correspondence_probability)
             and 0 < self.correspondence_probability < 1
         ):
             raise ValueError(
                 "correspondence_probability must lie in (0, 1), got "
                 f"{self.correspondence_probability}"
             )
-        if not (_finite_number(self.min_range) and self.min_range >= 0):
+        if not (is_finite_number(self.min_range) and self.min_range >= 0):
             raise ValueError(f"min_range must be a finite number >= 0, got {self.min_range}")
         if not (
-            _finite_number(self.association_probability)
-            and _finite_number(self.new_landmark_probability)
+            is_finite_number(self.association_probability)
+            and is_finite_number(self.new_landmark_probability)
             and 0 < self.association_probability <= self.new_landmark_probability < 1
         ):
             raise ValueError(
@@ -254,15 +247,15 @@ class GraphSLAMConfig:
                 f"{self.association_probability} and {self.new_landmark_probability}"
             )
         require_integer("min_observations", self.min_observations, 1)
-        if not (_finite_number(self.merge_radius) and self.merge_radius > 0):
+        if not (is_finite_number(self.merge_radius) and self.merge_radius > 0):
             raise ValueError(f"merge_radius must be a positive number, got {self.merge_radius}")
         if self.visibility_range is not None and not (
-            _finite_number(self.visibility_range) and self.visibility_range > 0
+            is_finite_number(self.visibility_range) and self.visibility_range > 0
         ):
             raise ValueError(
                 f"visibility_range must be a positive number or None, got {self.visibility_range}"
             )
-        if not (_finite_number(self.visibility_fov) and self.visibility_fov > 0):
+        if not (is_finite_number(self.visibility_fov) and self.visibility_fov > 0):
             raise ValueError(f"visibility_fov must be a positive number, got {self.visibility_fov}")
         require_integer("max_misses", self.max_misses, 0)
 
@@ -1927,7 +1920,7 @@ class GraphSLAM:
         u = np.asarray(u, dtype=np.float64)
         if u.shape != (2,) or not np.all(np.isfinite(u)):
             raise ValueError(f"control must be 2 finite numbers, got {u!r}")
-        if not (_finite_number(dt) and float(dt) >= 0):
+        if not (is_finite_number(dt) and float(dt) >= 0):
             raise ValueError(f"dt must be a finite number >= 0, got {dt}")
         self._log.controls.append(u.copy())
         self._log.dts.append(float(dt))

@@ -4,6 +4,7 @@ import pytest
 from probmap.datasets.landmarks import (
     LandmarkSequence,
     LandmarkStep,
+    MergedEvents,
     merge_events,
     read_numeric_table,
 )
@@ -55,6 +56,35 @@ def test_merge_events_matches_reference():
         assert np.allclose(ctrl[e], u)
         got = obs[order][starts[e] : starts[e + 1]]
         assert np.allclose(got, np.array(zs).reshape(-1, 2))
+
+
+class _Events(MergedEvents):
+    """A reader in miniature: merge_events' output on the base's attributes."""
+
+    def __init__(self, ct, c, ot, obs, ids):
+        self._times, self._dts, self._controls, self._obs_start, order = merge_events(
+            ct, c, ot, obs, ids
+        )
+        self._z, self._ids = obs[order], ids[order]
+
+
+def test_merged_events_yield_the_reference_steps():
+    rng = np.random.default_rng(1)
+    ct = np.sort(rng.choice(np.arange(80) * 0.1, 20, replace=False))
+    c = rng.normal(size=(20, 2))
+    ot = np.sort(rng.choice(np.arange(80) * 0.1, 30))
+    obs = rng.normal(size=(30, 2))
+    ids = rng.integers(-1, 5, 30)
+    steps = list(_Events(ct, c, ot, obs, ids))
+    ref = merge_reference(list(ct), c, list(ot), obs)
+    assert len(_Events(ct, c, ot, obs, ids)) == len(steps) == len(ref)
+    for st, (t, dt, u, zs) in zip(steps, ref, strict=True):
+        assert isinstance(st, LandmarkStep)
+        assert np.isclose(st.time, t) and np.isclose(st.dt, dt) and np.allclose(st.control, u)
+        assert np.allclose(st.z, np.array(zs).reshape(-1, 2))
+        # each observation keeps its own id
+        want = [int(ids[k]) for k in range(ot.size) if ot[k] == t]
+        assert st.ids.tolist() == want
 
 
 def test_read_numeric_table(tmp_path):

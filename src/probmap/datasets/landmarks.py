@@ -29,6 +29,7 @@ __all__ = [
     "LandmarkDataset",
     "LandmarkSequence",
     "LandmarkStep",
+    "MergedEvents",
     "merge_events",
     "read_numeric_table",
 ]
@@ -144,6 +145,38 @@ class LandmarkSequence:
 
     def __getitem__(self, i: int) -> LandmarkStep:
         return self.steps[i]
+
+
+class MergedEvents:
+    """The steps of a reader that stepped its log with :func:`merge_events` (:class:`MRCLAM
+    <probmap.datasets.utias.MRCLAM>`, :class:`~probmap.datasets.victoria_park.VictoriaPark`):
+    their ``__len__`` and ``__iter__``, one :class:`LandmarkStep` per event.
+
+    A subclass sets, from :func:`merge_events`' output, ``_times``, ``_dts`` (E,),
+    ``_controls`` (E, 2) and ``_obs_start`` (E + 1,), and the kept observations in time order:
+    ``_z`` (K, 2) and ``_ids`` (K,) (-1 where the identity is unknown).
+    """
+
+    _times: FloatArray
+    _dts: FloatArray
+    _controls: FloatArray
+    _obs_start: IntArray
+    _z: FloatArray
+    _ids: IntArray
+
+    def __len__(self) -> int:
+        return int(self._times.size)
+
+    def __iter__(self) -> Iterator[LandmarkStep]:
+        s = self._obs_start
+        for e in range(self._times.size):
+            yield LandmarkStep(
+                time=float(self._times[e]),
+                dt=float(self._dts[e]),
+                control=self._controls[e],
+                z=self._z[s[e] : s[e + 1]],
+                ids=self._ids[s[e] : s[e + 1]],
+            )
 
 
 def read_numeric_table(

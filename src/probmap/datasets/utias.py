@@ -24,13 +24,12 @@ from __future__ import annotations
 
 import os
 import warnings
-from collections.abc import Iterator
 
 import numpy as np
 
 from probmap._typing import FloatArray, IntArray
 from probmap.datasets.landmarks import (
-    LandmarkStep,
+    MergedEvents,
     merge_events,
     read_numeric_table,
 )
@@ -46,7 +45,7 @@ ROBOT_SUBJECTS = range(1, 6)
 """Subject numbers of the robots; all other subjects are landmarks."""
 
 
-class MRCLAM:
+class MRCLAM(MergedEvents):
     """One robot of an MRCLAM dataset as a landmark dataset.
 
     Parameters
@@ -158,17 +157,3 @@ class MRCLAM:
             if measurement_model is not None
             else RangeBearingModel(R=np.diag([0.15**2, 0.04**2]))
         )
-
-    def __len__(self) -> int:
-        return int(self._times.size)
-
-    def __iter__(self) -> Iterator[LandmarkStep]:
-        s = self._obs_start
-        for e in range(self._times.size):
-            yield LandmarkStep(
-                time=float(self._times[e]),
-                dt=float(self._dts[e]),
-                control=self._controls[e],
-                z=self._z[s[e] : s[e + 1]],
-                ids=self._ids[s[e] : s[e + 1]],
-            )

@@ -24,14 +24,13 @@ from __future__ import annotations
 
 import os
 import warnings
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
 from probmap._typing import FloatArray
 from probmap.datasets.landmarks import (
-    LandmarkStep,
+    MergedEvents,
     merge_events,
     read_numeric_table,
 )
@@ -64,7 +63,7 @@ def _load_mat(path: Path, keys: tuple[str, ...]) -> dict[str, FloatArray]:
     return out
 
 
-class VictoriaPark:
+class VictoriaPark(MergedEvents):
     """The Victoria Park landmark dataset (a :class:`~probmap.datasets.landmarks.LandmarkDataset`).
 
     Parameters
@@ -153,6 +152,7 @@ class VictoriaPark:
             inputs[:, 0], inputs[:, 1:3], meas[keep, 0], z, np.full(z.shape[0], -1), start=t0
         )
         self._z = z[order]
+        self._ids = np.full(order.size, -1, dtype=np.int64)  # trees have no identity
         self.inputs = inputs
         self.gps: FloatArray | None = gps
         self.motion_model = motion_model if motion_model is not None else AckermannModel()
@@ -167,18 +167,3 @@ class VictoriaPark:
         self.initial_covariance = np.diag([1e-4, 1e-4, 1e-6])
         self.landmark_truth: dict[int, FloatArray] | None = None
         self.gt_trajectory: FloatArray | None = None
-
-    def __len__(self) -> int:
-        return int(self._times.size)
-
-    def __iter__(self) -> Iterator[LandmarkStep]:
-        starts = self._obs_start
-        for e in range(self._times.size):
-            z = self._z[starts[e] : starts[e + 1]]
-            yield LandmarkStep(
-                time=float(self._times[e]),
-                dt=float(self._dts[e]),
-                control=self._controls[e],
-                z=z,
-                ids=np.full(z.shape[0], -1, dtype=np.int64),
-            )

@@ -164,7 +164,10 @@ class GraphSlamConfig:
     consensus_nodes : int
         The earlier nodes checked lie up to this many nodes back.
     consensus_checks : int
-        Confirmations a far closure needs.
+        Confirmations a far closure needs (3: two confirmations were not enough once far
+        matches down to ``drift_min_score`` count; on the hospital, 3 are what lets them close
+        the log's last loop, and the simulated and Intel runs accept no false closure with
+        either).
     trust_drift : float
         A confirmed far closure whose correction (how far it moves the node's current
         estimate, metres) is at most ``closure_window[0] + trust_drift * travel`` (``travel``
@@ -176,6 +179,15 @@ class GraphSlamConfig:
         it) is taken quadratically for one optimization and then guarded by the robust cost.
         0 trusts none. 0.05 is a third of ``window_growth``: the search windows allow for the
         worst drift, the trust bound for a plausible one. ``travel`` is the far searches'.
+    drift_min_score : float
+        Least score of a far match whose implied correction lies within that trust bound;
+        such a match needs ``consensus_checks`` confirmations at this score too. A far match
+        scoring below ``wide_min_score`` whose correction is larger is dropped at once. A
+        revisit after a long loop often scores low (the place changed, it is seen from
+        elsewhere: 0.45-0.56 on the hospital's last re-entry), while an aliased stretch of a
+        repetitive corridor can score as well but implies a jump of whole corridor periods
+        (8.6 m at 0.53 in the simulated ring); the prior on drift tells them apart. A value
+        at or above ``wide_min_score`` turns the rule off.
     closure_every : int
         Search closures for every ``closure_every``-th node.
     closure_candidates : int
@@ -225,8 +237,9 @@ class GraphSlamConfig:
     far_every: int = 4
     consensus: tuple[float, float] = (0.3, 0.05)
     consensus_nodes: int = 10
-    consensus_checks: int = 2
+    consensus_checks: int = 3
     trust_drift: float = 0.05
+    drift_min_score: float = 0.45
     closure_every: int = 1
     closure_candidates: int = 3
     closure_points: int = 90
@@ -246,7 +259,10 @@ class GraphSlamConfig:
             "min_distance", "min_rotation", "max_clear_range", "anchor_sd_rate", "trust_drift",
         ):  # fmt: skip
             require_nonnegative_finite(name, getattr(self, name))
-        for name in ("min_match_score", "recover_score", "closure_min_score", "wide_min_score"):
+        for name in (
+            "min_match_score", "recover_score", "closure_min_score", "wide_min_score",
+            "drift_min_score",
+        ):  # fmt: skip
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"{name} must lie in [0, 1], got {v}")
@@ -371,6 +387,7 @@ class GraphSlam:
         self.far_searched = 0  # far searches run
         self.far_found = 0  # far searches that found a match (before consensus)
         self.rejected = 0  # far matches that earlier nodes did not confirm
+        self.drift_rejected = 0  # low-scoring far matches beyond the trust bound
         self.trusted = 0  # confirmed far closures kept quadratic (trust_drift)
         self._trusted_edges: set[int] = set()  # their edge indices
         self._unguarded: list[int] = []
@@ -695,7 +712,9 @@ class GraphSlam:
         for i, is_far in jobs:
             sm = finished[i]
             self._last_searched[sm.index] = k
-            min_score = cfg.wide_min_score if is_far else cfg.closure_min_score
+            min_score = cfg.closure_min_score
+            if is_far:  # sessions saved before drift_min_score: the wide threshold
+                min_score = min(cfg.wide_min_score, getattr(cfg, "drift_min_score", 1.0))
             found = self._match_submap(k, sm, xk, float(lin[i]), float(ang[i]), min_score)
             self.far_searched += is_far
             if found is None:
@@ -708,7 +727,15 @@ class GraphSlam:
             # far: the correction it implies, as a rigid motion of the current estimate
             implied = compose(poses[sm.anchor], pose)
             delta = compose(implied, inverse(xk))
-            self._confirm(k, sm, pose, score, delta)
+            passed = cfg.wide_min_score
+            if score < passed:
+                # a low score is believed only for a correction a drift explains
+                shift = math.hypot(implied[0] - xk[0], implied[1] - xk[1])
+                if shift > self._trust_bound(k, sm):
+                    self.drift_rejected = getattr(self, "drift_rejected", 0) + 1
+                    continue
+                passed = min_score
+            self._confirm(k, sm, pose, score, delta, passed)
         self.search_seconds += time.perf_counter() - t0
 
     def _match_submap(
@@ -743,12 +770,19 @@ class GraphSlam:
         return pose, float(found.score)
 
     def _confirm(
-        self, k: int, sm: Submap, pose: NDArray, score: float, delta: NDArray[np.float64]
+        self,
+        k: int,
+        sm: Submap,
+        pose: NDArray,
+        score: float,
+        delta: NDArray[np.float64],
+        min_score: float,
     ) -> None:
         """Accept a far closure when earlier nodes confirm it: each is moved by the same
         correction ``delta`` and searched in ``sm`` (and its neighbours) within the small
-        ``consensus`` window; every one that matches there at the near threshold is added
-        too. Without ``consensus_checks`` confirmations the closure is dropped."""
+        ``consensus`` window; every one that matches there at ``min_score`` (the threshold
+        the closure itself passed) is added too. Without ``consensus_checks`` confirmations
+        the closure is dropped."""
         cfg = self.config
         poses = self.graph.poses
         step = max(1, cfg.consensus_nodes // max(cfg.consensus_checks, 1))
@@ -761,7 +795,7 @@ class GraphSlam:
             for cand in (sm, *self._neighbours(sm)):
                 guess = between(poses[cand.anchor], moved)
                 found = self._match_submap(
-                    j, cand, moved, cfg.consensus[0], cfg.consensus[1], cfg.wide_min_score
+                    j, cand, moved, cfg.consensus[0], cfg.consensus[1], min_score
                 )
                 if found is None:
                     continue
@@ -778,9 +812,8 @@ class GraphSlam:
         # a larger one is guarded by the robust cost again from the optimization after it on
         implied = compose(poses[sm.anchor], pose)
         shift = math.hypot(implied[0] - poses[k][0], implied[1] - poses[k][1])
-        travel = float(self._submap_travel(k, far=True)[sm.index])
         rate = getattr(cfg, "trust_drift", 0.0)  # sessions saved before the setting: 0
-        trusted = rate > 0 and shift <= cfg.closure_window[0] + rate * travel
+        trusted = rate > 0 and shift <= self._trust_bound(k, sm)
         # an untrusted cluster does not shorten the submap graph's travel: if it is a wrong
         # (aliased) match, a shortcut through it would make every later window and trust
         # bound too small
@@ -793,6 +826,14 @@ class GraphSlam:
             self.__dict__.setdefault("_trusted_edges", set()).update(added)
         self._unguarded.extend(added)
         self._pending_correction = True
+
+    def _trust_bound(self, k: int, sm: Submap) -> float:
+        """The largest correction (metres) of node ``k``'s estimate that a drift plausibly
+        explains since submap ``sm``: ``closure_window[0] + trust_drift * travel`` on the far
+        graph (sessions saved before ``trust_drift``: ``closure_window[0]``)."""
+        cfg = self.config
+        travel = float(self._submap_travel(k, far=True)[sm.index])
+        return cfg.closure_window[0] + getattr(cfg, "trust_drift", 0.0) * travel
 
     def _neighbours(self, sm: Submap) -> list[Submap]:
         """The finished submaps just before and after ``sm``."""

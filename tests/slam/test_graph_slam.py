@@ -404,6 +404,35 @@ def test_far_travel_is_not_shortened_by_closures_to_the_submap_just_behind(world
     assert len(slam._far_links) == len(slam._sub_links) == len(slam.submaps)
 
 
+def test_odometry_glitch_is_recovered_by_the_wide_search(world):
+    """Wheel slip or a late timestamp: from scan 150 on, odometry is 0.7 m ahead of where the
+    robot is (beyond the matcher's 0.2 m window). The poor match triggers the wide search
+    (``recover_window``: 0.6 m, the matcher's own 0.1 rad), which finds the scan where it is,
+    so the trajectory across the glitch stays right; with the wide search off it keeps most
+    of the jump."""
+    _, _, truth, odo, ranges, angles, max_range, _ = world
+    g, n = 150, 210
+    slipped = odo.copy()
+    for i in range(g, n):
+        slipped[i] = compose(
+            odo[g - 1], compose(np.array([0.7, 0.0, 0.0]), between(odo[g - 1], odo[i]))
+        )
+
+    def run(config):
+        slam = GraphSlam(config, max_range=max_range)
+        for i in range(n):
+            slam.add_scan(0.1 * i, ranges[i], angles, slipped[i])
+        slam.finish()
+        est = slam.trajectory()[1]
+        d = between(between(est[g - 5], est[g + 50]), between(truth[g - 5], truth[g + 50]))
+        return slam, math.hypot(d[0], d[1]), np.hypot(*(est[:, :2] - truth[:n, :2]).T).max()
+
+    slam, across, worst = run(GraphSlamConfig())
+    assert slam.recovered >= 1 and across < 0.05 and worst < 0.15
+    off, across_off, _ = run(GraphSlamConfig(recover_score=0.0))
+    assert off.recovered == 0 and across_off > 0.3
+
+
 def _wrong_closures(slam, truth):
     """Accepted closures more than 0.15 m / 0.05 rad off the true anchor -> node pose (m)."""
     scan_of = np.asarray(slam.node_scan)

@@ -274,6 +274,33 @@ def test_without_odometry_warns_and_runs_on_matching_alone(world):
     assert _step_error(world.poses[:n], res.poses) < 0.05
 
 
+def test_scans_that_change_beam_geometry(world):
+    """A ROBOTLASER1 log mixes 181- and 180-beam scans. Per-scan angles equal to the shared
+    ones give the very same run; dropping the last beam of every other scan (padded with NaN,
+    as the log reader does) still corrects the odometry; shapes that disagree are refused."""
+    n = 150
+    t, R, A, odo = world.times[:n], world.ranges[:n], world.angles, world.odometry[:n]
+    cfg = GridSlamConfig(particles=1)
+    shared = run_grid_slam(t, R, A, odo, world.max_range, cfg, sample=False)
+    rows = np.tile(A, (n, 1))
+    same = run_grid_slam(t, R, rows, odo, world.max_range, cfg, sample=False)
+    np.testing.assert_array_equal(same.poses, shared.poses)
+    beams = np.where(np.arange(n) % 2 == 0, A.size, A.size - 1)
+    rows_m, R_m = rows.copy(), np.array(R, dtype=np.float64)
+    rows_m[1::2, -1] = np.nan
+    R_m[1::2, -1] = np.nan
+    mixed = run_grid_slam(t, R_m, rows_m, odo, world.max_range, cfg, sample=False, beams=beams)
+    assert _step_error(world.poses[:n], mixed.poses) < 0.05
+    with pytest.raises(ValueError, match="beams must be"):
+        run_grid_slam(t, R, rows, odo, world.max_range, cfg, beams=beams[:-1])
+    with pytest.raises(ValueError, match="angles .* disagree"):
+        run_grid_slam(t, R, rows[:, :-1], odo, world.max_range, cfg)
+    with pytest.raises(ValueError, match="ranges but"):
+        from probmap.slam.gridslam import GridSlam
+
+        GridSlam(cfg, A, world.max_range).update(0, R[0], odo[0], A[:-1])
+
+
 def test_bad_input_is_refused(world):
     with pytest.raises(ValueError, match="particles"):
         GridSlamConfig(particles=0)

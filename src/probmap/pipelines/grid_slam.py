@@ -320,8 +320,6 @@ def slam_log(
     batch = _open_laser_scans(path, "odometry", end_time, bag_options, skip_bad_lines)
     times = np.asarray(batch.times, dtype=np.float64)
     angles = np.asarray(batch.angles, dtype=np.float64)
-    if angles.ndim != 1:
-        raise ValueError(f"{path}: scans with different beam geometries are not supported")
     robot = np.asarray(batch.robot_poses, dtype=np.float64)
     laser = np.asarray(batch.laser_poses, dtype=np.float64)
     mount = between(robot[0], laser[0])
@@ -330,6 +328,7 @@ def slam_log(
     return run_grid_slam(
         times, np.asarray(batch.ranges), angles, robot, float(batch.max_range), config,
         mount=mount, progress=progress,
+        beams=np.asarray(batch.beams) if angles.ndim == 2 else None,
     )  # fmt: skip
 
 

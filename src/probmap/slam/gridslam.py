@@ -267,7 +267,19 @@ class GridSlam:
         self._node_scan.append(scan)
         self.nodes[k] = len(self._node_pose) - 1
 
-    def _window(self, pose: NDArray[np.float64], ranges: NDArray[np.float64]) -> tuple:
+    def _scan_angles(self, ranges: NDArray, angles: ArrayLike | None) -> NDArray[np.float64]:
+        """The beam angles of one scan: ``angles`` when given (a log whose scans change
+        geometry), else the filter's; checked against the scan's length."""
+        a = self.angles if angles is None else np.ascontiguousarray(angles, dtype=np.float64)
+        if a.shape != ranges.shape:
+            raise ValueError(f"the scan has {ranges.shape[0]} ranges but {a.shape[0]} beam angles")
+        if angles is not None and not np.isfinite(a).all():
+            raise ValueError("angles must be finite")
+        return a
+
+    def _window(
+        self, pose: NDArray[np.float64], ranges: NDArray[np.float64], angles: NDArray
+    ) -> tuple:
         """Tile range covering the scan from ``pose`` with the matcher's search margin."""
         cfg = self.config
         m = cfg.matcher
@@ -275,7 +287,7 @@ class GridSlam:
         with np.errstate(invalid="ignore"):
             ok = np.isfinite(ranges) & (ranges > 0)
             r = np.where(ranges < self.max_range, ranges, clear)[ok]
-        a = self.angles[ok] + pose[2]
+        a = angles[ok] + pose[2]
         xs = np.concatenate([[pose[0]], pose[0] + r * np.cos(a)])
         ys = np.concatenate([[pose[1]], pose[1] + r * np.sin(a)])
         margin = m.linear_window + m.angular_window * float(r.max(initial=0.0)) + 0.5
@@ -283,7 +295,13 @@ class GridSlam:
         return self.maps.tile_range(box)
 
     def _integrate(
-        self, k: int, tr: tuple, lo: NDArray[np.float32], pose: NDArray, ranges: NDArray
+        self,
+        k: int,
+        tr: tuple,
+        lo: NDArray[np.float32],
+        pose: NDArray,
+        ranges: NDArray,
+        angles: NDArray,
     ) -> None:
         """Integrate the scan into particle ``k``'s map window and write it back (Table 9.1)."""
         from probmap.slam import _match_kernels as K
@@ -294,7 +312,7 @@ class GridSlam:
         T = cfg.tile
         touched = np.zeros((lo.shape[0] // T, lo.shape[1] // T), dtype=np.uint8)
         K.integrate_window(
-            lo, stamp, ox, oy, cfg.resolution, pose[0], pose[1], pose[2], ranges, self.angles,
+            lo, stamp, ox, oy, cfg.resolution, pose[0], pose[1], pose[2], ranges, angles,
             self.max_range, cfg.max_clear_range, self._l_hit, self._l_miss, self._l_min,
             self._l_max, T, touched,
         )  # fmt: skip
@@ -330,14 +348,18 @@ class GridSlam:
         return out * (cfg.matcher.sigma / cfg.likelihood_sigma) ** 2
 
     # ------------------------------------------------------------------ filter steps
-    def initialize(self, scan: int, ranges: ArrayLike, odometry: ArrayLike) -> None:
-        """Start every particle at the first scan's odometry pose with that scan in its map."""
+    def initialize(
+        self, scan: int, ranges: ArrayLike, odometry: ArrayLike, angles: ArrayLike | None = None
+    ) -> None:
+        """Start every particle at the first scan's odometry pose with that scan in its map
+        (``angles``: as for :meth:`update`)."""
         r = np.ascontiguousarray(ranges, dtype=np.float64)
+        a = self._scan_angles(r, angles)
         pose = np.asarray(odometry, dtype=np.float64).copy()
         self.poses[:] = pose
-        tr = self._window(pose, r)
+        tr = self._window(pose, r, a)
         lo = self.maps.gather(0, tr)
-        self._integrate(0, tr, lo, pose, r)
+        self._integrate(0, tr, lo, pose, r, a)
         self.maps.resample(np.zeros(self.config.particles, dtype=np.int64))
         for k in range(self.config.particles):
             self._add_node(k, pose, scan)
@@ -354,9 +376,15 @@ class GridSlam:
             or abs(float(wrap_angle(u[2]))) >= self.config.angular_update
         )
 
-    def update(self, scan: int, ranges: ArrayLike, odometry: ArrayLike) -> None:
+    def update(
+        self, scan: int, ranges: ArrayLike, odometry: ArrayLike, angles: ArrayLike | None = None
+    ) -> None:
         """Process one scan: predict, match, sample from the improved proposal, weight,
-        integrate, and resample when ``N_eff < N / 2``."""
+        integrate, and resample when ``N_eff < N / 2``.
+
+        ``angles`` (radians, the same length as ``ranges``) are this scan's beam angles when
+        they differ from the filter's (a log whose scans change between 180 and 181 beams).
+        """
         from probmap.filters.resampling import (
             effective_sample_size,
             log_normalize,
@@ -364,24 +392,25 @@ class GridSlam:
         )
 
         if self.last_odometry is None:
-            self.initialize(scan, ranges, odometry)
+            self.initialize(scan, ranges, odometry, angles)
             return
         cfg = self.config
         r = np.ascontiguousarray(ranges, dtype=np.float64)
+        ang = self._scan_angles(r, angles)
         odo = np.asarray(odometry, dtype=np.float64)
         u = between(self.last_odometry, odo)
         m = cfg.matcher
-        pts = scan_points(r, self.angles, self.max_range, m.usable_range, m.beam_skip)
+        pts = scan_points(r, ang, self.max_range, m.usable_range, m.beam_skip)
         for k in range(cfg.particles):
             predicted = compose(self.poses[k], u)
-            tr = self._window(predicted, r)
+            tr = self._window(predicted, r, ang)
             lo = self.maps.gather(k, tr)
             fld = self._field(lo, tr)
             use = self._known_points(lo, fld, pts, predicted) if cfg.degeneracy_guard else pts
             new, dlw = self._propose(fld, use, predicted, u)
             self.poses[k] = new
             self.log_w[k] += dlw / cfg.weight_gain
-            self._integrate(k, tr, lo, new, r)
+            self._integrate(k, tr, lo, new, r, ang)
             self._add_node(k, new, scan)
         self.last_odometry = odo.copy()
         self.processed += 1
@@ -555,6 +584,7 @@ def run_grid_slam(
     mount: ArrayLike = (0.0, 0.0, 0.0),
     sample: bool = True,
     progress: Callable[[int, int], None] | None = None,
+    beams: ArrayLike | None = None,
 ) -> GridSlamResult:
     """Run the filter over a sequence of scans.
 
@@ -564,8 +594,10 @@ def run_grid_slam(
         Scan timestamps, seconds.
     ranges : array_like, shape (S, B)
         Ranges, metres.
-    angles : array_like, shape (B,)
-        Beam angles in the sensor frame, radians.
+    angles : array_like, shape (B,) or (S, B)
+        Beam angles in the sensor frame, radians: one set for every scan, or one row per scan
+        (a log whose scans change geometry; then ``beams`` says how many of each row's
+        entries, and of its ranges, the scan has).
     odometry : array_like, shape (S, 3), or None
         Robot odometry poses at the scans. ``None`` (or constant odometry): scan matching alone,
         every scan processed, with a warning.
@@ -578,6 +610,8 @@ def run_grid_slam(
         See :class:`GridSlam`.
     progress : callable, optional
         ``progress(done, total)`` every 50 scans.
+    beams : array_like of int, shape (S,), optional
+        Beams of each scan, with per-scan ``angles`` (default: all ``B``).
 
     Returns
     -------
@@ -617,13 +651,27 @@ def run_grid_slam(
             matcher=replace(cfg_m, linear_window=max(cfg_m.linear_window, 0.3),
                             angular_window=max(cfg_m.angular_window, 0.2)),
         )  # fmt: skip
+    A = np.asarray(angles, dtype=np.float64)
+    nb = np.full(R.shape[0], R.shape[1], dtype=np.int64)
+    if A.ndim == 2:
+        if A.shape != R.shape:
+            raise ValueError(f"per-scan angles {A.shape} and ranges {R.shape} disagree")
+        if beams is not None:
+            nb = np.asarray(beams, dtype=np.int64)
+            if nb.shape != (R.shape[0],) or np.any(nb < 1) or np.any(nb > R.shape[1]):
+                raise ValueError(f"beams must be {R.shape[0]} counts in [1, {R.shape[1]}]")
+    elif A.shape != (R.shape[1],):
+        raise ValueError(f"angles {A.shape} and ranges {R.shape} disagree")
     sensor_odo = compose(odo, mnt)
     t0 = time.perf_counter()
-    slam = GridSlam(cfg, angles, max_range, sample=sample)
+    slam = GridSlam(cfg, A[0, : nb[0]] if A.ndim == 2 else A, max_range, sample=sample)
     n = R.shape[0]
     for i in range(n):
         if i == 0 or no_odometry or slam.moved_enough(sensor_odo[i]):
-            slam.update(i, R[i], sensor_odo[i])
+            if A.ndim == 2:
+                slam.update(i, R[i, : nb[i]], sensor_odo[i], A[i, : nb[i]])
+            else:
+                slam.update(i, R[i], sensor_odo[i])
         if progress is not None and (i % 50 == 49 or i == n - 1):
             progress(i + 1, n)
     k = slam.best()

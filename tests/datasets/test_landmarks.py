@@ -42,12 +42,17 @@ def merge_reference(ct, c, ot, obs):
     return out
 
 
+def _random_events(seed, slots, n_ctrl, n_obs):
+    """Control times (distinct) and observation times (repeats allowed) on a 0.1 s grid of
+    ``slots`` slots, with random controls and observations."""
+    rng = np.random.default_rng(seed)
+    ct = np.sort(rng.choice(np.arange(slots) * 0.1, n_ctrl, replace=False))
+    ot = np.sort(rng.choice(np.arange(slots) * 0.1, n_obs))
+    return rng, ct, rng.normal(size=(n_ctrl, 2)), ot, rng.normal(size=(n_obs, 2))
+
+
 def test_merge_events_matches_reference():
-    rng = np.random.default_rng(0)
-    ct = np.sort(rng.choice(np.arange(100) * 0.1, 30, replace=False))
-    c = rng.normal(size=(30, 2))
-    ot = np.sort(rng.choice(np.arange(100) * 0.1, 25))
-    obs = rng.normal(size=(25, 2))
+    _, ct, c, ot, obs = _random_events(0, 100, 30, 25)
     times, dts, ctrl, starts, order = merge_events(ct, c, ot, obs, np.arange(25))
     ref = merge_reference(list(ct), c, list(ot), obs)
     assert len(ref) == times.size
@@ -69,11 +74,7 @@ class _Events(MergedEvents):
 
 
 def test_merged_events_yield_the_reference_steps():
-    rng = np.random.default_rng(1)
-    ct = np.sort(rng.choice(np.arange(80) * 0.1, 20, replace=False))
-    c = rng.normal(size=(20, 2))
-    ot = np.sort(rng.choice(np.arange(80) * 0.1, 30))
-    obs = rng.normal(size=(30, 2))
+    rng, ct, c, ot, obs = _random_events(1, 80, 20, 30)
     ids = rng.integers(-1, 5, 30)
     steps = list(_Events(ct, c, ot, obs, ids))
     ref = merge_reference(list(ct), c, list(ot), obs)

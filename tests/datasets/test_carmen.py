@@ -313,7 +313,7 @@ def _gz(data: bytes) -> bytes:
         ("empty.clf", b""),
         ("blank.clf", b"\n  \n\t\n"),
         ("empty.clf.gz", b""),
-        ("empty-content.clf.gz", gzip.compress(b"")),
+        ("empty-content.clf.gz", gzip.compress(b"", mtime=0)),
         ("empty-content.clf.bz2", bz2.compress(b"")),
     ],
 )

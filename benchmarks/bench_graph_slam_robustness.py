@@ -19,7 +19,11 @@ the wall time of one core (shown for scale only). One process per row, so one ro
 compiled kernels do not leak into the next.
 
 Run: ``PROBMAP_DATA=../shared/data python benchmarks/bench_graph_slam_robustness.py
-[--log intel|clinic] [--cases base,odometry:1.05,...] [--markdown]``.
+[--log intel|clinic] [--cases base,odometry:1.05,...] [--set FIELD=VALUE ...] [--jobs N]
+[--markdown]``. ``--set`` changes a ``GraphSlamConfig`` field for every row (as in
+``graph_slam_diagnose.py``: ``max_window=40,0.5``, ``matcher.sigma=0.035``), to judge a
+candidate default on all the rows at once; ``--jobs`` runs that many rows side by side (their
+times are then for scale only). The last line is the sum of the rows' mean errors.
 """
 
 from __future__ import annotations
@@ -124,14 +128,16 @@ def perturb(batch: Any, case: str, seed: int = 0) -> Any:
     raise ValueError(f"unknown case {case!r}")
 
 
-def worker(data: Path, log: str, case: str) -> dict[str, Any]:
+def worker(data: Path, log: str, case: str, settings: list[str]) -> dict[str, Any]:
+    from graph_slam_diagnose import configure
     from probmap.metrics.relations import read_relations, relation_errors
     from probmap.pipelines.grid_slam import load_laser_log, run_graph_slam
 
     log_rel, rel_rel = LOGS[log]
     batch = perturb(load_laser_log(data / log_rel), case)
+    config = configure(settings)
     t0 = time.perf_counter()
-    run = run_graph_slam(batch)
+    run = run_graph_slam(batch, config)
     wall = time.perf_counter() - t0
     rel = read_relations(data / rel_rel)
     e = relation_errors(np.asarray(run.times), np.asarray(run.poses), rel)
@@ -155,20 +161,34 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=Path(os.environ.get("PROBMAP_DATA", default)))
     ap.add_argument("--log", choices=sorted(LOGS), default="intel")
     ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
+    ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--markdown", action="store_true")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.worker is not None:
-        print(json.dumps(worker(args.data, args.log, args.worker)))
+        print(json.dumps(worker(args.data, args.log, args.worker, args.set)))
         return
-    rows = []
-    for case in args.cases.split(","):
-        print(f"running {case} ...", file=sys.stderr, flush=True)
-        cmd = [sys.executable, __file__, "--data", str(args.data), "--log", args.log]
-        proc = subprocess.run([*cmd, "--worker", case], capture_output=True, text=True)
-        if proc.returncode != 0:
-            sys.exit(f"{case} failed:\n{proc.stderr[-2000:]}")
-        rows.append(json.loads(proc.stdout.strip().splitlines()[-1]))
+    cmd = [sys.executable, __file__, "--data", str(args.data), "--log", args.log]
+    for s in args.set:
+        cmd += ["--set", s]
+    cases = args.cases.split(",")
+    procs: dict[str, subprocess.Popen[str]] = {}
+    results: dict[str, dict[str, Any]] = {}
+    pending = list(cases)
+    while pending or procs:
+        while pending and len(procs) < max(args.jobs, 1):
+            case = pending.pop(0)
+            print(f"running {case} ...", file=sys.stderr, flush=True)
+            procs[case] = subprocess.Popen(
+                [*cmd, "--worker", case], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+            )
+        case = next(iter(procs))
+        out, err = procs.pop(case).communicate()
+        if not out.strip():
+            sys.exit(f"{case} failed:\n{err[-2000:]}")
+        results[case] = json.loads(out.strip().splitlines()[-1])
+    rows = [results[c] for c in cases]
     base = next((r["mean"] for r in rows if r["case"] == "base"), None)
     head = ("perturbation", "relation error m (mean ± std)", "p95 m", "vs as logged",
             "odometry alone m", "closures accepted / kept", "SLAM s")  # fmt: skip
@@ -192,6 +212,8 @@ def main() -> None:
         print("|---" + "|---:" * (len(head) - 1) + "|")
         for line in lines:
             print("| " + " | ".join(line) + " |")
+    settings = " ".join(args.set) or "defaults"
+    print(f"sum of the rows' mean errors ({settings}): {sum(r['mean'] for r in rows):.4f} m")
 
 
 if __name__ == "__main__":

@@ -169,6 +169,14 @@ def main() -> None:
     if args.worker is not None:
         print(json.dumps(worker(args.data, args.log, args.worker, args.set)))
         return
+    if args.jobs < 1:
+        ap.error(f"--jobs must be at least 1, got {args.jobs}")
+    from graph_slam_diagnose import configure
+
+    try:  # a misspelt field fails here, once, not in every worker
+        configure(args.set)
+    except (TypeError, ValueError) as exc:
+        ap.error(f"--set: {exc}")
     cmd = [sys.executable, __file__, "--data", str(args.data), "--log", args.log]
     for s in args.set:
         cmd += ["--set", s]
@@ -177,15 +185,16 @@ def main() -> None:
     results: dict[str, dict[str, Any]] = {}
     pending = list(cases)
     while pending or procs:
-        while pending and len(procs) < max(args.jobs, 1):
+        while pending and len(procs) < args.jobs:
             case = pending.pop(0)
             print(f"running {case} ...", file=sys.stderr, flush=True)
             procs[case] = subprocess.Popen(
                 [*cmd, "--worker", case], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
             )
         case = next(iter(procs))
-        out, err = procs.pop(case).communicate()
-        if not out.strip():
+        proc = procs.pop(case)
+        out, err = proc.communicate()
+        if proc.returncode != 0:
             sys.exit(f"{case} failed:\n{err[-2000:]}")
         results[case] = json.loads(out.strip().splitlines()[-1])
     rows = [results[c] for c in cases]

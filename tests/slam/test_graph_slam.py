@@ -12,7 +12,12 @@ import pytest
 from probmap.geometry.se2 import between, compose, wrap_angle
 from probmap.grid.raycast import cast_rays
 from probmap.grid.spec import GridSpec
-from probmap.slam.graph_slam import GraphSlam, GraphSlamConfig, inverse_mount
+from probmap.slam.graph_slam import (
+    GraphSlam,
+    GraphSlamConfig,
+    inverse_mount,
+    spread_between_nodes,
+)
 
 RES = 0.05
 LAPS = 1.3
@@ -166,11 +171,22 @@ def test_nodes_trajectory_and_counters(world, run):
     times, est = slam.trajectory()
     np.testing.assert_allclose(times, 0.1 * np.arange(len(truth)))
     np.testing.assert_allclose(est[node_scans], slam.node_poses(), atol=1e-12)
-    # a scan between nodes: the previous node composed with the odometry increment
-    i = int(np.flatnonzero(~flags)[10])
-    k = int(np.searchsorted(node_scans, i, side="right") - 1)
-    expect = compose(slam.node_poses()[k], between(odo[node_scans[k]], odo[i]))
-    np.testing.assert_allclose(est[i], expect, atol=1e-12)
+    # a scan between nodes: its own match (match_every_scan), offset from the previous node,
+    # plus its share of the correction the optimization gave the next node
+    offsets = np.asarray(slam.scan_offset)
+    assert np.all(offsets[node_scans] == 0.0) and np.any(offsets[~flags] != 0.0)
+    expect = _spread_reference(
+        slam.node_poses(), np.asarray(slam.local), node_scans, np.asarray(slam.scan_node),
+        offsets, times,
+    )  # fmt: skip
+    np.testing.assert_allclose(est, expect, atol=1e-9)
+    # the scans between nodes are placed by the laser, to within a match's accuracy of the
+    # true offset from their node (this odometry is good over 0.1 m, so it is no worse: the
+    # late-stamp test below shows where the match matters)
+    k = np.asarray(slam.scan_node)[~flags]
+    rel_true = between(truth[node_scans[k]], truth[~flags])
+    err_match = np.hypot(*(offsets[~flags] - rel_true)[:, :2].T)
+    assert np.median(err_match) < 0.01 and err_match.max() < 0.06
 
 
 def test_anchor_edges_grow_with_their_length(world, run):
@@ -270,6 +286,7 @@ def test_inverse_mount_undoes_the_mount():
         ({"field_radius": 0}, "field_radius must be >= 1, got 0"),
         ({"robust": "tukey"}, "robust must be dcs, cauchy, huber or none, got 'tukey'"),
         ({"p_hit": 0.4}, "need 0 < p_miss < 0.5 < p_hit < 1, got 0.4, 0.4"),
+        ({"match_every_scan": 1}, "match_every_scan must be true or false, got 1"),
     ],
 )
 def test_config_refuses_bad_values(kwargs, message):
@@ -492,3 +509,121 @@ def test_session_resumed_equals_one_run_and_bad_files_are_named(world, tmp_path)
         GraphSlam.load_session(tmp_path / "v9.session")
     with pytest.raises(FileNotFoundError, match="missing.session"):
         GraphSlam.load_session(tmp_path / "missing.session")
+
+
+def _spread_reference(P, L, node_scan, scan_node, offsets, times):
+    """spread_between_nodes written as a plain loop over the scans (the test oracle)."""
+    out = []
+    n = len(P)
+    local = [compose(L[k], o) for k, o in zip(scan_node, offsets, strict=True)]
+    for i, (k, o) in enumerate(zip(scan_node, offsets, strict=True)):
+        x = compose(P[k], o)
+        if k + 1 < n:
+            a, b = node_scan[k], node_scan[k + 1]
+            pred = compose(P[k], between(L[k], L[k + 1]))
+            d = P[k + 1] - pred
+            d[2] = math.atan2(math.sin(d[2]), math.cos(d[2]))
+            tf = (
+                min(max((times[i] - times[a]) / (times[b] - times[a]), 0.0), 1.0)
+                if (times[b] > times[a])
+                else 0.0
+            )
+            xy = [0.0]
+            th = [0.0]
+            for j in range(a + 1, b + 1):
+                s = local[j] - local[j - 1]
+                xy.append(xy[-1] + math.hypot(s[0], s[1]))
+                th.append(th[-1] + abs(math.atan2(math.sin(s[2]), math.cos(s[2]))))
+            fx = (xy[i - a] / xy[-1]) if xy[-1] > 1e-9 else tf
+            ft = (th[i - a] / th[-1]) if th[-1] > 1e-9 else tf
+            x = x + np.array([fx * d[0], fx * d[1], ft * d[2]])
+        x[2] = math.atan2(math.sin(x[2]), math.cos(x[2]))
+        out.append(x)
+    return np.asarray(out)
+
+
+def test_spread_between_nodes_closed_form():
+    """Two nodes 1 m apart along x with three scans between them at 0.25 m steps; the
+    optimization moved the second node by (0.08, -0.04, 0.02) from where the local chain puts
+    it. Each scan gets the share of that correction its path length (heading: its turn) is
+    of the whole; the nodes stay put, and a scan after the last node keeps its offset."""
+    L = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.1]])
+    P = np.array([[2.0, 1.0, 0.0], [3.08, 0.96, 0.12]])
+    node_scan = np.array([0, 4])
+    scan_node = np.array([0, 0, 0, 0, 1, 1])
+    offsets = np.array(
+        [[0, 0, 0], [0.25, 0, 0.0], [0.5, 0, 0.05], [0.75, 0, 0.075], [0, 0, 0], [0.3, 0, 0]]
+    )
+    times = np.arange(6.0)
+    out = spread_between_nodes(P, L, node_scan, scan_node, offsets, times)
+    d = np.array([0.08, -0.04, 0.02])
+    np.testing.assert_allclose(out[0], P[0], atol=1e-12)
+    np.testing.assert_allclose(out[4], P[1], atol=1e-12)
+    for i, (fx, ft) in zip((1, 2, 3), ((0.25, 0.0), (0.5, 0.5), (0.75, 0.75)), strict=True):
+        expect = offsets[i] + P[0] + np.array([fx * d[0], fx * d[1], ft * d[2]])
+        np.testing.assert_allclose(out[i], expect, atol=1e-12)
+    np.testing.assert_allclose(out[5], compose(P[1], offsets[5]), atol=1e-12)
+    # a node that did not move in the local frame spreads the correction by time
+    L2 = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    still = spread_between_nodes(P[:1].repeat(2, 0), L2, node_scan, scan_node, 0 * offsets, times)
+    np.testing.assert_allclose(still, np.repeat(P[:1], 6, 0), atol=1e-12)
+    moved = spread_between_nodes(P, L2, node_scan, scan_node, 0 * offsets, times)
+    np.testing.assert_allclose(moved[2], P[0] + 0.5 * (P[1] - P[0]), atol=1e-12)
+
+
+def test_spread_between_nodes_matches_a_plain_loop():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        n_nodes = int(rng.integers(1, 8))
+        counts = rng.integers(1, 5, n_nodes)
+        node_scan = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        scan_node = np.repeat(np.arange(n_nodes), counts)
+        L = np.cumsum(rng.normal(0, 0.3, (n_nodes, 3)), axis=0)
+        P = L + rng.normal(0, 0.05, (n_nodes, 3))
+        offsets = rng.normal(0, 0.1, (len(scan_node), 3))
+        offsets[node_scan] = 0.0
+        times = np.sort(rng.uniform(0, 10, len(scan_node)))
+        if rng.random() < 0.3:
+            times[:] = 1.0  # equal stamps: the time share is 0
+        out = spread_between_nodes(P, L, node_scan, scan_node, offsets, times)
+        ref = _spread_reference(P, L, node_scan, scan_node, offsets, times)
+        np.testing.assert_allclose(out, ref, atol=1e-9)
+
+
+def test_a_late_stamp_between_nodes_does_not_move_the_scan(world):
+    """A ROS bag's scan stamped off against its odometry: the odometry at that stamp puts
+    one scan between nodes 0.25 m behind where it was taken (the Intel bag's stamps jitter
+    by up to 0.9 s). Matched on its own, the scan is where it was; composed from the
+    odometry it takes the jump. The nodes are the same either way (matching a scan that is
+    no node changes no state)."""
+    _, _, truth, odo, ranges, angles, max_range, _ = world
+    n = 120
+
+    def run(match):
+        slam = GraphSlam(GraphSlamConfig(match_every_scan=match), max_range=max_range)
+        flags = []
+        for i in range(n):
+            o = odo[i]
+            if i == glitch:
+                o = compose(o, np.array([-0.25, 0.0, 0.0]))
+            flags.append(slam.add_scan(0.1 * i, ranges[i], angles, o))
+        slam.finish()
+        return slam, np.asarray(flags)
+
+    # a scan that stays no node with the glitch (0.15 m from its node, under min_distance)
+    glitch = 61
+    matched, flags = run(True)
+    assert not flags[glitch]
+    composed, flags_c = run(False)
+    assert np.array_equal(flags, flags_c)
+    np.testing.assert_array_equal(matched.node_poses(), composed.node_poses())
+    assert matched.recovered == composed.recovered
+    assert matched.failed_matches == composed.failed_matches
+
+    def err(slam):
+        est = slam.trajectory()[1]
+        k = int(np.flatnonzero(flags[: glitch + 1])[-1])  # its node
+        e = between(between(est[k], est[glitch]), between(truth[k], truth[glitch]))
+        return math.hypot(e[0], e[1])
+
+    assert err(matched) < 0.03 and err(composed) > 0.2

@@ -29,8 +29,12 @@ Per scan that passes the motion filter (the sensor moved ``min_distance`` metres
    (Levenberg-Marquardt on the sparse normal equations, :mod:`probmap.slam.posegraph`), warm
    started from the last solution.
 
-The final map re-integrates every scan at its optimized pose (Table 9.1, once-per-scan rule).
-Poses of the sensor are estimated; the caller composes the mounting offset.
+A scan the motion filter passes over is matched against the same submap too
+(``match_every_scan``), but neither inserted nor added to the graph: its pose is its match's
+offset from the last node, and the correction the optimization makes to the next node is
+spread over the scans in between (:func:`spread_between_nodes`). The final map re-integrates
+every scan at that pose (Table 9.1, once-per-scan rule). Poses of the sensor are estimated;
+the caller composes the mounting offset.
 """
 
 from __future__ import annotations
@@ -59,7 +63,14 @@ from probmap.slam.scan_matching import (
 )
 from probmap.slam.submaps import Submap
 
-__all__ = ["SESSION_FORMAT", "SESSION_VERSION", "GraphSlam", "GraphSlamConfig", "LoopClosure"]
+__all__ = [
+    "SESSION_FORMAT",
+    "SESSION_VERSION",
+    "GraphSlam",
+    "GraphSlamConfig",
+    "LoopClosure",
+    "spread_between_nodes",
+]
 
 #: Header of a saved session (:meth:`GraphSlam.save_session`).
 SESSION_FORMAT = "probmap.GraphSlam session"
@@ -92,6 +103,16 @@ class GraphSlamConfig:
     min_distance, min_rotation : float
         Motion filter: a scan becomes a node once the odometry moved this far (metres) or turned
         this much (radians) since the last node.
+    match_every_scan : bool
+        Match the scans the motion filter passes over too (against the same submap, with the
+        same search, but without inserting them or adding them to the graph), so that every
+        scan's reported pose comes from the laser rather than from the odometry increment
+        since the last node. It costs about a quarter more time on a log whose scans are
+        dense (Intel: 13,631 scans, 3,976 nodes) and nothing where every scan is a node. It
+        takes odometry glitches out of the trajectory: from the Intel ROS bag, whose scan
+        stamps jitter against its odometry by up to 0.9 s, the relation error falls from
+        0.0326 to 0.0204 m, and from the Intel log from 0.0180 to 0.0170 m (rotation 0.64 to
+        0.30 deg). ``False`` composes them from the odometry.
     submap_scans : int
         Nodes per submap; a new submap starts every ``submap_scans // 2`` nodes, so each node
         is in two submaps.
@@ -220,6 +241,7 @@ class GraphSlamConfig:
     resolution: float = 0.05
     min_distance: float = 0.2
     min_rotation: float = 0.1
+    match_every_scan: bool = True
     submap_scans: int = 40
     matcher: MatcherConfig = field(default_factory=_local_matcher)
     field_radius: int = 3
@@ -260,6 +282,10 @@ class GraphSlamConfig:
     def __post_init__(self) -> None:
         for name in ("resolution", "robust_scale", "near_window"):
             require_positive_finite(name, getattr(self, name))
+        if not isinstance(self.match_every_scan, bool):
+            raise ValueError(
+                f"match_every_scan must be true or false, got {self.match_every_scan!r}"
+            )
         for name in (
             "min_distance", "min_rotation", "max_clear_range", "anchor_sd_rate", "trust_drift",
         ):  # fmt: skip
@@ -364,6 +390,8 @@ class GraphSlam:
         self.scan_times: list[float] = []
         self.scan_odometry: list[NDArray[np.float64]] = []
         self.scan_node: list[int] = []  # last node at or before each scan
+        # each scan's pose relative to its node's local-SLAM pose (zero for a node)
+        self.scan_offset: list[NDArray[np.float64]] = []
         self._ranges: list[NDArray[np.float32]] = []
         self._angles: list[NDArray[np.float64]] = []
         self.submaps: list[Submap] = []
@@ -463,10 +491,29 @@ class GraphSlam:
                 and abs(float(wrap_angle(u[2]))) < cfg.min_rotation
             ):
                 self.scan_node.append(len(self.local) - 1)
+                self.scan_offset.append(self._offset_between_nodes(r, a, u))
                 return False
         self._add_node(scan, r, a, odo)
         self.scan_node.append(len(self.local) - 1)
+        self.scan_offset.append(np.zeros(3))
         return True
+
+    def _offset_between_nodes(
+        self, r: NDArray, a: NDArray, u: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
+        """Pose of a scan that is no node relative to the last node's local-SLAM pose: its
+        match against the active submap around the odometry increment ``u`` (the increment
+        itself when ``match_every_scan`` is off or the match fails). Changes no state."""
+        cfg = self.config
+        if not getattr(cfg, "match_every_scan", False) or not self.local:
+            return np.asarray(u, dtype=np.float64).copy()
+        m = cfg.matcher
+        pts = scan_points(r, a, self.max_range, m.usable_range, m.beam_skip)
+        prev = self.local[-1]
+        pose, _, _ = self._match(pts, compose(prev, u))
+        rel = between(prev, pose)
+        rel[2] = float(wrap_angle(rel[2]))
+        return rel
 
     def _add_node(self, scan: int, r: NDArray, a: NDArray, odo: NDArray) -> None:
         cfg = self.config
@@ -562,14 +609,27 @@ class GraphSlam:
         self._fin_radius.append(done.radius)
 
     def _match_local(self, pts: NDArray, predicted: NDArray) -> NDArray[np.float64]:
-        """Scan-to-submap matching around the odometry prediction (local-SLAM frame)."""
+        """Scan-to-submap matching of a new node around the odometry prediction (local-SLAM
+        frame); counts failed matches and wide searches, and whether the odometry held."""
+        pose, searched_wide, status = self._match(pts, predicted)
+        self.recovered += searched_wide
+        self._odometry_trusted = status != "wide"
+        if status == "failed":
+            self.failed_matches += 1
+        return pose
+
+    def _match(self, pts: NDArray, predicted: NDArray) -> tuple[NDArray[np.float64], bool, str]:
+        """Match ``pts`` against the oldest active submap around ``predicted`` (local-SLAM
+        frame). Returns the pose (``predicted`` when the match fails), whether the wide search
+        ran, and ``"matched"``, ``"wide"`` (the wide search's match was kept: the odometry was
+        off) or ``"failed"``. Changes no state."""
         cfg = self.config
         m = cfg.matcher
         sm = self.active[0]
         if pts.shape[0] < 10 or sm.size == 0:
-            self.failed_matches += 1
-            return predicted
-        self._odometry_trusted = True
+            return predicted, False, "failed"
+        status = "matched"
+        searched_wide = False
         anchor = self.local[sm.anchor]
         guess = between(anchor, predicted)
         fld = sm.field()
@@ -589,16 +649,15 @@ class GraphSlam:
             best2, _ = correlative_search(fld, pts, guess, wide)
             pose2, _, _ = refine(fld, pts, best2, m.iterations, (m.linear_step, m.angular_step))
             score2, _, _ = normal_equations(fld, pts, pose2)
-            self.recovered += 1
+            searched_wide = True
             if score2 > score + 0.05 * pts.shape[0]:
                 pose, score = pose2, score2
-                self._odometry_trusted = False
+                status = "wide"
         if score / pts.shape[0] < cfg.min_match_score:
-            self.failed_matches += 1
-            return predicted
+            return predicted, searched_wide, "failed"
         out = compose(anchor, pose)
         out[2] = float(wrap_angle(out[2]))
-        return out
+        return out, searched_wide, status
 
     # ------------------------------------------------------------------ loop closure
     def _grids(self, sm: Submap) -> tuple[Any, Any]:
@@ -1015,14 +1074,34 @@ class GraphSlam:
         self._done = True
 
     def trajectory(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Times (S,) and sensor poses (S, 3) of every scan: nodes at their optimized poses,
-        scans between nodes composed from the previous node by the odometry increment."""
-        poses = self.node_poses()
-        node = np.asarray(self.scan_node, dtype=np.int64)
-        odo = np.asarray(self.scan_odometry).reshape(-1, 3)
-        base = np.asarray(self.node_scan, dtype=np.int64)[node]
-        out = compose(poses[node], between(odo[base], odo))
-        return np.asarray(self.scan_times), out
+        """Times (S,) and sensor poses (S, 3) of every scan, map frame.
+
+        Nodes are at their optimized poses. A scan between two nodes is placed by its own
+        match (``match_every_scan``; otherwise the odometry increment) from the previous
+        node, and the correction the optimization made to the next node relative to that
+        chain is spread over the scans between them (:func:`spread_between_nodes`), so the
+        trajectory has no jump at a node.
+        """
+        times = np.asarray(self.scan_times, dtype=np.float64)
+        return times, spread_between_nodes(
+            self.node_poses(),
+            np.asarray(self.local, dtype=np.float64).reshape(-1, 3),
+            np.asarray(self.node_scan, dtype=np.int64),
+            np.asarray(self.scan_node, dtype=np.int64),
+            np.asarray(self._scan_offsets(), dtype=np.float64).reshape(-1, 3),
+            times,
+        )
+
+    def _scan_offsets(self) -> list[NDArray[np.float64]]:
+        """``scan_offset``; a session saved before it existed composes the odometry."""
+        offsets = getattr(self, "scan_offset", None)
+        if offsets is None:
+            offsets = []
+            for i, k in enumerate(self.scan_node):
+                base = self.scan_odometry[self.node_scan[k]]
+                offsets.append(between(base, self.scan_odometry[i]))
+            self.scan_offset = offsets
+        return offsets
 
     def map(self, *, max_clear_range: float | None = None) -> OccupancyGrid:
         """Every scan re-integrated at its optimized pose (Table 9.1, once per scan).
@@ -1077,6 +1156,84 @@ class GraphSlam:
             n += fld.values.nbytes + int(getattr(grids, "nbytes", 0))
         n += sum(r.nbytes for r in self._ranges)
         return n
+
+
+def spread_between_nodes(
+    node_poses: ArrayLike,
+    node_local: ArrayLike,
+    node_scan: ArrayLike,
+    scan_node: ArrayLike,
+    scan_offset: ArrayLike,
+    times: ArrayLike,
+) -> NDArray[np.float64]:
+    """Pose of every scan from the optimized nodes and each scan's offset from its node.
+
+    Scan ``i`` of node ``k = scan_node[i]`` is first placed at ``P_k (+) o_i`` (``P`` the
+    optimized node poses, ``o_i`` its pose relative to node ``k`` in the local-SLAM frame).
+    The optimization moved node ``k + 1`` by ``D = P_{k+1} - P_k (+) (L_k^-1 (+) L_{k+1})``
+    (map frame, heading wrapped) from where that chain puts it; the scans from node ``k`` to
+    node ``k + 1`` receive the fraction of ``D`` that their local-SLAM travel from node ``k``
+    is of the whole (translation by path length, heading by the summed turn; by time where
+    that part did not move), so the trajectory is continuous at every node. Scans after the
+    last node keep ``P_k (+) o_i``.
+
+    Parameters
+    ----------
+    node_poses : array_like, shape (N, 3)
+        Optimized node poses ``P``, map frame (metres, radians).
+    node_local : array_like, shape (N, 3)
+        The nodes' local-SLAM poses ``L`` (the drifting frame the offsets are in).
+    node_scan : array_like, shape (N,)
+        Scan index of each node, increasing.
+    scan_node : array_like, shape (S,)
+        Node of each scan: the last node at or before it.
+    scan_offset : array_like, shape (S, 3)
+        Each scan's pose relative to its node's local pose (zero for the node itself).
+    times : array_like, shape (S,)
+        Scan timestamps, seconds.
+
+    Returns
+    -------
+    ndarray, shape (S, 3)
+        Scan poses, map frame; node scans exactly at ``node_poses``.
+    """
+    P = np.asarray(node_poses, dtype=np.float64).reshape(-1, 3)
+    L = np.asarray(node_local, dtype=np.float64).reshape(-1, 3)
+    ns = np.asarray(node_scan, dtype=np.int64)
+    sn = np.asarray(scan_node, dtype=np.int64)
+    off = np.asarray(scan_offset, dtype=np.float64).reshape(-1, 3)
+    t = np.asarray(times, dtype=np.float64)
+    if sn.size == 0:
+        return np.zeros((0, 3))
+    out = compose(P[sn], off)
+    nxt = np.minimum(sn + 1, P.shape[0] - 1)
+    inner = nxt > sn  # scans with a next node
+    if not inner.any():
+        out[:, 2] = wrap_angle(out[:, 2])
+        return out
+    predicted = compose(P[sn], between(L[sn], L[nxt]))
+    d = P[nxt] - predicted
+    d[:, 2] = wrap_angle(d[:, 2])
+    a, b = ns[sn], ns[nxt]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        by_time = np.clip(np.where(t[b] > t[a], (t - t[a]) / (t[b] - t[a]), 0.0), 0.0, 1.0)
+    local = compose(L[sn], off)  # every scan's local-SLAM pose
+    step = np.diff(local, axis=0)
+    cum_xy = np.concatenate([[0.0], np.cumsum(np.hypot(step[:, 0], step[:, 1]))])
+    cum_th = np.concatenate([[0.0], np.cumsum(np.abs(wrap_angle(step[:, 2])))])
+
+    def fraction(cum: NDArray[np.float64]) -> NDArray[np.float64]:
+        whole = cum[b] - cum[a]
+        moved = whole > 1e-9
+        with np.errstate(invalid="ignore", divide="ignore"):
+            f = np.where(moved, (cum - cum[a]) / np.where(moved, whole, 1.0), by_time)
+        return np.clip(f, 0.0, 1.0)
+
+    f_xy = np.where(inner, fraction(cum_xy), 0.0)
+    f_th = np.where(inner, fraction(cum_th), 0.0)
+    out[:, :2] += f_xy[:, None] * d[:, :2]
+    out[:, 2] = wrap_angle(out[:, 2] + f_th * d[:, 2])
+    return out
 
 
 def inverse_mount(poses: ArrayLike, mount: ArrayLike) -> NDArray[np.float64]:

@@ -476,6 +476,7 @@ class GraphSlam:
             raise ValueError(f"odometry must be 3 finite numbers, got {odo.tolist()}")
         if not np.isfinite(a).all():
             raise ValueError("angles must be finite")
+        offsets = self._scan_offsets()  # (a session saved before they existed: built now)
         scan = len(self.scan_times)
         self.scan_times.append(float(time_s))
         self.scan_odometry.append(odo.copy())
@@ -494,11 +495,11 @@ class GraphSlam:
                 and abs(float(wrap_angle(u[2]))) < cfg.min_rotation
             ):
                 self.scan_node.append(len(self.local) - 1)
-                self.scan_offset.append(self._offset_between_nodes(r, a, u))
+                offsets.append(self._offset_between_nodes(r, a, u))
                 return False
         self._add_node(scan, r, a, odo)
         self.scan_node.append(len(self.local) - 1)
-        self.scan_offset.append(np.zeros(3))
+        offsets.append(np.zeros(3))
         return True
 
     def _offset_between_nodes(

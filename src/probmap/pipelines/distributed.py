@@ -424,14 +424,8 @@ def map_logs_distributed(
     """
     from probmap.datasets.rosbag import is_bag
     from probmap.datasets.scans import resolve_log
-    from probmap.errors import MissingExtraError
 
-    try:
-        import distributed  # noqa: F401
-    except ImportError as exc:  # pragma: no cover - dask is in the test extra
-        raise MissingExtraError(
-            "distributed mapping needs Dask: pip install 'probmap[distributed]'"
-        ) from exc
+    _require_dask()
     cfg = config or MappingConfig()
     opts = options or DistributedOptions()
     # registry names become their files here, where the data directory is known
@@ -458,6 +452,19 @@ def map_logs_distributed(
     with _connected(client, workers, scheduler) as cl:
         n_workers = len(cl.scheduler_info()["workers"])
         return _run(cl, files, cfg, opts, mode, progress, allow_partial, n_workers, t0, bag_options)
+
+
+def _require_dask() -> None:
+    """Raise :class:`~probmap.errors.MissingExtraError` unless Dask's ``distributed`` is
+    installed (checked before anything is read or started)."""
+    from probmap.errors import MissingExtraError
+
+    try:
+        import distributed  # noqa: F401
+    except ImportError as exc:  # pragma: no cover - dask is in the test extra
+        raise MissingExtraError(
+            "distributed mapping needs Dask: pip install 'probmap[distributed]'"
+        ) from exc
 
 
 @contextmanager
@@ -503,14 +510,8 @@ def map_log_map_distributed(
     is raised once, as :class:`DistributedMappingError` naming the file.
     """
     from probmap.datasets.rosbag import is_bag
-    from probmap.errors import MissingExtraError
 
-    try:
-        import distributed  # noqa: F401
-    except ImportError as exc:  # pragma: no cover - dask is in the test extra
-        raise MissingExtraError(
-            "distributed mapping needs Dask: pip install 'probmap[distributed]'"
-        ) from exc
+    _require_dask()
     f = Path(path)
     if not (f.is_file() or is_bag(f)):
         raise FileNotFoundError(f"{f}: no such log file")
@@ -519,11 +520,7 @@ def map_log_map_distributed(
         fut = cl.submit(
             _map_log_map_task, str(f), cfg, map_config, bag_options, retries=retries, pure=False
         )
-        _wait(cl, [fut], False)
-        msg = _failed(fut)
-        if msg is not None:
-            raise DistributedMappingError(f"could not map {_named(f, msg)}", None)
-        result: MappingResult = fut.result()
+        result: MappingResult = _one_result(cl, fut, f, False)
     return result
 
 
@@ -546,11 +543,7 @@ def _run(
         fut = client.submit(
             _map_log_task, str(files[0]), cfg, bag_options, retries=retries, pure=False
         )
-        _wait(client, [fut], progress)
-        msg = _failed(fut)
-        if msg is not None:
-            raise DistributedMappingError(f"could not map {_named(files[0], msg)}", None)
-        res: MappingResult = fut.result()
+        res: MappingResult = _one_result(client, fut, files[0], progress)
         return DistributedMappingResult(
             grid=res.grid,
             stats=res.stats,
@@ -600,28 +593,19 @@ def _run(
     parts: list[Any] = []
     n_tasks = sum(len(fs) for fs, _ in per_log)
     for f, (fs, incs) in zip(files, per_log, strict=True):
-        msg = next((m for m in map(_failed, fs) if m is not None), None)
+        msg = _first_failure(fs)
         if msg is not None:
             failed.append((f, msg))
             continue
         mapped.append(f)
         parts.extend(incs)
     if not parts:
-        msgs = "; ".join(_named(f, m) for f, m in failed)
-        raise DistributedMappingError(f"no input could be mapped ({msgs})", None)
-    # tree reduction: fan_in partial sums per task, level by level
-    level = parts
-    while len(level) > 1:
-        level = [
-            client.submit(_merge_task, *level[i : i + opts.fan_in], retries=retries)
-            for i in range(0, len(level), opts.fan_in)
-        ]
-        n_tasks += len(level)
+        raise DistributedMappingError(f"no input could be mapped ({_listed(failed)})", None)
+    root, n_merges = _tree_reduce(client, _merge_task, parts, opts.fan_in, retries)
+    n_tasks += n_merges
     # trimmed where the sum is, so that only the observed part travels to this process
-    total = client.submit(_crop_task, level[0], retries=retries).result()
+    total = _summed(client.submit(_crop_task, root, retries=retries))
     n_tasks += 1
-    if isinstance(total, _Failed):
-        raise DistributedMappingError(f"could not sum the increments: {total.message}", None)
     grid = total.to_grid(cfg)
     result = DistributedMappingResult(
         grid=grid,
@@ -636,9 +620,8 @@ def _run(
         increments=total,
     )
     if failed and not allow_partial:
-        lines = "; ".join(_named(f, m) for f, m in failed)
         raise DistributedMappingError(
-            f"{len(failed)} of {len(files)} inputs could not be mapped ({lines}); "
+            f"{len(failed)} of {len(files)} inputs could not be mapped ({_listed(failed)}); "
             f"mapped: {', '.join(str(p) for p in mapped)}",
             result,
         )
@@ -660,6 +643,54 @@ def _wait(client: Any, futures: list[Any], progress: bool | Callable[[int, int],
             progress(done, len(futures))
     else:
         wait(futures)
+
+
+def _one_result(
+    client: Any, fut: Any, path: Path, progress: bool | Callable[[int, int], None]
+) -> Any:
+    """The result of the one task ``fut`` that maps ``path``, once it is done; its error raises
+    :class:`DistributedMappingError` naming the file."""
+    _wait(client, [fut], progress)
+    msg = _failed(fut)
+    if msg is not None:
+        raise DistributedMappingError(f"could not map {_named(path, msg)}", None)
+    return fut.result()
+
+
+def _first_failure(futures: list[Any]) -> str | None:
+    """The error of the first of an input's futures that failed (:func:`_failed`), or None."""
+    return next((m for m in map(_failed, futures) if m is not None), None)
+
+
+def _listed(failed: list[tuple[Path, str]]) -> str:
+    """The failed inputs and their errors for a message: ``path: error; path: error``."""
+    return "; ".join(_named(f, m) for f, m in failed)
+
+
+def _tree_reduce(
+    client: Any, merge: Callable[..., Any], parts: list[Any], fan_in: int, retries: int
+) -> tuple[Any, int]:
+    """Tree reduction of the futures ``parts``: ``fan_in`` partial sums per ``merge`` task,
+    level by level. Returns the root's future (``parts[0]`` for one part) and the number of
+    merge tasks submitted."""
+    level = parts
+    n_tasks = 0
+    while len(level) > 1:
+        level = [
+            client.submit(merge, *level[i : i + fan_in], retries=retries)
+            for i in range(0, len(level), fan_in)
+        ]
+        n_tasks += len(level)
+    return level[0], n_tasks
+
+
+def _summed(fut: Any) -> Any:
+    """The sum that ``fut`` (the top of a reduction) holds; a failed sum raises
+    :class:`DistributedMappingError`."""
+    total = fut.result()
+    if isinstance(total, _Failed):
+        raise DistributedMappingError(f"could not sum the increments: {total.message}", None)
+    return total
 
 
 @_task
@@ -759,7 +790,7 @@ def map_labelled_distributed(
     failed: list[tuple[Path, str]] = []
     parts: list[Any] = []
     for f, fs in zip(files, per_file, strict=True):
-        msg = next((m for m in map(_failed, fs) if m is not None), None)
+        msg = _first_failure(fs)
         if msg is not None:
             failed.append((f, msg))
             continue
@@ -772,18 +803,10 @@ def map_labelled_distributed(
         parts.extend(fs)
     n_tasks = len(files) * chunks
     if not parts or classes is None:
-        msgs = "; ".join(_named(f, m) for f, m in failed)
-        raise DistributedMappingError(f"no input could be mapped ({msgs})", None)
-    level = parts
-    while len(level) > 1:
-        level = [
-            client.submit(_merge_semantic, *level[i : i + fan_in], retries=retries)
-            for i in range(0, len(level), fan_in)
-        ]
-        n_tasks += len(level)
-    total = level[0].result()
-    if isinstance(total, _Failed):
-        raise DistributedMappingError(f"could not sum the increments: {total.message}", None)
+        raise DistributedMappingError(f"no input could be mapped ({_listed(failed)})", None)
+    root, n_merges = _tree_reduce(client, _merge_semantic, parts, fan_in, retries)
+    n_tasks += n_merges
+    total = _summed(root)
     result = SemanticMappingResult(
         grid=total.to_grid(classes, **grid_kwargs),
         stats=total.stats,
@@ -794,8 +817,7 @@ def map_labelled_distributed(
         increments=total,
     )
     if failed and not allow_partial:
-        lines = "; ".join(_named(f, m) for f, m in failed)
         raise DistributedMappingError(
-            f"{len(failed)} of {len(files)} inputs could not be mapped ({lines})", None
+            f"{len(failed)} of {len(files)} inputs could not be mapped ({_listed(failed)})", None
         )
     return result

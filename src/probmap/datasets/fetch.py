@@ -37,6 +37,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+# DATA_ENV stays a name of this module (fetch.DATA_ENV): registry's, the one definition.
+from probmap.datasets.registry import DATA_ENV as DATA_ENV
+from probmap.datasets.registry import given_data_dir
 from probmap.errors import DatasetError
 
 __all__ = [
@@ -53,7 +56,6 @@ __all__ = [
     "sha256_of",
 ]
 
-DATA_ENV = "PROBMAP_DATA"
 DATA_URL_ENV = "PROBMAP_DATA_URL"
 """Environment variable: a base URL to fetch every file from instead of its public address."""
 
@@ -356,11 +358,9 @@ def files_of(name: str) -> list[RemoteFile]:
 def default_directory(explicit: str | os.PathLike[str] | None = None) -> Path:
     """Where :func:`fetch` puts files: ``explicit``, else ``$PROBMAP_DATA``, else the user
     cache folder ``pooch.os_cache("probmap")`` (``~/.cache/probmap`` on Linux)."""
-    if explicit is not None:
-        return Path(explicit)
-    env = os.environ.get(DATA_ENV)
-    if env:
-        return Path(env)
+    given = given_data_dir(explicit)
+    if given is not None:
+        return given
     import pooch
 
     return Path(pooch.os_cache("probmap"))

@@ -192,14 +192,25 @@ DATASETS: dict[str, DatasetInfo] = {
 }
 
 
-def data_dir(explicit: str | os.PathLike[str] | None = None) -> Path | None:
-    """The data directory: ``explicit``, else ``$PROBMAP_DATA``, else ``../shared/data``
-    (relative to the working directory) when that folder exists, else None."""
+def given_data_dir(explicit: str | os.PathLike[str] | None = None) -> Path | None:
+    """The data directory the caller or the environment names: ``explicit``, else
+    ``$PROBMAP_DATA`` (when set and not empty), else None. :func:`data_dir` and
+    :func:`probmap.datasets.fetch.default_directory` start from it, each with its own last
+    resort."""
     if explicit is not None:
         return Path(explicit)
     env = os.environ.get(DATA_ENV)
     if env:
         return Path(env)
+    return None
+
+
+def data_dir(explicit: str | os.PathLike[str] | None = None) -> Path | None:
+    """The data directory: ``explicit``, else ``$PROBMAP_DATA``, else ``../shared/data``
+    (relative to the working directory) when that folder exists, else None."""
+    given = given_data_dir(explicit)
+    if given is not None:
+        return given
     return DEFAULT_DATA if DEFAULT_DATA.is_dir() else None
 
 

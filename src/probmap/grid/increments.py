@@ -45,7 +45,9 @@ from probmap.grid.occupancy import (
     InverseSensorModel,
     OccupancyGrid,
     ScanStats,
+    check_finite_poses,
     effective_clear_range,
+    observed_window,
 )
 from probmap.grid.spec import GridSpec
 
@@ -163,14 +165,10 @@ class IncrementGrid:
         """The counts trimmed to the observed cells plus ``margin`` cells (as
         :meth:`OccupancyGrid.cropped`), on the same lattice; a window without observed cells is
         returned as is."""
-        seen = (self.hits > 0) | (self.frees > 0)
-        rows = np.nonzero(seen.any(axis=1))[0]
-        cols = np.nonzero(seen.any(axis=0))[0]
-        if len(rows) == 0:
+        window = observed_window((self.hits > 0) | (self.frees > 0), margin)
+        if window is None:
             return self
-        h, w = seen.shape
-        y0, y1 = max(int(rows[0]) - margin, 0), min(int(rows[-1]) + 1 + margin, h)
-        x0, x1 = max(int(cols[0]) - margin, 0), min(int(cols[-1]) + 1 + margin, w)
+        y0, y1, x0, x1 = window
         return replace(
             self,
             cell0=(self.cell0[0] + x0, self.cell0[1] + y0),
@@ -264,6 +262,17 @@ def _scratch_stamps(shape: tuple[int, int], n_scans: int) -> tuple[NDArray[np.in
     return buf[:size].reshape(shape), nxt
 
 
+def _tile_window(box: NDArray[np.float64], res: float, tile: int) -> tuple[int, int, int, int]:
+    """Cells ``(ix0, iy0, ix1, iy1)`` of the common lattice (cell ``i`` spans ``[i res, (i + 1)
+    res)``) around the world box ``[xmin, xmax, ymin, ymax]``: every point of it plus one cell,
+    rounded out to multiples of ``tile`` (the window of a binary or a semantic task)."""
+    ix0 = (math.floor(box[0] / res) - 1) // tile * tile
+    iy0 = (math.floor(box[2] / res) - 1) // tile * tile
+    ix1 = -((-(math.floor(box[1] / res) + 2)) // tile) * tile
+    iy1 = -((-(math.floor(box[3] / res) + 2)) // tile) * tile
+    return ix0, iy0, ix1, iy1
+
+
 def integrate_increments(
     poses: NDArray[np.float64],
     ranges: NDArray[np.floating[Any]],
@@ -303,9 +312,7 @@ def integrate_increments(
     R = np.ascontiguousarray(ranges, dtype=np.float64)
     if P.ndim != 2 or P.shape[1] != 3 or R.ndim != 2 or R.shape[0] != P.shape[0]:
         raise ValueError(f"poses must be (S, 3) and ranges (S, B), got {P.shape} and {R.shape}")
-    if not np.isfinite(P).all():
-        bad = int(np.nonzero(~np.isfinite(P).all(axis=1))[0][0])
-        raise ValueError(f"poses must be finite numbers; pose {bad} is {P[bad].tolist()}")
+    check_finite_poses(P)
     A = np.asarray(angles, dtype=np.float64)
     shared = A.ndim == 1
     A = np.ascontiguousarray(A[None, :] if shared else A)
@@ -324,10 +331,7 @@ def integrate_increments(
     # window: every pose and endpoint plus one cell, rounded out to whole tiles
     box = np.empty(4)
     _kernels.scan_bounds(P, R, A, shared, float(max_range), clear_range, model.thickness, box)
-    ix0 = (math.floor(box[0] / res) - 1) // tile * tile
-    iy0 = (math.floor(box[2] / res) - 1) // tile * tile
-    ix1 = -((-(math.floor(box[1] / res) + 2)) // tile) * tile
-    iy1 = -((-(math.floor(box[3] / res) + 2)) // tile) * tile
+    ix0, iy0, ix1, iy1 = _tile_window(box, res, tile)
     shape = (iy1 - iy0, ix1 - ix0)
     n = P.shape[0]
     dtype = np.uint16 if n <= np.iinfo(np.uint16).max else np.int32
@@ -496,10 +500,7 @@ def integrate_semantic_increments(
     box = np.empty(4)
     _kernels.scan_bounds(poses, ranges, A, angles.ndim == 1, mr, clear_range, model.thickness, box)
     res = float(resolution)
-    ix0 = (math.floor(box[0] / res) - 1) // tile * tile
-    iy0 = (math.floor(box[2] / res) - 1) // tile * tile
-    ix1 = -((-(math.floor(box[1] / res) + 2)) // tile) * tile
-    iy1 = -((-(math.floor(box[3] / res) + 2)) // tile) * tile
+    ix0, iy0, ix1, iy1 = _tile_window(box, res, tile)
     spec = GridSpec(res, (ix0 * res, iy0 * res), (iy1 - iy0, ix1 - ix0))
     grid = SemanticGrid(scans.classes, resolution=res, spec=spec, fixed=True, **kwargs)
     # the grid's own validation, evidence and kernel, on float64 zeros with no clamping: the

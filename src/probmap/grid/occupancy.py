@@ -234,15 +234,21 @@ def check_one_scan(pose: ArrayLike, ranges: ArrayLike) -> tuple[FloatArray, Floa
     return p, r
 
 
+def check_finite_poses(P: FloatArray) -> None:
+    """Raise :class:`ValueError` naming the first pose (row of ``P`` (S, 3)) that is not
+    finite."""
+    if not np.isfinite(P).all():
+        bad = int(np.nonzero(~np.isfinite(P).all(axis=1))[0][0])
+        raise ValueError(f"poses must be finite numbers; pose {bad} is {P[bad].tolist()}")
+
+
 def check_poses(poses: ArrayLike) -> FloatArray:
     """Sensor poses as contiguous float64 (S, 3), all finite, or :class:`ValueError` naming the
     first bad pose."""
     P = np.ascontiguousarray(poses, dtype=np.float64)
     if P.ndim != 2 or P.shape[1] != 3:
         raise ValueError(f"poses must have shape (S, 3) = (x, y, theta), got {P.shape}")
-    if not np.isfinite(P).all():
-        bad = int(np.nonzero(~np.isfinite(P).all(axis=1))[0][0])
-        raise ValueError(f"poses must be finite numbers; pose {bad} is {P[bad].tolist()}")
+    check_finite_poses(P)
     return P
 
 
@@ -278,6 +284,21 @@ def check_angles_and_max_range(
     if not max_range > 0.0:
         raise ValueError(f"max_range must be > 0 m, got {max_range}")
     return np.ascontiguousarray(A), shared, max_range
+
+
+def observed_window(seen: NDArray[np.bool_], margin: int) -> tuple[int, int, int, int] | None:
+    """Rows ``y0:y1`` and columns ``x0:x1`` of the cells observed in ``seen`` (H, W) plus
+    ``margin`` cells, inside the grid, as ``(y0, y1, x0, x1)``; None when no cell is observed.
+    What :meth:`OccupancyGrid.cropped` and
+    :meth:`probmap.grid.increments.IncrementGrid.cropped` keep."""
+    rows = np.nonzero(seen.any(axis=1))[0]
+    cols = np.nonzero(seen.any(axis=0))[0]
+    if len(rows) == 0:
+        return None
+    h, w = seen.shape
+    y0, y1 = max(int(rows[0]) - margin, 0), min(int(rows[-1]) + 1 + margin, h)
+    x0, x1 = max(int(cols[0]) - margin, 0), min(int(cols[-1]) + 1 + margin, w)
+    return y0, y1, x0, x1
 
 
 def observed_mask(
@@ -492,15 +513,11 @@ class OccupancyGrid(_ScanGrid):
         World positions of cells are unchanged. A grid with no observed cell is returned as a copy.
         """
         seen = self.observed
-        rows = np.nonzero(seen.any(axis=1))[0]
-        cols = np.nonzero(seen.any(axis=0))[0]
-        if len(rows) == 0:
+        window = observed_window(seen, margin)
+        if window is None:
             y0, y1, x0, x1 = 0, self._spec.height, 0, self._spec.width
         else:
-            y0 = max(int(rows[0]) - margin, 0)
-            y1 = min(int(rows[-1]) + 1 + margin, self._spec.height)
-            x0 = max(int(cols[0]) - margin, 0)
-            x1 = min(int(cols[-1]) + 1 + margin, self._spec.width)
+            y0, y1, x0, x1 = window
         r = self._spec.resolution
         ox, oy = self._spec.origin
         spec = GridSpec(r, (ox + x0 * r, oy + y0 * r), (y1 - y0, x1 - x0))

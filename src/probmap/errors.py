@@ -22,7 +22,27 @@ __all__ = [
     "ParticleFilterWarning",
     "SemanticFileError",
     "SingularInformationError",
+    "error_message",
 ]
+
+
+def error_message(exc: BaseException) -> str:
+    """An error's message on one line as probmap reports it: ``str(exc)`` (the class name when
+    that is empty), with the file name of an :class:`OSError` in front unless the message
+    names it already. The CLI's one-line errors and the distributed pipeline's failed inputs
+    both read so.
+
+    Examples
+    --------
+    >>> error_message(FileNotFoundError(2, "No such file", "a.log"))
+    "[Errno 2] No such file: 'a.log'"
+    >>> error_message(KeyError())
+    'KeyError'
+    """
+    msg = str(exc) or exc.__class__.__name__
+    if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
+        msg = f"{exc.filename}: {msg}"
+    return msg
 
 
 # --------------------------------------------------------------------------------- input data

@@ -22,15 +22,12 @@ class CliError(Exception):
 def cli_errors() -> Iterator[None]:
     """Turn expected library errors into a one-line message on stderr and exit code 1 (a
     missing optional extra too: its message names what to install)."""
-    from probmap.errors import MissingExtraError
+    from probmap.errors import MissingExtraError, error_message
 
     try:
         yield
     except (CliError, ValueError, OSError, EOFError, KeyError, MissingExtraError) as exc:
-        msg = str(exc) or exc.__class__.__name__
-        if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
-            msg = f"{exc.filename}: {msg}"
-        typer.echo(f"error: {msg}", err=True)
+        typer.echo(f"error: {error_message(exc)}", err=True)
         raise typer.Exit(1) from None
 
 

@@ -309,12 +309,11 @@ def _resolve_mode(n_logs: int, options: DistributedOptions) -> str:
 
 
 def _error_text(exc: BaseException | None) -> str:
+    from probmap.errors import error_message
+
     if exc is None:
         return "unknown error"
-    msg = str(exc) or exc.__class__.__name__
-    if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in msg:
-        msg = f"{exc.filename}: {msg}"
-    return msg
+    return error_message(exc)
 
 
 def _named(path: Path, message: str) -> str:

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from probmap.viz.maps import label_metric_axes
+from probmap.viz.maps import label_metric_axes, sampled_cells
 
 __all__ = ["plot_graph_slam", "save_graph_slam_figure"]
 
@@ -33,11 +33,8 @@ def plot_graph_slam(ax: Any, run: Any, *, title: str | None = None, max_pixels: 
     x0, y0 = grid.spec.origin
     r = grid.spec.resolution
     h, w = grid.spec.shape
-    # a picture has a few thousand pixels a side: take every step-th cell (a large building's
-    # map has tens of millions of cells, and matplotlib would resample all of them in RGBA)
-    step = max(1, -(-max(h, w) // max_pixels))
-    lo = np.asarray(grid.log_odds)[::step, ::step]
-    seen = np.asarray(grid.observed)[::step, ::step]
+    # every step-th cell: matplotlib would otherwise resample all of them in RGBA
+    lo, seen, _ = sampled_cells(grid, max_pixels)
     img = np.where(seen, 1.0 / (1.0 + np.exp(lo, dtype=np.float32)), np.float32(0.8))
     ax.imshow(
         img, cmap="gray", vmin=0.0, vmax=1.0, origin="lower", extent=(x0, x0 + w * r, y0, y0 + h * r),

@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from probmap._checks import require_at_least
+from probmap.viz.maps import sampled_cells
 
 __all__ = [
     "GraphSlamObserver",
@@ -142,10 +143,7 @@ class LiveView:
         """An :class:`~probmap.grid.occupancy.OccupancyGrid` as an image placed in metres
         (every ``step``-th cell so that the longer side has at most ``max_pixels``)."""
         rr = self._rr
-        h, w = grid.spec.shape
-        step = max(1, -(-max(h, w) // max_pixels))
-        lo = np.asarray(grid.log_odds)[::step, ::step]
-        seen = np.asarray(grid.observed)[::step, ::step]
+        lo, seen, step = sampled_cells(grid, max_pixels)
         free = 1.0 / (1.0 + np.exp(lo.astype(np.float64)))  # 1 - p: free white
         img = np.where(seen, free * 255.0, 160.0).astype(np.uint8)[::-1]  # row 0 on top
         r = grid.spec.resolution * step

@@ -11,7 +11,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["label_metric_axes", "map_image", "nice_length", "plot_map", "save_map_figure"]
+__all__ = [
+    "label_metric_axes",
+    "map_image",
+    "nice_length",
+    "plot_map",
+    "sampled_cells",
+    "save_map_figure",
+]
 
 
 def nice_length(span: float) -> float:
@@ -48,16 +55,25 @@ def label_metric_axes(ax: Any, title: str | None = None, *, legend: str | None =
     return ax
 
 
+def sampled_cells(grid: Any, max_pixels: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """Every ``step``-th row and column of ``grid``'s log odds and observed mask, and
+    ``step``: the smallest that leaves the longer side at most ``max_pixels``. What every
+    picture of a map draws (a picture has a few thousand pixels a side; a large building's map
+    has tens of millions of cells)."""
+    h, w = grid.spec.shape
+    step = max(1, -(-max(h, w) // max_pixels))
+    lo = np.asarray(grid.log_odds)[::step, ::step]
+    seen = np.asarray(grid.observed)[::step, ::step]
+    return lo, seen, step
+
+
 def map_image(grid: Any, max_pixels: int = 2000) -> tuple[np.ndarray, int]:
     """Grey levels (0 black .. 1 white) of every ``step``-th cell, row 0 at the smallest y:
     free white (p <= 0.25), occupied black (p >= 0.75), linear between, unknown mid-grey (the
     map PNG's palette). Returns the image and ``step`` (the longer side has at most
     ``max_pixels``)."""
-    h, w = grid.spec.shape
-    step = max(1, -(-max(h, w) // max_pixels))
-    lo = np.asarray(grid.log_odds, dtype=np.float64)[::step, ::step]
-    seen = np.asarray(grid.observed)[::step, ::step]
-    p = 1.0 - 1.0 / (1.0 + np.exp(lo))
+    lo, seen, step = sampled_cells(grid, max_pixels)
+    p = 1.0 - 1.0 / (1.0 + np.exp(lo.astype(np.float64)))
     grey = np.clip((0.75 - p) / 0.5, 0.0, 1.0)
     return np.where(seen, grey, 0.5), step
 

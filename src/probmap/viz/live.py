@@ -221,7 +221,29 @@ def _scan_points(pose: NDArray, ranges: NDArray, angles: NDArray, max_range: flo
     return np.column_stack([pose[0] + r * np.cos(a), pose[1] + r * np.sin(a)])
 
 
-class GraphSlamObserver:
+class _Throttled:
+    """The observers' one rate limit: what grows with the run (the trajectory, the map ...) is
+    logged at most once per ``interval`` seconds of wall time, so that watching costs about the
+    same share of a long run as of a short one."""
+
+    interval: float
+    _last: float
+
+    def _start_throttle(self, interval: float) -> None:
+        require_at_least("interval", interval, 0, "s")
+        self.interval = float(interval)
+        self._last = -math.inf  # wall time of the last update of the growing items
+
+    def _due(self) -> bool:
+        """True (and the clock restarted) when ``interval`` has passed since the last time."""
+        now = time.perf_counter()
+        if now - self._last < self.interval:
+            return False
+        self._last = now
+        return True
+
+
+class GraphSlamObserver(_Throttled):
     """Streams a :class:`~probmap.slam.graph_slam.GraphSlam` run to a :class:`LiveView`.
 
     Called after every scan (``observer(index, slam, ranges, angles)``); it logs the newest
@@ -242,11 +264,9 @@ class GraphSlamObserver:
 
     def __init__(self, view: LiveView, *, every: int = 5, interval: float = 1.0) -> None:
         require_at_least("every", every, 1)
-        require_at_least("interval", interval, 0, "s")
+        self._start_throttle(interval)
         self.view = view
         self.every = int(every)
-        self.interval = float(interval)
-        self._last = -math.inf  # wall time of the last update of the growing items
         self._nodes = 0
         self._submaps = 0  # finished submaps logged
         self._optimizations = -1
@@ -264,10 +284,8 @@ class GraphSlamObserver:
             return
         v.points("world/scan", _scan_points(poses[n - 1], ranges, angles, slam.max_range))
         v.scalar("stats/closures", len(slam.closures))
-        now = time.perf_counter()
-        if now - self._last < self.interval:
+        if not self._due():
             return
-        self._last = now
         v.path("world/trajectory", poses[:n, :2])
         if slam.optimizations != self._optimizations:
             # every pose moved: the submaps follow their anchors, the closures their ends
@@ -308,7 +326,7 @@ class GraphSlamObserver:
             v.segments("world/closures", p[run.closures[:, 0], :2], p[run.closures[:, 1], :2])
 
 
-class MappingObserver:
+class MappingObserver(_Throttled):
     """Streams ``probmap map`` (:func:`probmap.pipelines.map_log`) to a :class:`LiveView`.
 
     Called as ``observer(done, grid, trajectory, ranges, angles, max_range)`` after every few
@@ -325,10 +343,8 @@ class MappingObserver:
     """
 
     def __init__(self, view: LiveView, *, interval: float = 1.0) -> None:
-        require_at_least("interval", interval, 0, "s")
+        self._start_throttle(interval)
         self.view = view
-        self.interval = float(interval)
-        self._last = -math.inf
 
     def __call__(
         self, done: int, grid: Any, trajectory: NDArray, ranges: NDArray, angles: NDArray,
@@ -339,10 +355,8 @@ class MappingObserver:
         pose = np.asarray(trajectory[-1], dtype=np.float64)
         r = np.asarray(ranges, dtype=np.float64)
         v.points("world/scan", _scan_points(pose, r, np.asarray(angles, np.float64), max_range))
-        now = time.perf_counter()
-        if now - self._last < self.interval:
+        if not self._due():
             return
-        self._last = now
         v.grid(grid)
         v.path("world/trajectory", np.asarray(trajectory)[:, :2])
 
@@ -364,7 +378,7 @@ def _landmark_estimate(estimator: Any, copy_first: bool = True) -> tuple[NDArray
     return np.asarray(xy, np.float64).reshape(-1, 2), np.asarray(cov, np.float64).reshape(-1, 2, 2)
 
 
-class LandmarkSlamObserver:
+class LandmarkSlamObserver(_Throttled):
     """Streams landmark SLAM (:func:`probmap.pipelines.landmark_slam.run_landmark_slam`) to a
     :class:`LiveView`.
 
@@ -408,12 +422,10 @@ class LandmarkSlamObserver:
         reference: ArrayLike | None = None,
     ) -> None:
         require_at_least("every", every, 1)
-        require_at_least("interval", interval, 0, "s")
+        self._start_throttle(interval)
         self.view = view
         self.model = measurement_model
         self.every = int(every)
-        self.interval = float(interval)
-        self._last = -math.inf
         self._poses: list[NDArray] = []
         self._truth: list[NDArray] = []
         self._copyable = True  # False once a copy failed (state holding a module, a lock)
@@ -446,10 +458,8 @@ class LandmarkSlamObserver:
         if z.shape[0]:
             ends = np.array([self.model.inverse(pose, zi)[0] for zi in z])
             v.segments("world/measurements", np.repeat(pose[None, :2], len(ends), 0), ends)
-        now = time.perf_counter()
-        if now - self._last < self.interval:
+        if not self._due():
             return
-        self._last = now
         v.path("world/trajectory", np.asarray(self._poses)[:, :2])
         if self._truth:
             v.path("world/reference", np.asarray(self._truth), color=(120, 120, 120))
@@ -526,7 +536,7 @@ def read_recording(path: str | os.PathLike[str]) -> dict[str, int]:
     return counts
 
 
-class LocalizationObserver:
+class LocalizationObserver(_Throttled):
     """Streams a Monte Carlo localization run
     (:func:`probmap.pipelines.localize.localize_scans`) to a :class:`LiveView`.
 
@@ -570,7 +580,7 @@ class LocalizationObserver:
     ) -> None:
         require_at_least("every", every, 1)
         require_at_least("max_particles", max_particles, 1)
-        require_at_least("interval", interval, 0, "s")
+        self._start_throttle(interval)
         self.view = view
         self.grid = grid
         self.max_range = float(max_range)
@@ -579,10 +589,8 @@ class LocalizationObserver:
         )
         self.every = int(every)
         self.max_particles = int(max_particles)
-        self.interval = float(interval)
         self.updates = 0
         self._path: list[NDArray[np.float64]] = []
-        self._last = -math.inf
 
     def __call__(
         self, index: int, estimate: Any, particles: NDArray, ranges: NDArray, angles: NDArray
@@ -605,9 +613,7 @@ class LocalizationObserver:
         v.points("world/estimate", pose[:2], color=(220, 40, 40), radius=-5.0)
         v.points("world/scan", _scan_points(pose, ranges, angles, self.max_range), radius=-1.5)
         v.scalar("stats/spread", estimate.spread)
-        now = time.perf_counter()
-        if now - self._last >= self.interval:
-            self._last = now
+        if self._due():
             v.path("world/trajectory", np.asarray(self._path), color=(220, 40, 40))
 
     def finish(self, run: Any) -> None:

@@ -46,6 +46,14 @@ def write_bag(
     return Path(write_map_to_bag(to_bag, mapping.grid, frame_id=frame))
 
 
+def _one_cluster(workers: int | None, scheduler: str | None) -> None:
+    """Refuse ``--workers`` (a local cluster) together with ``--scheduler`` (a running one)."""
+    from probmap.cli.common import CliError
+
+    if workers is not None and scheduler is not None:
+        raise CliError("give either --workers (a local cluster) or --scheduler, not both")
+
+
 def run_map_method_distributed(
     log: Path,
     output: Path,
@@ -63,8 +71,7 @@ def run_map_method_distributed(
     from probmap.pipelines import check_output_prefix, write_map
     from probmap.pipelines.distributed import DistributedMappingError, map_log_map_distributed
 
-    if workers is not None and scheduler is not None:
-        raise CliError("give either --workers (a local cluster) or --scheduler, not both")
+    _one_cluster(workers, scheduler)
     check_output_prefix(output)
     try:
         result = map_log_map_distributed(
@@ -110,8 +117,7 @@ def run_map_distributed(
         map_logs_distributed,
     )
 
-    if workers is not None and scheduler is not None:
-        raise CliError("give either --workers (a local cluster) or --scheduler, not both")
+    _one_cluster(workers, scheduler)
     check_output_prefix(output)
     try:
         result = map_logs_distributed(

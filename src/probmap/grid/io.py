@@ -742,6 +742,15 @@ def save_png(path: str | os.PathLike[str], grid: GridLike, *, scale: int = 1) ->
 # ---------------------------------------------------------------------------- all at once
 
 
+def prefix_path(prefix: str | os.PathLike[str]) -> Path:
+    """``prefix`` as a path whose name the writers extend (``PREFIX.npz`` ...); a
+    :class:`ValueError` when it has no file name part (``""``, ``"."``, ``".."``)."""
+    base = Path(prefix)
+    if base.name in ("", ".", ".."):
+        raise ValueError(f"output prefix {os.fspath(prefix)!r} needs a file name part")
+    return base
+
+
 # write_map_server's thresholds (the same encoding helpers), then the preview's png_scale.
 def save_map(
     prefix: str | os.PathLike[str],
@@ -763,9 +772,7 @@ def save_map(
     list of Path
         The four files, in the order above.
     """
-    base = Path(prefix)
-    if base.name in ("", ".", ".."):
-        raise ValueError(f"output prefix {os.fspath(prefix)!r} needs a file name part")
+    base = prefix_path(prefix)
     paths = [base.parent / f"{base.name}.{ext}" for ext in ("yaml", "pgm", "npz", "png")]
     yaml_text = _yaml_text(paths[1].name, grid.spec, occupied_thresh, free_thresh, False, mode)
     seen = np.asarray(grid.observed, dtype=bool)

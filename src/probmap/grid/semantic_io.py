@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 from probmap._atomic import atomic_files, atomic_outputs
 from probmap._checks import require_integer
 from probmap.errors import SemanticFileError
-from probmap.grid.io import check_npz_format, npz_array, open_npz
+from probmap.grid.io import check_npz_format, npz_array, open_npz, prefix_path
 from probmap.grid.semantic import (
     LabelledInverseModel,
     SemanticGrid,
@@ -273,9 +273,7 @@ def write_semantic_maps(prefix: str | os.PathLike[str], grid: SemanticGrid) -> l
     the six files."""
     from probmap.grid.io import save_map
 
-    base = Path(prefix)
-    if base.name in ("", ".", ".."):
-        raise ValueError(f"output prefix {os.fspath(prefix)!r} needs a file name part")
+    base = prefix_path(prefix)
     paths = [base.parent / f"{base.name}.npz", base.parent / f"{base.name}.png"]
     npz, png = semantic_npz_bytes(grid), semantic_png_bytes(grid)
     occupancy = grid.to_occupancy()

@@ -31,6 +31,19 @@ def cli_errors() -> Iterator[None]:
         raise typer.Exit(1) from None
 
 
+@contextmanager
+def bad_lines_quiet() -> Iterator[None]:
+    """Inside: no :class:`~probmap.errors.BadLinesWarning` text on the terminal, the command's
+    summary reports the skipped lines instead."""
+    import warnings
+
+    from probmap.errors import BadLinesWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BadLinesWarning)
+        yield
+
+
 def check_choice(option: str, value: str | None, choices: Iterable[str]) -> None:
     """Raise :class:`ValueError` unless ``value`` is one of ``choices`` or None (the option not
     given): ``--method must be 'graph' or 'rbpf', got 'x'``, one message form for every

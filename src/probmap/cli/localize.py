@@ -13,6 +13,7 @@ from probmap.cli import options as opt
 from probmap.cli.common import (
     CliError,
     Stopwatch,
+    bad_lines_quiet,
     cli_errors,
     input_rows,
     laser_input,
@@ -171,7 +172,6 @@ def localize_command(
         from probmap.cli._provenance import write_run_config
         from probmap.cli.common import progress_bar, resolve_config
         from probmap.datasets.scans import open_scans
-        from probmap.errors import BadLinesWarning
         from probmap.pipelines import check_output_folder
         from probmap.pipelines.localize import (
             FilterLostWarning,
@@ -207,8 +207,7 @@ def localize_command(
 
         with watch("read"):
             m = load_localization_map(map_path)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", BadLinesWarning)  # counted in the summary
+            with bad_lines_quiet():
                 # the log's own laser poses: beside the robot's they give the mounting
                 batch = open_scans(
                     log, poses="corrected", skip_bad_lines=skip_bad_lines, bag_options=bag_options
@@ -226,8 +225,7 @@ def localize_command(
             ref_name = None
             always = None
             if reference is not None:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore", BadLinesWarning)
+                with bad_lines_quiet():
                     ref_t, ref_p = _read_reference(
                         reference, reference_offset, skip_bad_lines, bag_options
                     )

@@ -12,7 +12,13 @@ from typing import Any
 import typer
 
 from probmap.cli import options as opt
-from probmap.cli.common import cli_errors, input_rows, laser_input, print_summary
+from probmap.cli.common import (
+    bad_lines_quiet,
+    cli_errors,
+    input_rows,
+    laser_input,
+    print_summary,
+)
 
 
 def run_map_method(
@@ -123,7 +129,6 @@ def fit_sensor_model_command(
     'configuration'."""
     with cli_errors():
         import dataclasses
-        import warnings
 
         import yaml
 
@@ -131,7 +136,6 @@ def fit_sensor_model_command(
         from probmap.cli._provenance import command_line
         from probmap.cli.common import Stopwatch, resolve_config
         from probmap.config import dump_config, package_version
-        from probmap.errors import BadLinesWarning
         from probmap.pipelines import check_output_prefix
         from probmap.pipelines.fit import FitConfig, fit_scans, read_fit_scans
 
@@ -140,9 +144,7 @@ def fit_sensor_model_command(
         target = None if output is None else check_output_prefix(output, "beam_model.yaml")
         overrides = {"resolution": resolution, "every": every, "max_range": max_range}
         cfg = resolve_config(FitConfig, config, {**overrides, "poses": poses})
-        with watch("read"), warnings.catch_warnings():
-            # the summary reports skipped lines; no Python warning text on the terminal
-            warnings.simplefilter("ignore", BadLinesWarning)
+        with watch("read"), bad_lines_quiet():
             batch = read_fit_scans(log, cfg, skip_bad_lines=skip_bad_lines, bag_options=bag_options)
         with watch("compute"):
             fit = fit_scans(batch, cfg)

@@ -13,6 +13,7 @@ from probmap.cli import options as opt
 from probmap.cli._provenance import command_line
 from probmap.cli.common import (
     Stopwatch,
+    bad_lines_quiet,
     check_choice,
     cli_errors,
     laser_input,
@@ -88,9 +89,6 @@ def map_command(
     """Build an occupancy grid map from a laser log with known poses."""
     watch = Stopwatch()
     with cli_errors():
-        import warnings
-
-        from probmap.datasets.carmen import BadLinesWarning
         from probmap.pipelines import (
             MappingConfig,
             check_output_folder,
@@ -160,8 +158,7 @@ def map_command(
         if method == "map":
             from probmap.cli.map_mapping import run_map_method
 
-            with warnings.catch_warnings(), _aborted_on_ctrl_c():
-                warnings.simplefilter("ignore", BadLinesWarning)
+            with bad_lines_quiet(), _aborted_on_ctrl_c():
                 run_map_method(log, prefix, cfg, bag_options=bag_options)
             return
         _map_one(
@@ -194,12 +191,10 @@ def _map_one(
 ) -> None:
     """``probmap map`` of one log with the log-odds filter: progress bars, the live view,
     Ctrl-C (the map of the scans so far with ``save_partial``), the summary."""
-    import warnings
 
     from probmap._atomic import atomic_outputs
     from probmap.cli.common import progress_bar
     from probmap.cli.watch import interrupted_exit, open_view, stop_on_ctrl_c
-    from probmap.datasets.carmen import BadLinesWarning
     from probmap.pipelines import map_log, write_map
 
     view = open_view(f"probmap map {log.name}", viz, viz_save)
@@ -211,11 +206,9 @@ def _map_one(
     try:
         with (
             progress_bar(unit="scans") as bar,
-            warnings.catch_warnings(),
+            bad_lines_quiet(),
             stop_on_ctrl_c(save_partial, "chunk of scans") as stop,
         ):
-            # the summary table reports skipped lines; no Python warning text on the terminal
-            warnings.simplefilter("ignore", BadLinesWarning)
             task = bar.add_task(f"reading {log.name}", total=1)
 
             def tick(done: int, total: int) -> None:

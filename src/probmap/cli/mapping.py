@@ -194,7 +194,12 @@ def _map_one(
 
     from probmap._atomic import atomic_outputs
     from probmap.cli.common import progress_bar
-    from probmap.cli.watch import interrupted_exit, open_view, stop_on_ctrl_c
+    from probmap.cli.watch import (
+        interrupted_exit,
+        open_view,
+        stop_on_ctrl_c,
+        view_discarded_on_error,
+    )
     from probmap.pipelines import map_log, write_map
 
     view = open_view(f"probmap map {log.name}", viz, viz_save)
@@ -203,7 +208,7 @@ def _map_one(
         from probmap.viz.live import MappingObserver
 
         observer = MappingObserver(view)
-    try:
+    with view_discarded_on_error(view):
         with (
             progress_bar(unit="scans") as bar,
             bad_lines_quiet(),
@@ -232,15 +237,6 @@ def _map_one(
                     frame = RosBag(log, **bag_options).resolve_frames()[0]
                     outputs.folder(to_bag.parent if str(to_bag.parent) else Path("."))
                     files.append(str(write_map_to_bag(to_bag, result.grid, frame_id=frame)))
-    except KeyboardInterrupt:
-        if view is not None:
-            view.close(keep=False)
-        interrupted_exit(0, 0, "scans", wrote=False)
-        raise  # not reached
-    except BaseException:
-        if view is not None:
-            view.close(keep=False)
-        raise
     if view is not None:
         view.close()
     rows = [r for r in mapping_rows(result) if r[0] not in ("time", "wrote")]

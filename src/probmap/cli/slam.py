@@ -18,7 +18,13 @@ import typer
 from probmap.cli import options as opt
 from probmap.cli._provenance import command_line
 from probmap.cli.common import CliError, Stopwatch, cli_errors, print_summary
-from probmap.cli.watch import interrupted_exit, live_view_options, open_view, stop_on_ctrl_c
+from probmap.cli.watch import (
+    interrupted_exit,
+    live_view_options,
+    open_view,
+    stop_on_ctrl_c,
+    view_discarded_on_error,
+)
 
 slam_app = typer.Typer(
     help="Landmark SLAM on feature datasets (EKF; SEIF; GraphSLAM).", no_args_is_help=True
@@ -256,7 +262,7 @@ def run_and_report(
         observer = LandmarkSlamObserver(view, dataset.measurement_model, reference=gt)
     # the time so far outside the phases: imports (numba kernels loaded), checks, the viewer
     watch.phases = {"setup": watch.total - sum(watch.phases.values()), **watch.phases}
-    try:
+    with view_discarded_on_error(view):
         with watch("compute"):
             with progress_bar(title, unit="steps") as bar, stop_on_ctrl_c(save_partial) as stop:
                 task = bar.add_task(title, total=len(dataset))
@@ -270,15 +276,6 @@ def run_and_report(
             with progress_bar(unit="runs") as bar:
                 bar.add_task(f"evaluating {len(result.trajectory):,} steps", total=1)
                 metrics = evaluate(result, dataset)
-    except KeyboardInterrupt:
-        if view is not None:
-            view.close(keep=False)
-        interrupted_exit(0, len(dataset), "steps", wrote=False)
-        raise  # not reached
-    except BaseException:
-        if view is not None:
-            view.close(keep=False)
-        raise
     metrics["dataset"] = getattr(dataset, "name", "")
     metrics["estimator"] = title
     metrics.update(_provenance(estimator))
@@ -286,7 +283,7 @@ def run_and_report(
         metrics["interrupted"] = {"steps": len(result.trajectory), "of": result.steps_total}
     with watch("write"), progress_bar(unit="parts") as bar:
         task = bar.add_task(f"writing {output}", total=2 + tum + plot)
-        try:
+        with view_discarded_on_error(view):
             if observer is not None:
                 observer.finish(result, dataset, metrics)
             with atomic_outputs():  # a missing folder is created; a failed picture leaves no CSV
@@ -313,12 +310,6 @@ def run_and_report(
                             output / "slam.png", result, dataset, title=title, metrics=metrics
                         )
                     )
-        except BaseException as exc:
-            if view is not None:
-                view.close(keep=False)
-            if isinstance(exc, KeyboardInterrupt):  # the outputs are all or none: none
-                interrupted_exit(0, 0, "steps", wrote=False)
-            raise
         if view is not None:
             view.close()
     rows = metrics_rows(metrics)

@@ -104,6 +104,21 @@ def stop_on_ctrl_c(enabled: bool, unit: str = "step") -> Iterator[Callable[[], b
         signal.signal(signal.SIGINT, previous)
 
 
+@contextmanager
+def view_discarded_on_error(view: Any) -> Iterator[None]:
+    """Inside: an error or a Ctrl-C that ends the block discards the live view ``view`` (None:
+    no view) before it goes on; a Ctrl-C then ends the command with "interrupted: nothing
+    written" and exit code 130 (the outputs are all or none: none)."""
+    try:
+        yield
+    except BaseException as exc:
+        if view is not None:
+            view.close(keep=False)
+        if isinstance(exc, KeyboardInterrupt):
+            interrupted_exit(0, 0, "steps", wrote=False)
+        raise
+
+
 def interrupted_exit(done: int, total: int, unit: str, wrote: bool) -> None:
     """After a Ctrl-C: one line on stderr saying what was written, then exit code 130."""
     if wrote:

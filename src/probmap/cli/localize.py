@@ -19,7 +19,7 @@ from probmap.cli.common import (
     laser_input,
     print_summary,
 )
-from probmap.cli.watch import viz_option, viz_save_option
+from probmap.cli.watch import recorded_rows, viz_option, viz_save_option
 
 
 def _read_reference(
@@ -343,7 +343,7 @@ def localize_command(
             *([("lost", run.lost.describe())] if run.lost is not None else []),
             watch.row(),
             ("wrote", ", ".join(str(f) for f in (traj, plot, *extra))),
-            *([("recorded", f"{viz_save} (rerun {viz_save})")] if viz_save is not None else []),
+            *recorded_rows(viz_save),
         ]
         print_summary(f"probmap localize {log.name}", summary_rows, console=console)
         if errors is not None:

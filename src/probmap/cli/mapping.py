@@ -197,6 +197,7 @@ def _map_one(
     from probmap.cli.watch import (
         interrupted_exit,
         open_view,
+        recorded_rows,
         stop_on_ctrl_c,
         view_discarded_on_error,
     )
@@ -240,9 +241,7 @@ def _map_one(
     if view is not None:
         view.close()
     rows = [r for r in mapping_rows(result) if r[0] not in ("time", "wrote")]
-    rows += [watch.row(), *(("wrote", f) for f in files)]
-    if viz_save is not None:
-        rows.append(("recorded", f"{viz_save} (rerun {viz_save})"))
+    rows += [watch.row(), *(("wrote", f) for f in files), *recorded_rows(viz_save)]
     if result.interrupted:
         rows.insert(0, ("interrupted", f"at scan {result.stats.scans:,} of {result.scans_total:,}"))
     print_summary(f"probmap map {log.name}", rows)

@@ -22,6 +22,7 @@ from probmap.cli.watch import (
     interrupted_exit,
     live_view_options,
     open_view,
+    recorded_rows,
     stop_on_ctrl_c,
     view_discarded_on_error,
 )
@@ -318,8 +319,7 @@ def run_and_report(
     rows.append(("step time", f"{steps['mean']:.3f} ms mean, {steps['median']:.3f} ms median"))
     rows.append(watch.row())
     rows += [("wrote", str(f)) for f in files]
-    if viz_save is not None:
-        rows.append(("recorded", f"{viz_save} (rerun {viz_save})"))
+    rows += recorded_rows(viz_save)
     if result.interrupted:
         done = len(result.trajectory)
         rows.insert(0, ("interrupted", f"at step {done:,} of {result.steps_total:,}"))

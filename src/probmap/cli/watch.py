@@ -104,6 +104,12 @@ def stop_on_ctrl_c(enabled: bool, unit: str = "step") -> Iterator[Callable[[], b
         signal.signal(signal.SIGINT, previous)
 
 
+def recorded_rows(viz_save: Path | None) -> list[tuple[str, str]]:
+    """The summary's row naming the ``--viz-save`` recording and how to replay it (none
+    without one)."""
+    return [] if viz_save is None else [("recorded", f"{viz_save} (rerun {viz_save})")]
+
+
 @contextmanager
 def view_discarded_on_error(view: Any) -> Iterator[None]:
     """Inside: an error or a Ctrl-C that ends the block discards the live view ``view`` (None:

@@ -63,21 +63,33 @@ def logmap_coeffs(th):  # pragma: no cover - compiled
     return a, da
 
 
-@njit(cache=True)
-def edge_residual(poses, i, j, mx, my, mt, chart, e):  # pragma: no cover - compiled
-    """Residual ``e (3,)`` of one edge (written in place)."""
+@njit(cache=True, inline="always")
+def _edge_delta(poses, i, j, mx, my, mt):  # pragma: no cover - compiled
+    """The parts of one edge's residual that both :func:`edge_residual` and
+    :func:`edge_linearize` start from: ``u = R_i^T (t_j - t_i)`` (``ux, uy``), ``u - t_m``
+    rotated into the measurement frame (``tx, ty``), the wrapped heading error ``th`` and
+    ``cos``/``sin`` of the measured heading (``cm, sm``)."""
     ci = math.cos(poses[i, 2])
     si = math.sin(poses[i, 2])
     dx = poses[j, 0] - poses[i, 0]
     dy = poses[j, 1] - poses[i, 1]
+    ux = ci * dx + si * dy
+    uy = -si * dx + ci * dy
     # z = R_i^T (t_j - t_i) - t_m, then rotated into the measurement frame
-    zx = ci * dx + si * dy - mx
-    zy = -si * dx + ci * dy - my
+    zx = ux - mx
+    zy = uy - my
     cm = math.cos(mt)
     sm = math.sin(mt)
     tx = cm * zx + sm * zy
     ty = -sm * zx + cm * zy
     th = wrap(poses[j, 2] - poses[i, 2] - mt)
+    return ux, uy, tx, ty, th, cm, sm
+
+
+@njit(cache=True)
+def edge_residual(poses, i, j, mx, my, mt, chart, e):  # pragma: no cover - compiled
+    """Residual ``e (3,)`` of one edge (written in place)."""
+    _, _, tx, ty, th, _, _ = _edge_delta(poses, i, j, mx, my, mt)
     if chart == CHART_LOGMAP:
         a, _ = logmap_coeffs(th)
         b = 0.5 * th
@@ -92,19 +104,7 @@ def edge_residual(poses, i, j, mx, my, mt, chart, e):  # pragma: no cover - comp
 @njit(cache=True)
 def edge_linearize(poses, i, j, mx, my, mt, chart, e, A, B):  # pragma: no cover - compiled
     """Residual ``e (3,)`` and Jacobians ``A = de/dx_i``, ``B = de/dx_j`` (3, 3), in place."""
-    ci = math.cos(poses[i, 2])
-    si = math.sin(poses[i, 2])
-    dx = poses[j, 0] - poses[i, 0]
-    dy = poses[j, 1] - poses[i, 1]
-    ux = ci * dx + si * dy
-    uy = -si * dx + ci * dy
-    zx = ux - mx
-    zy = uy - my
-    cm = math.cos(mt)
-    sm = math.sin(mt)
-    tx = cm * zx + sm * zy
-    ty = -sm * zx + cm * zy
-    th = wrap(poses[j, 2] - poses[i, 2] - mt)
+    ux, uy, tx, ty, th, cm, sm = _edge_delta(poses, i, j, mx, my, mt)
     # R_im^T = (R_i R_m)^T: d t_delta / d t_j (and minus d / d t_i)
     cim = math.cos(poses[i, 2] + mt)
     sim = math.sin(poses[i, 2] + mt)

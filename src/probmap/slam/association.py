@@ -24,6 +24,7 @@ __all__ = [
     "chi2_gate",
     "innovation",
     "mahalanobis_squared",
+    "validate_control",
     "validate_initial_state",
     "validate_observations",
 ]
@@ -184,6 +185,15 @@ def validate_initial_state(
     if not np.allclose(P0, P0.T):
         raise ValueError("initial_covariance must be a finite symmetric 3x3 matrix")
     return mu.copy(), 0.5 * (P0 + P0.T)
+
+
+def validate_control(u: ArrayLike) -> FloatArray:
+    """One step's control ``u`` as float64 (2,), or :class:`ValueError` when it is not two
+    finite numbers (FastSLAM's and GraphSLAM's ``predict``)."""
+    c = np.asarray(u, dtype=np.float64)
+    if c.shape != (2,) or not np.all(np.isfinite(c)):
+        raise ValueError(f"control must be 2 finite numbers, got {c!r}")
+    return c
 
 
 def validate_observations(z: ArrayLike, ids: ArrayLike) -> tuple[FloatArray, IntArray]:

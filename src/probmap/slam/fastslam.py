@@ -53,7 +53,7 @@ from numpy.typing import ArrayLike
 from probmap._typing import BoolArray, FloatArray, IntArray
 from probmap.filters.resampling import effective_sample_size, low_variance_resample
 from probmap.geometry.se2 import compose, wrap_angle
-from probmap.slam.association import validate_observations
+from probmap.slam.association import validate_control, validate_observations
 
 __all__ = ["FastSLAM", "FastSLAMConfig", "FlatLandmarks", "LandmarkTree"]
 
@@ -411,9 +411,7 @@ class FastSLAM:
     # ------------------------------------------------------------------ steps
     def predict(self, u: ArrayLike, dt: float) -> None:
         """Motion: every particle moves by the displacement of a noisy control."""
-        u = np.asarray(u, dtype=np.float64)
-        if u.shape != (2,) or not np.all(np.isfinite(u)):
-            raise ValueError(f"control must be 2 finite numbers, got {u!r}")
+        u = validate_control(u)
         if not (math.isfinite(dt) and dt >= 0):
             raise ValueError(f"dt must be a finite number >= 0, got {dt}")
         if dt == 0:

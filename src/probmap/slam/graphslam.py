@@ -77,7 +77,11 @@ from probmap.geometry.se2 import wrap_angle
 from probmap.models.measurement import RangeBearingModel
 from probmap.models.motion import AckermannModel, VelocityModel
 from probmap.slam import _graphslam_kernels as _k
-from probmap.slam.association import validate_initial_state, validate_observations
+from probmap.slam.association import (
+    validate_control,
+    validate_initial_state,
+    validate_observations,
+)
 
 __all__ = [
     "GraphSLAM",
@@ -1917,9 +1921,7 @@ class GraphSLAM:
     # ------------------------------------------------------------------ recording
     def predict(self, u: ArrayLike, dt: float) -> None:
         """Record a step: control ``u`` (2,) held for ``dt`` s (>= 0)."""
-        u = np.asarray(u, dtype=np.float64)
-        if u.shape != (2,) or not np.all(np.isfinite(u)):
-            raise ValueError(f"control must be 2 finite numbers, got {u!r}")
+        u = validate_control(u)
         if not (is_finite_number(dt) and float(dt) >= 0):
             raise ValueError(f"dt must be a finite number >= 0, got {dt}")
         self._log.controls.append(u.copy())

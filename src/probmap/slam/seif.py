@@ -732,11 +732,7 @@ class SEIFSlam:
         if new_z:
             Omega, xi, mu = self._initialize_landmarks(local, Omega, xi, mu, z[new_z], new_ids)
             pos = st.local_index(local)
-        m0 = self._deactivation(local, Omega, pos)
-        if m0:
-            Omega, xi = self._sparsify_with_context(local, Omega, xi, mu, [pos[s] for s in m0])
-            for s in m0:
-                del self._active[s]
+        Omega, xi, _ = self._deactivate_excess(local, Omega, xi, mu, pos)
         st.scatter(local, Omega, xi, mu)
         self._rebin(local)
 
@@ -857,6 +853,24 @@ class SEIFSlam:
             b[3:] -= self._store.boundary(local)
         return _cho_solve(Omega, b, "information block over the robot and active landmarks")
 
+    def _deactivate_excess(
+        self,
+        local: list[int],
+        Omega: FloatArray,
+        xi: FloatArray,
+        mu: FloatArray,
+        pos: dict[int, int],
+    ) -> tuple[FloatArray, FloatArray, bool]:
+        """Table 12.4 on the local system for the slots beyond ``max_active``
+        (:meth:`_deactivation`), which leave the active set: the new ``Omega``, ``xi`` and
+        whether any did (:meth:`update` and :meth:`sparsify`)."""
+        m0 = self._deactivation(local, Omega, pos)
+        if m0:
+            Omega, xi = self._sparsify_with_context(local, Omega, xi, mu, [pos[s] for s in m0])
+            for s in m0:
+                del self._active[s]
+        return Omega, xi, bool(m0)
+
     def _deactivation(
         self, local: Sequence[int], Omega: FloatArray, pos: dict[int, int]
     ) -> list[int]:
@@ -880,12 +894,9 @@ class SEIFSlam:
         local = list(self._active)
         Omega, xi, mu = st.gather(local)
         pos = st.local_index(local)
-        m0 = self._deactivation(local, Omega, pos)
-        if not m0:
+        Omega, xi, deactivated = self._deactivate_excess(local, Omega, xi, mu, pos)
+        if not deactivated:
             return
-        Omega, xi = self._sparsify_with_context(local, Omega, xi, mu, [pos[s] for s in m0])
-        for s in m0:
-            del self._active[s]
         st.scatter(local, Omega, xi)
         self._version += 1
 

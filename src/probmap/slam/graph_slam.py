@@ -45,7 +45,7 @@ import time
 from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -89,6 +89,16 @@ def _local_matcher() -> MatcherConfig:
         usable_range=30.0,
         beam_skip=1,
     )
+
+
+class _Match(NamedTuple):
+    """What one scan-to-submap match did (:meth:`GraphSlam._match`)."""
+
+    pose: NDArray[np.float64]  # local-SLAM frame; the prediction when the match failed
+    searched: bool  # the search ran (enough points, a non-empty submap)
+    searched_wide: bool  # the wide search ran after a poor match
+    took_wide: bool  # its result was kept: the odometry was off by more than the window
+    failed: bool  # no match good enough: the prediction was kept
 
 
 @dataclass(frozen=True)
@@ -517,7 +527,7 @@ class GraphSlam:
         predicted = compose(prev, u)
         pose = self._refine_only(pts, predicted)
         if pose is None:  # a poor or distant refinement: the node's whole search
-            pose, _, _ = self._match(pts, predicted)
+            pose = self._match(pts, predicted).pose
         rel = between(prev, pose)
         rel[2] = float(wrap_angle(rel[2]))
         return rel
@@ -618,12 +628,12 @@ class GraphSlam:
     def _match_local(self, pts: NDArray, predicted: NDArray) -> NDArray[np.float64]:
         """Scan-to-submap matching of a new node around the odometry prediction (local-SLAM
         frame); counts failed matches and wide searches, and whether the odometry held."""
-        pose, searched_wide, status = self._match(pts, predicted)
-        self.recovered += searched_wide
-        self._odometry_trusted = status != "wide"
-        if status == "failed":
-            self.failed_matches += 1
-        return pose
+        got = self._match(pts, predicted)
+        if got.searched:  # a match that never ran leaves the gate as the last node set it
+            self._odometry_trusted = not got.took_wide
+        self.recovered += got.searched_wide
+        self.failed_matches += got.failed
+        return got.pose
 
     def _refine_only(self, pts: NDArray, predicted: NDArray) -> NDArray[np.float64] | None:
         """Gauss-Newton alone from ``predicted`` against the oldest active submap: the pose
@@ -653,17 +663,18 @@ class GraphSlam:
         out[2] = float(wrap_angle(out[2]))
         return out
 
-    def _match(self, pts: NDArray, predicted: NDArray) -> tuple[NDArray[np.float64], bool, str]:
+    def _match(self, pts: NDArray, predicted: NDArray) -> _Match:
         """Match ``pts`` against the oldest active submap around ``predicted`` (local-SLAM
-        frame). Returns the pose (``predicted`` when the match fails), whether the wide search
-        ran, and ``"matched"``, ``"wide"`` (the wide search's match was kept: the odometry was
-        off) or ``"failed"``. Changes no state."""
+        frame): the correlative search, and the wide one after a poor match. Changes no
+        state."""
         cfg = self.config
         m = cfg.matcher
         sm = self.active[0]
         if pts.shape[0] < 10 or sm.size == 0:
-            return predicted, False, "failed"
-        status = "matched"
+            return _Match(
+                predicted, searched=False, searched_wide=False, took_wide=False, failed=True
+            )
+        took_wide = False
         searched_wide = False
         anchor = self.local[sm.anchor]
         guess = between(anchor, predicted)
@@ -687,12 +698,12 @@ class GraphSlam:
             searched_wide = True
             if score2 > score + 0.05 * pts.shape[0]:
                 pose, score = pose2, score2
-                status = "wide"
+                took_wide = True
         if score / pts.shape[0] < cfg.min_match_score:
-            return predicted, searched_wide, "failed"
+            return _Match(predicted, True, searched_wide, took_wide, failed=True)
         out = compose(anchor, pose)
         out[2] = float(wrap_angle(out[2]))
-        return out, searched_wide, status
+        return _Match(out, True, searched_wide, took_wide, failed=False)
 
     # ------------------------------------------------------------------ loop closure
     def _grids(self, sm: Submap) -> tuple[Any, Any]:

@@ -46,16 +46,6 @@ def quantize_up(values, table, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _code(buf, off, hp, wp, pad, iy, ix):  # pragma: no cover - compiled
-    """Code of a level at grid cell ``(ix, iy)``; 0 outside the stored range."""
-    j = iy + pad
-    i = ix + pad
-    if 0 <= j < hp and 0 <= i < wp:
-        return buf[off + j * wp + i]
-    return 0
-
-
-@njit(cache=True)
 def max_grids(codes0, h, w, depth, buf, levels, tmp):  # pragma: no cover - compiled
     """Fill the levels ``1 .. depth - 1`` of the flat buffer ``buf`` from the level-0 codes.
 
@@ -69,31 +59,45 @@ def max_grids(codes0, h, w, depth, buf, levels, tmp):  # pragma: no cover - comp
     for lev in range(1, depth):
         b = 1 << (lev - 1)
         ps = b - 1  # pad of the source level
-        pd = 2 * b - 1  # pad of this level
         src = codes0 if lev == 1 else buf
         so = 0 if lev == 1 else levels[lev - 1, 0]
         dst = levels[lev, 0]
         hs = h + ps
-        ws = w + ps
-        wd = w + pd
-        hd = h + pd
-        # rows: tmp[y, x] = max over columns [ix, ix + 2b) of source row y (grid iy = y - ps)
+        ws = w + ps  # >= b, as w >= 1
+        wd = ws + b
+        hd = hs + b
+        # rows: tmp[y, x] = max(source[y, x - b], source[y, x]), a missing one counting 0
+        # (stored source column j is grid column j - ps; stored tmp column x is grid x - pd)
         for y in range(hs):
-            iy = y - ps
+            s0 = so + y * ws
+            t0 = y * wd
+            for x in range(b):
+                tmp[t0 + x] = src[s0 + x]
+            for x in range(b, ws):
+                a = src[s0 + x - b]
+                c = src[s0 + x]
+                tmp[t0 + x] = a if a > c else c
+            for x in range(ws, wd):
+                tmp[t0 + x] = src[s0 + x - b]
+        # columns: this level's row y = max(tmp rows y - b and y), a missing one counting 0
+        for y in range(b):
+            d0 = dst + y * wd
+            t0 = y * wd
             for x in range(wd):
-                ix = x - pd
-                a = _code(src, so, hs, ws, ps, iy, ix)
-                c = _code(src, so, hs, ws, ps, iy, ix + b)
-                tmp[y * wd + x] = a if a > c else c
-        # columns: this level's [iy + pd, x] = max of tmp rows iy and iy + b
-        for y in range(hd):
-            iy = y - pd
-            ya = iy + ps
-            yb = iy + b + ps
+                buf[d0 + x] = tmp[t0 + x]
+        for y in range(b, hs):
+            d0 = dst + y * wd
+            ta = (y - b) * wd
+            tb = y * wd
             for x in range(wd):
-                a = tmp[ya * wd + x] if 0 <= ya < hs else 0
-                c = tmp[yb * wd + x] if 0 <= yb < hs else 0
-                buf[dst + y * wd + x] = a if a > c else c
+                a = tmp[ta + x]
+                c = tmp[tb + x]
+                buf[d0 + x] = a if a > c else c
+        for y in range(hs, hd):
+            d0 = dst + y * wd
+            ta = (y - b) * wd
+            for x in range(wd):
+                buf[d0 + x] = tmp[ta + x]
 
 
 @njit(cache=True)

@@ -65,39 +65,35 @@ def max_grids(codes0, h, w, depth, buf, levels, tmp):  # pragma: no cover - comp
         hs = h + ps
         ws = w + ps  # >= b, as w >= 1
         wd = ws + b
-        hd = hs + b
         # rows: tmp[y, x] = max(source[y, x - b], source[y, x]), a missing one counting 0
         # (stored source column j is grid column j - ps; stored tmp column x is grid x - pd)
         for y in range(hs):
             s0 = so + y * ws
             t0 = y * wd
-            for x in range(b):
-                tmp[t0 + x] = src[s0 + x]
-            for x in range(b, ws):
-                a = src[s0 + x - b]
-                c = src[s0 + x]
-                tmp[t0 + x] = a if a > c else c
-            for x in range(ws, wd):
-                tmp[t0 + x] = src[s0 + x - b]
-        # columns: this level's row y = max(tmp rows y - b and y), a missing one counting 0
-        for y in range(b):
-            d0 = dst + y * wd
-            t0 = y * wd
-            for x in range(wd):
-                buf[d0 + x] = tmp[t0 + x]
-        for y in range(b, hs):
-            d0 = dst + y * wd
-            ta = (y - b) * wd
-            tb = y * wd
-            for x in range(wd):
-                a = tmp[ta + x]
-                c = tmp[tb + x]
-                buf[d0 + x] = a if a > c else c
-        for y in range(hs, hd):
-            d0 = dst + y * wd
-            ta = (y - b) * wd
-            for x in range(wd):
-                buf[d0 + x] = tmp[ta + x]
+            _copy(src, s0, tmp, t0, b)
+            _max2(src, s0, s0 + b, tmp, t0 + b, ws - b)
+            _copy(src, s0 + ws - b, tmp, t0 + ws, b)
+        # columns: this level's row y = max(tmp rows y - b and y), a missing one counting 0;
+        # rows are contiguous and all wd wide, so each part is one run
+        _copy(tmp, 0, buf, dst, b * wd)
+        _max2(tmp, 0, b * wd, buf, dst + b * wd, (hs - b) * wd)
+        _copy(tmp, (hs - b) * wd, buf, dst + hs * wd, b * wd)
+
+
+@njit(cache=True, inline="always")
+def _copy(src, s0, dst, d0, n):  # pragma: no cover - compiled
+    """``dst[d0 : d0 + n] = src[s0 : s0 + n]``."""
+    for i in range(n):
+        dst[d0 + i] = src[s0 + i]
+
+
+@njit(cache=True, inline="always")
+def _max2(src, a0, b0, dst, d0, n):  # pragma: no cover - compiled
+    """``dst[d0 + i] = max(src[a0 + i], src[b0 + i])`` for ``i < n``."""
+    for i in range(n):
+        a = src[a0 + i]
+        c = src[b0 + i]
+        dst[d0 + i] = a if a > c else c
 
 
 @njit(cache=True)

@@ -41,13 +41,13 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from probmap.grid._storage import observed_window
 from probmap.grid.occupancy import (
     InverseSensorModel,
     OccupancyGrid,
     ScanStats,
     check_finite_poses,
     effective_clear_range,
-    observed_window,
 )
 from probmap.grid.spec import GridSpec
 

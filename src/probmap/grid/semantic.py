@@ -27,20 +27,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap.grid._storage import _ScanGrid, grid_resolution, observed_mask, plan_growth, regrid
 from probmap.grid.logodds import logit
 from probmap.grid.occupancy import (
     OccupancyGrid,
     ScanStats,
-    _ScanGrid,
     check_angles_and_max_range,
     check_beam_model_fields,
     check_one_scan,
     check_poses,
     effective_clear_range,
-    grid_resolution,
-    observed_mask,
-    plan_growth,
-    regrid,
 )
 from probmap.grid.spec import GridSpec
 

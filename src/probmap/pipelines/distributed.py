@@ -38,7 +38,7 @@ from probmap.grid.increments import (
     tree_sum,
 )
 from probmap.grid.occupancy import OccupancyGrid, ScanStats
-from probmap.pipelines import MappingConfig, MappingResult
+from probmap.pipelines.mapping import MappingConfig, MappingResult
 
 if TYPE_CHECKING:
     from probmap.datasets.carmen import LogShare
@@ -158,7 +158,7 @@ def _map_log_task(
     path: str, config: MappingConfig, bag_options: dict[str, Any] | None
 ) -> MappingResult:
     """One log mapped with the exact sequential semantics (clamping after every update)."""
-    from probmap.pipelines import map_log
+    from probmap.pipelines.mapping import map_log
 
     return map_log(path, config, bag_options=bag_options)
 
@@ -182,7 +182,7 @@ def _log_task(
 ) -> IncrementGrid:
     """A whole log (or bag): read as ``map_log`` reads it (refusing one without a usable
     reading), count its updates."""
-    from probmap.pipelines import _open
+    from probmap.pipelines.mapping import _open
 
     batch = _open(path, config, bag_options)
     return _batch_task(batch, float(batch.max_range), config, tile)
@@ -487,7 +487,7 @@ def _connected(client: Any, workers: int | None, scheduler: str | None) -> Itera
 def _map_log_map_task(
     path: str, config: MappingConfig, map_config: Any, bag_options: dict[str, Any] | None
 ) -> MappingResult:
-    from probmap.pipelines import map_log_map
+    from probmap.pipelines.mapping import map_log_map
 
     return map_log_map(path, config, map_config=map_config, bag_options=bag_options)
 

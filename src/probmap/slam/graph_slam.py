@@ -53,6 +53,7 @@ from numpy.typing import ArrayLike, NDArray
 from probmap._checks import require_at_least, require_nonnegative_finite, require_positive_finite
 from probmap.geometry.se2 import between, compose, inverse, wrap_angle
 from probmap.grid.occupancy import InverseSensorModel, OccupancyGrid
+from probmap.slam.gridslam import _default_matcher
 from probmap.slam.posegraph import RobustKernel
 from probmap.slam.scan_matching import (
     MatcherConfig,
@@ -77,17 +78,11 @@ SESSION_FORMAT = "probmap.GraphSlam session"
 SESSION_VERSION = 1
 
 
-# Like gridslam._default_matcher, with graph SLAM's own values (a wider window for local SLAM).
 def _local_matcher() -> MatcherConfig:
-    return MatcherConfig(
-        sigma=0.05,
-        linear_window=0.15,
-        linear_step=0.025,
-        angular_window=0.1,
-        angular_step=0.01,
-        iterations=10,
-        usable_range=30.0,
-        beam_skip=1,
+    """The RBPF's matcher (:class:`~probmap.slam.gridslam.GridSlamConfig`) with a wider window,
+    a finer angular step and more iterations for local SLAM."""
+    return replace(
+        _default_matcher(), linear_window=0.15, angular_window=0.1, angular_step=0.01, iterations=10
     )
 
 

@@ -196,11 +196,13 @@ def test_normal_equations_kernel_matches_dense_reference(kernel):
     s = _NormalEquations(len(start), edges[:, 0].copy(), edges[:, 1].copy(), fixed)
     data = np.empty(s.nnz)
     rhs = np.empty(3 * s.n_free)
-    F = K.accumulate_normal_equations(
-        start, edges[:, 0].copy(), edges[:, 1].copy(), z, info, K.CHART_LOGMAP,
+    graph = (
+        edges[:, 0].copy(), edges[:, 1].copy(), z, info, K.CHART_LOGMAP,
         {"none": 0, "huber": 1, "cauchy": 2, "dcs": 3}[kernel], cfg.scale, mask,
-        s.node_index, s.colptr, s.diag_base, s.edge_base, data, rhs,
     )  # fmt: skip
+    F = K.accumulate_normal_equations(
+        start, graph, s.node_index, s.colptr, s.diag_base, s.edge_base, data, rhs
+    )
     import scipy.sparse as sp
 
     U = sp.csc_matrix((data, s.indices, s.colptr), shape=(3 * s.n_free,) * 2).toarray()
@@ -230,9 +232,8 @@ def test_cost_kernel_and_weights_match_reference(kernel):
     chi2 = np.empty(len(edges))
     w = np.empty(len(edges))
     code = {"none": 0, "huber": 1, "cauchy": 2, "dcs": 3}[kernel]
-    F = K.graph_cost(
-        start, edges[:, 0].copy(), edges[:, 1].copy(), z, info, 0, code, 2.0, mask, chi2, w
-    )
+    graph = (edges[:, 0].copy(), edges[:, 1].copy(), z, info, 0, code, 2.0, mask)
+    F = K.graph_cost(start, graph, chi2, w)
     F_ref, w_ref = ref_cost(start, edges, z, info, kernel, 2.0, mask)
     assert F == pytest.approx(F_ref, rel=1e-12) and np.allclose(w, w_ref, rtol=1e-12)
 
@@ -460,10 +461,10 @@ def random_block_system(rng, n_nodes=40, extra=50, fixed=(0,)):
     ei, ej = edges[:, 0].copy(), edges[:, 1].copy()
     s = _NormalEquations(n_nodes, ei, ej, np.array(fixed))
     data, rhs = np.empty(s.nnz), np.empty(3 * s.n_free)
+    graph = (ei, ej, z, info, 0, 0, 1.0, np.ones(len(ei), bool))
     K.accumulate_normal_equations(
-        start, ei, ej, z, info, 0, 0, 1.0, np.ones(len(ei), bool), s.node_index, s.colptr,
-        s.diag_base, s.edge_base, data, rhs,
-    )  # fmt: skip
+        start, graph, s.node_index, s.colptr, s.diag_base, s.edge_base, data, rhs
+    )
     return s, data, rhs
 
 

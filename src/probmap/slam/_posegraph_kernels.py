@@ -18,6 +18,9 @@ chart : int
     ``CHART_XYT`` (g2o and TORO: ``(dx, dy, dtheta)`` of ``m^-1 x_i^-1 x_j``).
 kernel, scale, robust : int, float, (E,) bool
     Robust kernel id (``KERNEL_*``), its scale, and which edges it applies to.
+graph : tuple
+    ``(ei, ej, meas, info, chart, kernel, scale, robust)``: what the cost depends on besides
+    the poses, packed once by the caller for the kernels that evaluate or linearize the cost.
 
 Jacobians are taken with respect to ``delta = (R_n xi_t, xi_theta)``: GTSAM's right
 perturbation ``x_n Exp(xi_n)`` with its translation rotated into the world frame. The rotation
@@ -207,10 +210,9 @@ def _edge_rho_weight(s, robust, kernel, scale):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def graph_cost(
-    poses, ei, ej, meas, info, chart, kernel, scale, robust, chi2, weights
-):  # pragma: no cover - compiled
+def graph_cost(poses, graph, chi2, weights):  # pragma: no cover - compiled
     """Total cost ``0.5 * sum rho(e' Omega e)``; per-edge ``chi2`` and IRLS ``weights`` in place."""
+    ei, ej, meas, info, chart, kernel, scale, robust = graph
     e = np.empty(3)
     total = 0.0
     for k in range(ei.shape[0]):
@@ -258,24 +260,9 @@ def _add_transposed_product(X, v, out, base):  # pragma: no cover - compiled
         out[base + r0] += acc
 
 
-# levenberg_marquardt takes these arguments first and passes them on: kernels take plain arrays.
 @njit(cache=True)
 def accumulate_normal_equations(
-    poses,
-    ei,
-    ej,
-    meas,
-    info,
-    chart,
-    kernel,
-    scale,
-    robust,
-    node_index,
-    colptr,
-    diag_base,
-    edge_base,
-    data,
-    rhs,
+    poses, graph, node_index, colptr, diag_base, edge_base, data, rhs
 ):  # pragma: no cover - compiled
     """Gauss-Newton system ``H = sum w J' Omega J`` (upper triangle, CSC ``data``) and
     ``rhs = sum w J' Omega e`` (the gradient); returns the cost ``0.5 * sum rho``.
@@ -285,6 +272,7 @@ def accumulate_normal_equations(
     column ``c`` (``max`` of the edge's two blocks), of the diagonal block and of edge ``k``'s
     off-diagonal block.
     """
+    ei, ej, meas, info, chart, kernel, scale, robust = graph
     data[:] = 0.0
     rhs[:] = 0.0
     e = np.empty(3)
@@ -750,6 +738,13 @@ def _inverse_spd3(M, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
+def ldl_storage(Lp, n):  # pragma: no cover - compiled
+    """``Li``, ``Lx`` and ``Dinv`` for :func:`ldl_factor` of ``n`` blocks with the column
+    pointers ``Lp`` of :func:`ldl_symbolic` (one allocation, reused by every factorization)."""
+    return np.empty(Lp[n], dtype=np.int64), np.empty((Lp[n], 3, 3)), np.empty((n, 3, 3))
+
+
+@njit(cache=True)
 def ldl_factor(
     data, colptr, diag_base, blk_colptr, blk_rows, etree, Lp, lam, damp, Li, Lx, Dinv
 ):  # pragma: no cover - compiled
@@ -861,18 +856,10 @@ def ldl_solve(Lp, Li, Lx, Dinv, b, x):  # pragma: no cover - compiled
 # ----------------------------------------------------------------------------- LM and LAGO
 
 
-# Its first arguments are accumulate_normal_equations', passed on: kernels take plain arrays.
 @njit(cache=True)
 def levenberg_marquardt(
     poses,
-    ei,
-    ej,
-    meas,
-    info,
-    chart,
-    kernel,
-    scale,
-    robust,
+    graph,
     node_index,
     colptr,
     diag_base,
@@ -903,18 +890,13 @@ def levenberg_marquardt(
     neg = np.empty(n3)
     delta = np.empty(n3)
     damp = np.ones(n3)
-    Li = np.empty(Lp[n], dtype=np.int64)
-    Lx = np.empty((Lp[n], 3, 3))
-    Dinv = np.empty((n, 3, 3))
+    Li, Lx, Dinv = ldl_storage(Lp, n)
     x = poses.copy()
     x_try = poses.copy()
-    F = accumulate_normal_equations(
-        x, ei, ej, meas, info, chart, kernel, scale, robust, node_index, colptr, diag_base,
-        edge_base, data, rhs,
-    )  # fmt: skip
+    F = accumulate_normal_equations(x, graph, node_index, colptr, diag_base, edge_base, data, rhs)
     iterations = 0
     status = STATUS_CAP
-    if n3 == 0 or ei.shape[0] == 0:
+    if n3 == 0 or chi2.shape[0] == 0:  # no free node or no edge
         status = STATUS_NOTHING
     elif F == 0.0:
         status = STATUS_ZERO
@@ -946,9 +928,7 @@ def levenberg_marquardt(
             ):
                 ldl_solve(Lp, Li, Lx, Dinv, neg, delta)
                 apply_step(x, node_index, delta, x_try)
-                F_try = graph_cost(
-                    x_try, ei, ej, meas, info, chart, kernel, scale, robust, chi2, weights
-                )
+                F_try = graph_cost(x_try, graph, chi2, weights)
                 gain = F - F_try
                 if math.isfinite(F_try) and gain > 0.0:
                     # gain ratio against the model's predicted decrease (Madsen et al. 3.14)
@@ -979,11 +959,10 @@ def levenberg_marquardt(
             status = STATUS_ABSOLUTE
         elif iterations < max_iterations:
             accumulate_normal_equations(
-                x, ei, ej, meas, info, chart, kernel, scale, robust, node_index, colptr,
-                diag_base, edge_base, data, rhs,
-            )  # fmt: skip
+                x, graph, node_index, colptr, diag_base, edge_base, data, rhs
+            )
     out[:, :] = x
-    F = graph_cost(x, ei, ej, meas, info, chart, kernel, scale, robust, chi2, weights)
+    F = graph_cost(x, graph, chi2, weights)
     return F, iterations, status
 
 
@@ -1042,9 +1021,7 @@ def lago(
         rhs = np.empty(n3)
         u = np.empty(n3)
         zero = np.zeros(n3)
-        Li = np.empty(Lp[n], dtype=np.int64)
-        Lx = np.empty((Lp[n], 3, 3))
-        Dinv = np.empty((n, 3, 3))
+        Li, Lx, Dinv = ldl_storage(Lp, n)
         pattern = (node_index, colptr, diag_base, edge_base)
         assemble_lago(0, out, theta, ei, ej, meas, info, *pattern, data, rhs)
         _add_ridge(data, diag_pos, 2, 3)

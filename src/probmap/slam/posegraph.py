@@ -340,13 +340,33 @@ def _check_connected(n_nodes: int, ei: IntArray, ej: IntArray, fixed: IntArray) 
 # --------------------------------------------------------------------------- LM core
 
 
-def _levenberg_marquardt(
-    poses: FloatArray,
+# The kernels' ``graph``: edges i and j, measurements, information, chart, robust kernel and
+# its scale, and which edges it applies to.
+_Graph = tuple[IntArray, IntArray, FloatArray, FloatArray, int, int, float, BoolArray]
+
+
+def _graph(
     ei: IntArray,
     ej: IntArray,
     meas: FloatArray,
     info: FloatArray,
     robust: BoolArray,
+    config: OptimizerConfig,
+) -> _Graph:
+    """The validated contiguous edge arrays with ``config``'s chart and robust kernel, as the
+    kernels take them (:mod:`probmap.slam._posegraph_kernels`)."""
+    return ei, ej, meas, info, _CHARTS[config.chart], _KERNELS[config.robust], config.scale, robust
+
+
+def _cost(poses: FloatArray, graph: _Graph) -> float:
+    """The cost at ``poses`` (:func:`_posegraph_kernels.graph_cost`)."""
+    E = graph[0].shape[0]
+    return float(_k.graph_cost(poses, graph, np.empty(E), np.empty(E)))
+
+
+def _levenberg_marquardt(
+    poses: FloatArray,
+    graph: _Graph,
     system: _NormalEquations,
     config: OptimizerConfig,
     max_iterations: int,
@@ -356,14 +376,13 @@ def _levenberg_marquardt(
     Returns the poses, final cost, iterations, converged flag, message, and the final
     per-edge ``chi2`` and IRLS weights.
     """
-    E = ei.shape[0]
+    E = graph[0].shape[0]
     chi2 = np.empty(E)
     weights = np.empty(E)
     out = np.empty_like(poses)
     s = system
     F, its, status = _k.levenberg_marquardt(
-        poses, ei, ej, meas, info, _CHARTS[config.chart], _KERNELS[config.robust], config.scale,
-        robust, s.node_index, s.colptr, s.diag_base, s.edge_base, s.blk_colptr, s.blk_rows,
+        poses, graph, s.node_index, s.colptr, s.diag_base, s.edge_base, s.blk_colptr, s.blk_rows,
         s.etree, s.Lp, max_iterations, config.relative_tolerance, config.absolute_tolerance,
         config.initial_lambda, config.max_lambda, config.damping == "identity", out, chi2,
         weights,
@@ -528,13 +547,7 @@ def graph_error(
     x = pose_batch(poses)
     ei, ej, z, om = _as_edges(edges, measurements, information, len(x))
     mask = _as_mask(robust_mask, ei.shape[0])
-    chi2 = np.empty(ei.shape[0])
-    w = np.empty(ei.shape[0])
-    return float(
-        _k.graph_cost(
-            x, ei, ej, z, om, _CHARTS[cfg.chart], _KERNELS[cfg.robust], cfg.scale, mask, chi2, w
-        )
-    )
+    return _cost(x, _graph(ei, ej, z, om, mask, cfg))
 
 
 def optimize_pose_graph(
@@ -604,12 +617,11 @@ def optimize_pose_graph(
     mask = _as_mask(robust_mask, ei.shape[0])
     f = _as_fixed(fixed, len(x))
     system = _NormalEquations(len(x), ei, ej, f)
-    chart, kernel = _CHARTS[cfg.chart], _KERNELS[cfg.robust]
-    scratch = np.empty(ei.shape[0]), np.empty(ei.shape[0])
-    F0 = float(_k.graph_cost(x, ei, ej, z, om, chart, kernel, cfg.scale, mask, *scratch))
+    graph = _graph(ei, ej, z, om, mask, cfg)
+    F0 = _cost(x, graph)
     start = _lago(x, ei, ej, z, om, system) if init == "lago" else x
     out, F, its, conv, msg, chi2, w = _levenberg_marquardt(
-        start, ei, ej, z, om, mask, system, cfg, cfg.max_iterations
+        start, graph, system, cfg, cfg.max_iterations
     )
     return OptimizeResult(out, F0, F, its, time.perf_counter() - t0, conv, w, chi2, msg)
 
@@ -934,25 +946,8 @@ class PoseGraph2D:
 
     def error(self) -> float:
         """Current cost ``0.5 * sum rho(e' Omega e)`` (GTSAM's convention)."""
-        return self._cost(*self._arrays())
-
-    def _cost(
-        self,
-        x: FloatArray,
-        ei: IntArray,
-        ej: IntArray,
-        z: FloatArray,
-        om: FloatArray,
-        rb: BoolArray,
-    ) -> float:
-        """The cost at poses ``x`` of the edges :meth:`_arrays` gives."""
-        cfg = self.config
-        scratch = np.empty(self._m), np.empty(self._m)
-        return float(
-            _k.graph_cost(
-                x, ei, ej, z, om, _CHARTS[cfg.chart], _KERNELS[cfg.robust], cfg.scale, rb, *scratch
-            )
-        )
+        x, ei, ej, z, om, rb = self._arrays()
+        return _cost(x, _graph(ei, ej, z, om, rb, self.config))
 
     # ----------------------------------------------------------------- optimization
 
@@ -991,10 +986,9 @@ class PoseGraph2D:
         if self._n == 0:
             raise ValueError("the graph has no nodes")
         system = self._normal_equations(ei, ej)
-        F0 = self._cost(x, ei, ej, z, om, rb)
-        out, F, n_it, conv, msg, chi2, w = _levenberg_marquardt(
-            x, ei, ej, z, om, rb, system, self.config, its
-        )
+        graph = _graph(ei, ej, z, om, rb, self.config)
+        F0 = _cost(x, graph)
+        out, F, n_it, conv, msg, chi2, w = _levenberg_marquardt(x, graph, system, self.config, its)
         self._poses[: self._n] = out
         return OptimizeResult(out.copy(), F0, F, n_it, time.perf_counter() - t0, conv, w, chi2, msg)
 

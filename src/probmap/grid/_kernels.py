@@ -83,32 +83,23 @@ def classify_beam(
 
 
 @njit(cache=True, inline="always")
-def classify_scan(
-    s,
-    poses,
-    ranges,
-    angles,
-    arow,
-    ox,
-    oy,
-    inv,
-    max_range,
-    clear_range,
-    thickness,
-    counts,
-    kind,
-    end,
-    tip,
-):  # pragma: no cover - compiled
+def classify_scan(s, scan, counts, kind, end, tip):  # pragma: no cover - compiled
     """Classify every beam of scan ``s`` with :func:`classify_beam`, in beam order.
+
+    ``scan`` is the tuple ``(ox, oy, res, poses, ranges, angles, angles_shared, max_range,
+    clear_range, thickness)`` that the caller of a scan kernel builds once: the grid origin and
+    cell size, the scans (poses (S, 3), ranges (S, B), angles (1, B) when ``angles_shared``,
+    else (S, B)) and the sensor model's ranges (m). Both scan kernels, :func:`integrate_scans`
+    and :func:`probmap.grid._semantic_kernels.integrate_labelled_scans`, take it as it is and
+    hand it here: they differ only in what they do with the hits.
 
     Fills ``kind[b]`` (0 dropped, 1 hit, 2 max-range), ``end[b]`` (the hit or cleared point) and
     ``tip[b]`` (where the obstacle ends) in cell units, counts the readings in ``counts[0:3]``,
-    and returns the sensor's grid point ``(gx0, gy0)``, where every free-space walk starts. The
-    first step of both scan kernels, :func:`integrate_scans` and
-    :func:`probmap.grid._semantic_kernels.integrate_labelled_scans`, which then differ only in
-    what they do with the hits.
+    and returns the sensor's grid point ``(gx0, gy0)``, where every free-space walk starts.
     """  # noqa: D401
+    ox, oy, res, poses, ranges, angles, angles_shared, max_range, clear_range, thickness = scan
+    inv = 1.0 / res
+    arow = 0 if angles_shared else s
     px = poses[s, 0]
     py = poses[s, 1]
     th = poses[s, 2]
@@ -195,39 +186,18 @@ def integrate_one_scan(lo, stamp, sid, pose, ranges, angles, max_range, params):
     ):
         return SCAN_OUTSIDE, 0, 0, 0, 0
     counts = np.zeros(4, np.int64)
-    integrate_scans(
-        lo, lo, stamp, sid, ox, oy, res, P, R, A, True, max_range, clear_range, thickness,
-        params[5], params[6], params[7], params[8], counts,
-    )  # fmt: skip
+    scan = (ox, oy, res, P, R, A, True, max_range, clear_range, thickness)
+    integrate_scans(lo, lo, stamp, sid, scan, params[5], params[6], params[7], params[8], counts)
     return SCAN_OK, counts[0], counts[1], counts[2], counts[3]
 
 
-# _semantic_kernels.integrate_labelled_scans takes the scan arguments (sid0 .. thickness) in this
-# order: both hand them to the one classify_scan, and kernels take plain arrays.
 @njit(cache=True)
 def integrate_scans(
-    lo_hit,
-    lo_free,
-    stamp,
-    sid0,
-    ox,
-    oy,
-    res,
-    poses,
-    ranges,
-    angles,
-    angles_shared,
-    max_range,
-    clear_range,
-    thickness,
-    d_hit,
-    d_free,
-    lmin,
-    lmax,
-    counts,
+    lo_hit, lo_free, stamp, sid0, scan, d_hit, d_free, lmin, lmax, counts
 ):  # pragma: no cover - compiled
     """Integrate scans ``s`` with stamps ``sid0 + s`` (in place): hits add ``d_hit`` to
     ``lo_hit``, free space ``d_free`` to ``lo_free``, each cell clamped to ``[lmin, lmax]``.
+    ``scan`` holds the grid geometry, the scans and the sensor's ranges (see :func:`classify_scan`).
 
     For a log-odds grid ``lo_hit`` and ``lo_free`` are the same array. Passing two count
     arrays with ``d_hit = d_free = 1`` and unreachable bounds counts, per cell, the scans that
@@ -238,17 +208,13 @@ def integrate_scans(
     Hits are applied first, then free space, so that within one scan a hit cell is never also
     freed and every cell changes at most once (the stamp records the last scan that touched it).
     """
-    n_scans, n_beams = ranges.shape
-    inv = 1.0 / res
+    n_scans, n_beams = scan[4].shape  # the ranges (S, B)
     end = np.empty((n_beams, 2))
     tip = np.empty((n_beams, 2))
     kind = np.empty(n_beams, np.int8)
     for s in range(n_scans):
         sid = sid0 + s
-        gx0, gy0 = classify_scan(
-            s, poses, ranges, angles, 0 if angles_shared else s, ox, oy, inv, max_range,
-            clear_range, thickness, counts, kind, end, tip,
-        )  # fmt: skip
+        gx0, gy0 = classify_scan(s, scan, counts, kind, end, tip)
         # pass 1: hits (endpoint cell and obstacle thickness)
         for b in range(n_beams):
             if kind[b] == 1:

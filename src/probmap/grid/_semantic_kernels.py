@@ -34,32 +34,9 @@ def _add_clamped(lo, iy, ix, delta, lmin, lmax):  # pragma: no cover - compiled
         lo[iy, ix, k] = v
 
 
-# The scan arguments (sid0 .. thickness) are those of grid._kernels.integrate_scans, in its order:
-# both kernels hand them to the one classify_scan.
 @njit(cache=True)
 def integrate_labelled_scans(
-    lo,
-    stamp,
-    slot,
-    sid0,
-    ox,
-    oy,
-    res,
-    poses,
-    ranges,
-    angles,
-    angles_shared,
-    max_range,
-    clear_range,
-    thickness,
-    qrow,
-    q_hit,
-    d_hit,
-    d_free,
-    l_prior,
-    lmin,
-    lmax,
-    counts,
+    lo, stamp, slot, sid0, scan, qrow, q_hit, d_hit, d_free, l_prior, lmin, lmax, counts
 ):  # pragma: no cover - compiled
     """Integrate labelled scans ``s`` with stamps ``sid0 + s`` into log odds ``lo`` (in place).
 
@@ -72,6 +49,12 @@ def integrate_labelled_scans(
     slot : int32 (H, W)
         Scratch: index of a cell in this scan's list of endpoint cells (valid only for cells
         stamped with the current scan during the endpoint pass).
+    sid0 : int
+        Stamp of scan 0; scan ``s`` has stamp ``sid0 + s``.
+    scan : tuple
+        The grid geometry, the scans and the sensor's ranges, as
+        :func:`probmap.grid._kernels.integrate_scans` takes them (see
+        :func:`~probmap.grid._kernels.classify_scan`).
     qrow : int64 (S, B)
         Row of ``q_hit`` / ``d_hit`` holding the evidence of each beam's endpoint.
     q_hit : float64 (R, K)
@@ -95,11 +78,10 @@ def integrate_labelled_scans(
     evidence, else the inverse term of the average of their class distributions (a linear opinion
     pool). Pass 3 frees the cells along every beam that were not updated in this scan.
     """
-    n_scans, n_beams = ranges.shape
+    n_scans, n_beams = scan[4].shape  # the ranges (S, B)
     n_cls = lo.shape[2]
     h = lo.shape[0]
     w = lo.shape[1]
-    inv = 1.0 / res
     end = np.empty((n_beams, 2))
     tip = np.empty((n_beams, 2))
     kind = np.empty(n_beams, np.int8)
@@ -114,10 +96,7 @@ def integrate_labelled_scans(
     n_updates = 0  # a local counter: a store to counts[] per cell would stay in the loop
     for s in range(n_scans):
         sid = sid0 + s
-        gx0, gy0 = classify_scan(
-            s, poses, ranges, angles, 0 if angles_shared else s, ox, oy, inv, max_range,
-            clear_range, thickness, counts, kind, end, tip,
-        )  # fmt: skip
+        gx0, gy0 = classify_scan(s, scan, counts, kind, end, tip)
         n_cells = 0
         # pass 1: gather the endpoint evidence per cell
         for b in range(n_beams):

@@ -341,10 +341,9 @@ def integrate_increments(
     counts = np.zeros(4, dtype=np.int64)
     # counting is the grid's own integration with unit increments and no clamping
     big = np.iinfo(np.int64).max
-    _kernels.integrate_scans(
-        hits, frees, stamp, sid0, ix0 * res, iy0 * res, res, P, R, A, shared, float(max_range),
-        clear_range, model.thickness, 1, 1, -big, big, counts,
-    )  # fmt: skip
+    ox, oy, mr = ix0 * res, iy0 * res, float(max_range)
+    scan = (ox, oy, res, P, R, A, shared, mr, clear_range, model.thickness)
+    _kernels.integrate_scans(hits, frees, stamp, sid0, scan, 1, 1, -big, big, counts)
     stats = ScanStats.from_counts(n, R.size, counts)
     return IncrementGrid(res, (int(ix0), int(iy0)), hits, frees, stats)
 

@@ -549,23 +549,17 @@ class OccupancyGrid(_ScanGrid):
         self._fit_scans(P, R, A, shared, max_range, clear_range)
         counts = np.zeros(4, dtype=np.int64)
         ox, oy = self._spec.origin
+        res, thickness = self._spec.resolution, self.model.thickness
         for s0 in range(0, P.shape[0], _EPOCH):
             s1 = min(s0 + _EPOCH, P.shape[0])
+            a = A if shared else A[s0:s1]
+            scan = (ox, oy, res, P[s0:s1], R[s0:s1], a, shared, max_range, clear_range, thickness)
             _kernels.integrate_scans(
                 self._lo,
                 self._lo,
                 self._stamp,
                 self._next_ids(s1 - s0),
-                ox,
-                oy,
-                self._spec.resolution,
-                P[s0:s1],
-                R[s0:s1],
-                A if shared else A[s0:s1],
-                shared,
-                max_range,
-                clear_range,
-                self.model.thickness,
+                scan,
                 self.model.l_hit - self.l0,
                 self.model.l_miss - self.l0,
                 self.l_min,

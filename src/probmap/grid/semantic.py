@@ -658,21 +658,14 @@ class SemanticGrid(_ScanGrid):
             raise OverflowError("more than 2**31 scans in one grid")
         counts = np.zeros(4, dtype=np.int64)
         ox, oy = self._spec.origin
+        res, thickness = self._spec.resolution, self.model.thickness
+        scan = (ox, oy, res, P, R, A, shared, max_range, clear_range, thickness)
         _semantic_kernels.integrate_labelled_scans(
             self._lo,
             self._stamp,
             self._slot,
             self._scans + 1,
-            ox,
-            oy,
-            self._spec.resolution,
-            P,
-            R,
-            A,
-            shared,
-            max_range,
-            clear_range,
-            self.model.thickness,
+            scan,
             qrow,
             np.ascontiguousarray(q_hit),
             np.ascontiguousarray(d_hit),

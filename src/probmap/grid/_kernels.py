@@ -1,7 +1,8 @@
 """Numba kernels of the occupancy grid: scan integration and ray casting (private).
 
-The kernels take plain contiguous arrays and scalars and trust their inputs: the public
-functions in :mod:`probmap.grid.occupancy` and :mod:`probmap.grid.raycast` validate once.
+The kernels take plain contiguous arrays and scalars (the scan kernels a tuple of them, see
+:func:`classify_scan`) and trust their inputs: the public functions in
+:mod:`probmap.grid.occupancy` and :mod:`probmap.grid.raycast` validate once.
 
 Cell traversal is the one walk of :mod:`probmap.grid._traverse` (Amanatides and Woo 1987): the
 segment walk for scan integration, the ray walk for ray casting.

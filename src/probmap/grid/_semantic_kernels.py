@@ -1,6 +1,7 @@
 """Numba kernels for multi-class (semantic) occupancy grids (private).
 
-The kernels take plain contiguous arrays and scalars and trust their inputs: the public class
+The kernels take plain contiguous arrays and scalars (and the scan tuple of
+:func:`probmap.grid._kernels.classify_scan`) and trust their inputs: the public class
 :class:`probmap.grid.semantic.SemanticGrid` validates once. Cells are visited by the same
 Amanatides-Woo walk as the binary grid (:func:`probmap.grid._traverse.walk_start` and
 :func:`~probmap.grid._traverse.walk_next`), so with one class the two grids touch exactly the same

@@ -39,7 +39,7 @@ import zlib
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import IO
+from typing import IO, TYPE_CHECKING, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
@@ -49,10 +49,14 @@ from probmap.datasets.records import LaserScan, Odometry, ScanBatch, stack_beams
 from probmap.datasets.validate import PoseLimits, PoseTracker, validate_ranges
 from probmap.errors import BadLinesWarning, DatasetError
 
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
 __all__ = [
     "DEFAULT_MAX_RANGE",
     "BadLinesWarning",
     "CarmenLog",
+    "CarmenLogOptions",
     "PoseLimits",
     "default_angle_step",
     "detect_compression",
@@ -228,6 +232,17 @@ class _PassState:
     scans: int = 0
     odometry: int = 0
     messages: int = 0
+
+
+class CarmenLogOptions(TypedDict, total=False):
+    """The keywords of :class:`CarmenLog` (their defaults and meaning are documented there),
+    which :func:`load_scans` and :func:`load_share` hand on to it."""
+
+    start_angle: float
+    angle_step: float | None
+    max_range: float | None
+    skip_bad_lines: bool
+    pose_limits: PoseLimits | None
 
 
 class CarmenLog:
@@ -566,19 +581,13 @@ def _dataset_name(path: Path) -> str:
 # ---------------------------------------------------------------------------- batch
 
 
-# load_share takes these keywords too (public, typed, documented once here): a share reads as
-# the whole log does.
 def load_scans(
     path: str | os.PathLike[str],
     *,
     poses: str = "corrected",
-    start_angle: float = -math.pi / 2,
-    angle_step: float | None = None,
-    max_range: float | None = None,
-    skip_bad_lines: bool = False,
     sources: Sequence[str] = ("FLASER", "ROBOTLASER1"),
     dtype: type[np.floating] = np.float64,
-    pose_limits: PoseLimits | None = None,
+    **log_options: Unpack[CarmenLogOptions],
 ) -> ScanBatch:
     """Read every front-laser scan of a CARMEN log into stacked arrays (for batch mapping).
 
@@ -612,14 +621,7 @@ def load_scans(
         As :class:`CarmenLog`, and when the log holds no scan of the chosen ``sources``.
     """
     _check_load_args(poses, sources)
-    log = CarmenLog(
-        path,
-        start_angle=start_angle,
-        angle_step=angle_step,
-        max_range=max_range,
-        skip_bad_lines=skip_bad_lines,
-        pose_limits=pose_limits,
-    )
+    log = CarmenLog(path, **log_options)
     batch = _stack(log, poses, sources, dtype, None)
     if batch is None:
         raise DatasetError(f"no {'/'.join(sources)} scans in the log", path=log.path)
@@ -756,29 +758,18 @@ def split_log(path: str | os.PathLike[str], n_shares: int) -> list[LogShare]:
     return shares
 
 
-# load_scans' keywords, repeated so that each public reader keeps a typed signature.
 def load_share(
     share: LogShare,
     *,
     poses: str = "corrected",
-    start_angle: float = -math.pi / 2,
-    angle_step: float | None = None,
-    max_range: float | None = None,
-    skip_bad_lines: bool = False,
     sources: Sequence[str] = ("FLASER", "ROBOTLASER1"),
     dtype: type[np.floating] = np.float64,
-    pose_limits: PoseLimits | None = None,
+    **log_options: Unpack[CarmenLogOptions],
 ) -> ScanBatch | None:
     """The scans of one share of a log, as :func:`load_scans` reads them from the whole log
-    (same records, line numbers in errors, PARAM context); None when the share has none."""
+    (same keywords, records, line numbers in errors, PARAM context); None when the share has
+    none."""
     _check_load_args(poses, sources)
-    log = CarmenLog(
-        share.path,
-        start_angle=start_angle,
-        angle_step=angle_step,
-        max_range=max_range,
-        skip_bad_lines=skip_bad_lines,
-        pose_limits=pose_limits,
-    )
+    log = CarmenLog(share.path, **log_options)
     log._share = (share.text, share.first_line, share.params_before)
     return _stack(log, poses, sources, dtype, share.params_all)

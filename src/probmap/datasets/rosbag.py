@@ -34,7 +34,7 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,10 +46,14 @@ from probmap.datasets.validate import PoseLimits, PoseTracker, ReadingReport, va
 from probmap.errors import BadLinesWarning, BagError, MissingExtraError
 from probmap.geometry.se2 import compose, inverse, wrap_angle
 
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
 __all__ = [
     "BagMap",
     "BagSummary",
     "RosBag",
+    "RosBagOptions",
     "TfBuffer",
     "TopicSummary",
     "is_bag",
@@ -573,6 +577,17 @@ class _RawScan:
     report: ReadingReport | None = None
 
 
+class RosBagOptions(TypedDict, total=False):
+    """The keywords of :class:`RosBag` (their defaults and meaning are documented there),
+    which :func:`load_bag_scans` hands on to it."""
+
+    scan_topic: str | None
+    odom_topic: str | None
+    fixed_frame: str | None
+    laser_frame: str | None
+    echo: int
+
+
 class RosBag:
     """A ROS 1 or ROS 2 bag as a :class:`~probmap.datasets.protocol.Dataset` of laser scans.
 
@@ -614,8 +629,6 @@ class RosBag:
         outside the tf buffer; a laser frame not connected to the fixed frame.
     """
 
-    # load_bag_scans takes these keywords too and hands them here: both are public, typed
-    # entry points.
     def __init__(
         self,
         path: str | os.PathLike[str],
@@ -1063,18 +1076,13 @@ def _implausible(
     return None
 
 
-# BagReader's keywords first (passed to it as they are), then the batch's own.
 def load_bag_scans(
     path: str | os.PathLike[str],
     *,
-    scan_topic: str | None = None,
-    odom_topic: str | None = None,
-    fixed_frame: str | None = None,
-    laser_frame: str | None = None,
-    echo: int = 0,
     dtype: type[np.floating] = np.float64,
     pose_limits: PoseLimits | None = None,
     skip_bad_lines: bool = False,
+    **bag_options: Unpack[RosBagOptions],
 ) -> ScanBatch:
     """Read every scan of a bag into stacked arrays, posed through tf (the bag twin of
     :func:`probmap.datasets.carmen.load_scans`).
@@ -1101,14 +1109,7 @@ def load_bag_scans(
     BagError
         As :class:`RosBag`.
     """
-    bag = RosBag(
-        path,
-        scan_topic=scan_topic,
-        odom_topic=odom_topic,
-        fixed_frame=fixed_frame,
-        laser_frame=laser_frame,
-        echo=echo,
-    )
+    bag = RosBag(path, **bag_options)
     return bag.batch(dtype, pose_limits=pose_limits, skip_bad_lines=skip_bad_lines)
 
 

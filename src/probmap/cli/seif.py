@@ -11,10 +11,11 @@ import typer
 from probmap.cli import options as opt
 from probmap.cli.common import cli_errors
 from probmap.cli.slam import (
-    DATASET_HELP,
     LandmarkSource,
+    dataset_argument,
     landmark_source_options,
     limit_threads,
+    output_folder_option,
     read_landmark_dataset,
     report_options,
     slam_app,
@@ -27,6 +28,15 @@ CONTEXT_HELP = (
     "instead of conditioning on them (0 = Table 12.4 as printed; 1 removes most of its "
     "overconfidence)."
 )
+
+
+# the two SEIF options of 'slam seif' and 'slam compare' (one definition each)
+def max_active_option() -> Any:
+    return typer.Option(None, "--max-active", help=MAX_ACTIVE_HELP + " [default: 10]")
+
+
+def context_hops_option() -> Any:
+    return typer.Option(None, "--context-hops", help=CONTEXT_HELP + " [default: 0]")
 
 
 CONFIG_HELP = (
@@ -105,14 +115,10 @@ def _label(cfg: Any) -> str:
 @slam_app.command("seif")
 @opt.with_option_groups
 def seif_command(
-    dataset: str = typer.Argument(..., help=DATASET_HELP),
-    output: Path = opt.output_option("Output folder (created when missing)."),
-    max_active: int | None = typer.Option(
-        None, "--max-active", help=MAX_ACTIVE_HELP + " [default: 10]"
-    ),
-    context_hops: int | None = typer.Option(
-        None, "--context-hops", help=CONTEXT_HELP + " [default: 0]"
-    ),
+    dataset: str = dataset_argument(),
+    output: Path = output_folder_option(),
+    max_active: int | None = max_active_option(),
+    context_hops: int | None = context_hops_option(),
     config: Path | None = opt.config_option(CONFIG_HELP),
     source: LandmarkSource = landmark_source_options(),
     threads: int = threads_option(),
@@ -147,13 +153,9 @@ def _state_bytes(estimator: Any) -> int:
 @slam_app.command("compare")
 @opt.with_option_groups
 def compare_command(
-    dataset: str = typer.Argument(..., help=DATASET_HELP),
-    max_active: int | None = typer.Option(
-        None, "--max-active", help=MAX_ACTIVE_HELP + " [default: 10]"
-    ),
-    context_hops: int | None = typer.Option(
-        None, "--context-hops", help=CONTEXT_HELP + " [default: 0]"
-    ),
+    dataset: str = dataset_argument(),
+    max_active: int | None = max_active_option(),
+    context_hops: int | None = context_hops_option(),
     config: Path | None = opt.config_option(
         "A YAML file with one section per method (ekf: EKFConfig, seif: SeifConfig, "
         "graphslam: GraphSLAMConfig, fastslam: FastSLAMConfig fields; a section replaces that "

@@ -37,7 +37,22 @@ DATASET_HELP = (
 )
 
 
-# the options every landmark-SLAM command shares (one definition each)
+# the arguments and options every landmark-SLAM command shares (one definition each)
+def dataset_argument() -> Any:
+    return typer.Argument(..., help=DATASET_HELP)
+
+
+def output_folder_option() -> Any:
+    """``-o/--output``: the folder :func:`run_and_report` writes into."""
+    return opt.output_option("Output folder (created when missing).")
+
+
+def estimator_config_option(config: str, then: str) -> Any:
+    """``--config``: a YAML file of the estimator's ``config`` as :func:`run_and_report` records
+    it in OUTPUT/config.yaml; ``then`` says what it replaces or what overrides it."""
+    return opt.config_option(f"A YAML file of {config} (as OUTPUT/config.yaml records it){then}")
+
+
 def data_dir_option() -> Any:
     return typer.Option(
         None, "--data-dir", help="Data directory for registered names (default $PROBMAP_DATA)."
@@ -332,13 +347,12 @@ def run_and_report(
 @slam_app.command("ekf")
 @opt.with_option_groups
 def ekf_command(
-    dataset: str = typer.Argument(..., help=DATASET_HELP),
-    output: Path = opt.output_option("Output folder (created when missing)."),
+    dataset: str = dataset_argument(),
+    output: Path = output_folder_option(),
     source: LandmarkSource = landmark_source_options(),
     threads: int = threads_option(),
-    config: Path | None = opt.config_option(
-        "A YAML file of the estimator's configuration (as OUTPUT/config.yaml records it) "
-        "instead of the dataset's defaults."
+    config: Path | None = estimator_config_option(
+        "the estimator's configuration", " instead of the dataset's defaults."
     ),
     report: dict[str, Any] = report_options(),
 ) -> None:
@@ -360,8 +374,8 @@ def ekf_command(
 @slam_app.command("graphslam")
 @opt.with_option_groups
 def graphslam_command(
-    dataset: str = typer.Argument(..., help=DATASET_HELP),
-    output: Path = opt.output_option("Output folder (created when missing)."),
+    dataset: str = dataset_argument(),
+    output: Path = output_folder_option(),
     source: LandmarkSource = landmark_source_options(
         "Ignore given landmark ids: Table 11.9's correspondence test (small maps only)."
     ),
@@ -369,9 +383,8 @@ def graphslam_command(
         "none", "--robust", help="Robust kernel on the measurements: none, huber or cauchy."
     ),
     threads: int = threads_option(),
-    config: Path | None = opt.config_option(
-        "A YAML file of GraphSLAMConfig (as OUTPUT/config.yaml records it) instead of the "
-        "dataset's defaults; --robust still applies."
+    config: Path | None = estimator_config_option(
+        "GraphSLAMConfig", " instead of the dataset's defaults; --robust still applies."
     ),
     report: dict[str, Any] = report_options(),
 ) -> None:
@@ -397,8 +410,8 @@ def graphslam_command(
 @slam_app.command("fastslam")
 @opt.with_option_groups
 def fastslam_command(
-    dataset: str = typer.Argument(..., help=DATASET_HELP),
-    output: Path = opt.output_option("Output folder (created when missing)."),
+    dataset: str = dataset_argument(),
+    output: Path = output_folder_option(),
     source: LandmarkSource = landmark_source_options(
         "Ignore the dataset's landmark ids: per-particle maximum-likelihood association "
         "(Table 13.2; Victoria Park has no ids and always runs so)."
@@ -413,9 +426,8 @@ def fastslam_command(
         "--p0",
         help="New-landmark likelihood p0 for unknown ids (1/(m rad)) [default: 0.001].",
     ),
-    config: Path | None = opt.config_option(
-        "A YAML file of FastSLAMConfig (as OUTPUT/config.yaml records it); the options "
-        "given here override it."
+    config: Path | None = estimator_config_option(
+        "FastSLAMConfig", "; the options given here override it."
     ),
     report: dict[str, Any] = report_options(),
 ) -> None:

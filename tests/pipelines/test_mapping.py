@@ -1,4 +1,4 @@
-"""End-to-end mapping on simulated and real data."""
+"""End-to-end mapping with known poses (probmap.pipelines.mapping) on simulated and real data."""
 
 from __future__ import annotations
 

@@ -56,3 +56,16 @@ def sim_log():
         return path
 
     return write
+
+
+@pytest.fixture
+def read_only_dir(tmp_path):
+    """A folder ``tmp_path/ro`` that the test user cannot write into (mode 0o500), made writable
+    again afterwards; skips where permissions are not enforced (root, a non-POSIX system)."""
+    if os.name != "posix" or os.geteuid() == 0:
+        pytest.skip("root ignores permissions")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    yield ro
+    ro.chmod(0o700)

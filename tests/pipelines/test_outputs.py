@@ -41,15 +41,8 @@ def test_a_file_in_the_way_is_named(tmp_path):
         check_output_prefix(f / "sub" / "map")
 
 
-@pytest.mark.skipif(hasattr(os, "geteuid") and os.geteuid() == 0, reason="root ignores permissions")
-def test_unwritable_folder_is_refused(tmp_path):
-    ro = tmp_path / "ro"
-    ro.mkdir()
-    ro.chmod(0o500)
-    try:
-        with pytest.raises(PermissionError, match="is not writable"):
-            check_output_prefix(ro / "map")
-        with pytest.raises(PermissionError, match="is not writable"):
-            check_output_folder(ro / "out")
-    finally:
-        ro.chmod(0o700)
+def test_unwritable_folder_is_refused(read_only_dir):
+    with pytest.raises(PermissionError, match="is not writable"):
+        check_output_prefix(read_only_dir / "map")
+    with pytest.raises(PermissionError, match="is not writable"):
+        check_output_folder(read_only_dir / "out")

@@ -25,7 +25,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from probmap.datasets.simulation import simulate_landmarks  # noqa: E402
-from probmap.slam.fastslam import FastSLAM, FastSLAMConfig  # noqa: E402
+from probmap.slam.landmark.fastslam import FastSLAM, FastSLAMConfig  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_seif import PRIOR_SD, _ekf_with_prior, _time_steps  # noqa: E402

@@ -178,7 +178,7 @@ def closure_precision(run: Any, mount: np.ndarray, rel: Any) -> dict[str, float]
 def worker_graph(key: str, data: Path, end_time: float | None) -> dict[str, Any]:
     from probmap.geometry.se2 import between
     from probmap.metrics.relations import read_relations
-    from probmap.pipelines.grid_slam import load_laser_log, run_graph_slam
+    from probmap.pipelines.laser_slam import load_laser_log, run_graph_slam
 
     _, log_rel, rel_rel = LOGS[key]
     path = data / log_rel
@@ -234,7 +234,7 @@ def worker_graph(key: str, data: Path, end_time: float | None) -> dict[str, Any]
 def worker_warm(data: Path, end_time: float | None) -> dict[str, Any]:
     """Compile (or load) every kernel graph SLAM and the RBPF use, on the first ``end_time``
     seconds of the hospital log (the 180/181-beam log exercises both scan widths)."""
-    from probmap.pipelines.grid_slam import load_laser_log, run_graph_slam
+    from probmap.pipelines.laser_slam import load_laser_log, run_graph_slam
 
     batch = load_laser_log(data / LOGS["clinic"][1], end_time=end_time)
     run_graph_slam(batch)
@@ -244,18 +244,18 @@ def worker_warm(data: Path, end_time: float | None) -> dict[str, Any]:
 def worker_rbpf(data: Path, end_time: float | None) -> dict[str, Any]:
     from probmap.datasets.carmen import load_scans
     from probmap.metrics.relations import read_relations
-    from probmap.pipelines.grid_slam import slam_log
-    from probmap.slam.gridslam import GridSlamConfig, run_grid_slam
+    from probmap.pipelines.laser_slam import slam_log
+    from probmap.slam.laser.rbpf import RbpfConfig, run_rbpf
 
     _, log_rel, rel_rel = LOGS["intel"]
     warnings.simplefilter("ignore", UserWarning)
     b = load_scans(data / log_rel, poses="odometry", dtype=np.float32)
     n = 40  # warm the compiled kernels outside the timed run
-    run_grid_slam(np.asarray(b.times)[:n], np.asarray(b.ranges)[:n], np.asarray(b.angles),
-                  np.asarray(b.robot_poses)[:n], b.max_range, GridSlamConfig(particles=2))  # fmt: skip
+    run_rbpf(np.asarray(b.times)[:n], np.asarray(b.ranges)[:n], np.asarray(b.angles),
+                  np.asarray(b.robot_poses)[:n], b.max_range, RbpfConfig(particles=2))  # fmt: skip
     del b
     t0 = time.perf_counter()
-    res = slam_log(data / log_rel, GridSlamConfig(), end_time=end_time)
+    res = slam_log(data / log_rel, RbpfConfig(), end_time=end_time)
     wall = time.perf_counter() - t0
     rel = _within(read_relations(data / rel_rel), np.asarray(res.times))
     return {

@@ -1,7 +1,7 @@
 """How graph SLAM's one default configuration holds up when the data is not what it was built on
 (issue 18: "build for data you have not seen").
 
-Each row runs ``run_graph_slam`` with the default ``GraphSlamConfig`` on a perturbed copy of a
+Each row runs ``run_graph_slam`` with the default ``SubmapSlamConfig`` on a perturbed copy of a
 real log and scores it with the log's relations (Kuemmerle et al. 2009), the same metric as
 ``bench_graph_slam.py``. The perturbations stand for the ways another robot's log differs:
 
@@ -20,7 +20,7 @@ compiled kernels do not leak into the next.
 
 Run: ``PROBMAP_DATA=../shared/data python benchmarks/bench_graph_slam_robustness.py
 [--log intel|clinic] [--cases base,odometry:1.05,...] [--set FIELD=VALUE ...] [--jobs N]
-[--markdown]``. ``--set`` changes a ``GraphSlamConfig`` field for every row (as in
+[--markdown]``. ``--set`` changes a ``SubmapSlamConfig`` field for every row (as in
 ``graph_slam_diagnose.py``: ``max_window=40,0.5``, ``matcher.sigma=0.035``), to judge a
 candidate default on all the rows at once; ``--jobs`` runs that many rows side by side (their
 times are then for scale only). The last line is the sum of the rows' mean errors.
@@ -131,7 +131,7 @@ def perturb(batch: Any, case: str, seed: int = 0) -> Any:
 def worker(data: Path, log: str, case: str, settings: list[str]) -> dict[str, Any]:
     from graph_slam_diagnose import configure
     from probmap.metrics.relations import read_relations, relation_errors
-    from probmap.pipelines.grid_slam import load_laser_log, run_graph_slam
+    from probmap.pipelines.laser_slam import load_laser_log, run_graph_slam
 
     log_rel, rel_rel = LOGS[log]
     batch = perturb(load_laser_log(data / log_rel), case)

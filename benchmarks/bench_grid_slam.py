@@ -49,7 +49,7 @@ def main() -> None:
 
     from probmap.datasets.carmen import load_scans
     from probmap.metrics.relations import Relations, read_relations, relation_errors
-    from probmap.slam.gridslam import GridSlamConfig, run_grid_slam
+    from probmap.slam.laser.rbpf import RbpfConfig, run_rbpf
 
     folder = args.data / "intel-research-lab"
     log, rel_file = folder / "intel.clf.bz2", folder / "intel.relations"
@@ -73,20 +73,20 @@ def main() -> None:
 
     # warm the numba caches outside the timed runs
     warnings.simplefilter("ignore", UserWarning)
-    run_grid_slam(times[:40], ranges[:40], angles, robot[:40], batch.max_range,
-                  GridSlamConfig(particles=2))  # fmt: skip
+    run_rbpf(times[:40], ranges[:40], angles, robot[:40], batch.max_range,
+                  RbpfConfig(particles=2))  # fmt: skip
     rows = []
-    rbpf = GridSlamConfig(particles=args.particles)
+    rbpf = RbpfConfig(particles=args.particles)
     runs = [("RBPF", rbpf, True)]
     if not args.skip_guard_off:
         runs.append(("RBPF, guard off", replace(rbpf, degeneracy_guard=False), True))
     if not args.skip_peer:
-        one = GridSlamConfig(particles=1)
+        one = RbpfConfig(particles=1)
         runs.append(("scan-to-map odometry", one, False))
         runs.append(("scan-to-map, guard off", replace(one, degeneracy_guard=False), False))
     for name, cfg, sample in runs:
         t0 = time.perf_counter()
-        res = run_grid_slam(times, ranges, angles, robot, batch.max_range, cfg, sample=sample)
+        res = run_rbpf(times, ranges, angles, robot, batch.max_range, cfg, sample=sample)
         wall = time.perf_counter() - t0
         e = errors(res.poses)
         rows.append((name, cfg.particles, wall, len(times) / wall, duration / wall,

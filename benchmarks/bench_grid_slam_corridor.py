@@ -29,7 +29,7 @@ def main() -> None:
 
     from probmap.geometry.se2 import between
     from probmap.sim.corridor import simulate_corridor_loop
-    from probmap.slam.gridslam import GridSlamConfig, run_grid_slam
+    from probmap.slam.laser.rbpf import RbpfConfig, run_rbpf
 
     warnings.simplefilter("ignore", UserWarning)
     table = Table(title=f"featureless corridor loop, {args.particles} particles")
@@ -47,9 +47,9 @@ def main() -> None:
         cells = [str(seed), f"{errors(w.odometry).max():.2f}"]
         secs = []
         for guard in (False, True):
-            cfg = GridSlamConfig(particles=args.particles, seed=seed, degeneracy_guard=guard)
+            cfg = RbpfConfig(particles=args.particles, seed=seed, degeneracy_guard=guard)
             t0 = time.perf_counter()
-            res = run_grid_slam(w.times, w.ranges, w.angles, w.odometry, w.max_range, cfg)
+            res = run_rbpf(w.times, w.ranges, w.angles, w.odometry, w.max_range, cfg)
             secs.append(time.perf_counter() - t0)
             e = errors(res.poses)
             cells += [f"{e.max():.2f}", f"{e[-1]:.2f}"]

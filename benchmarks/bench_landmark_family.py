@@ -59,7 +59,7 @@ def _estimator(method: str, ds: Any) -> Any:
     from probmap.pipelines.landmark_slam import default_ekf_config, default_graphslam_config
 
     if method == "ekf":
-        from probmap.slam.ekf import EKFSLAM
+        from probmap.slam.landmark.ekf import EKFSLAM
 
         return EKFSLAM(
             ds.motion_model,
@@ -69,7 +69,7 @@ def _estimator(method: str, ds: Any) -> Any:
             default_ekf_config(ds),
         )
     if method == "seif":
-        from probmap.slam.seif import build_seif
+        from probmap.slam.landmark.seif import build_seif
 
         return build_seif(ds)
     if method == "graphslam":
@@ -80,7 +80,7 @@ def _estimator(method: str, ds: Any) -> Any:
         import dataclasses
 
         from probmap.pipelines.landmark_slam import default_fastslam_config
-        from probmap.slam.fastslam import FastSLAM
+        from probmap.slam.landmark.fastslam import FastSLAM
 
         cfg = default_fastslam_config(ds)
         if method == "fastslam1":

@@ -54,7 +54,7 @@ def main() -> None:
     from probmap.datasets.simulation import simulate_landmarks
     from probmap.pipelines import MappingConfig, map_log
     from probmap.pipelines.landmark_slam import default_ekf_config, run_landmark_slam
-    from probmap.slam.ekf import EKFSLAM
+    from probmap.slam.landmark.ekf import EKFSLAM
     from probmap.viz.live import LandmarkSlamObserver, LiveView, MappingObserver
 
     tmp = Path(tempfile.mkdtemp(prefix="bench-live-"))

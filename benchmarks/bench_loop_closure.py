@@ -38,12 +38,12 @@ def main() -> None:
     from probmap.geometry.se2 import wrap_angle
     from probmap.grid.occupancy import OccupancyGrid
     from probmap.sim.floorplan import simulate_laser_world
-    from probmap.slam.loop_closure import (
+    from probmap.slam.laser.loop_closure import (
         PrecomputedGrids,
         branch_and_bound_search,
         brute_force_search,
     )
-    from probmap.slam.scan_matching import MatchField, scan_points
+    from probmap.slam.laser.scan_matching import MatchField, scan_points
 
     world = simulate_laser_world(seed=1, range_noise=0.01)
     grid = OccupancyGrid(resolution=0.05)

@@ -3,7 +3,7 @@
 A controlled experiment with known truth: a robot drives down a long corridor with door
 recesses and a few pillars (walls are exact line segments, ranges are cast analytically, so
 nothing is quantised before the matcher sees it) with a forward-facing 180-degree laser (as
-the Freiburg hospital's) or a 360-degree one. :class:`~probmap.slam.graph_slam.GraphSlam` runs
+the Freiburg hospital's) or a 360-degree one. :class:`~probmap.slam.laser.submap_slam.SubmapSlam` runs
 with loop closure and optimization off, and its *local-SLAM* poses (scan-to-submap matching
 only) are compared with the truth:
 
@@ -145,10 +145,10 @@ def simulate(
 def local_slam_bias(world: dict[str, Any], cfg: Any) -> dict[str, float]:
     """Run local SLAM (closures and optimization off) and measure its step bias."""
     from probmap.geometry.se2 import between
-    from probmap.slam.graph_slam import GraphSlam
+    from probmap.slam.laser.submap_slam import SubmapSlam
 
     cfg = replace(cfg, closure_every=10**9, optimize_every=0, wide_search_every=0)
-    slam = GraphSlam(cfg, max_range=float(world["max_range"]))
+    slam = SubmapSlam(cfg, max_range=float(world["max_range"]))
     for k in range(len(world["poses"])):
         slam.add_scan(0.1 * k, world["ranges"][k], world["angles"], world["odometry"][k])
     est = np.asarray(slam.local)
@@ -186,7 +186,7 @@ def use_field_variant(name: str) -> None:
     field to 0 in cells the submap never observed (log odds exactly 0), kept incrementally as
     ``default``; ``exact-known`` does both.
     """
-    from probmap.slam import submaps as S
+    from probmap.slam.laser import submaps as S
 
     if name not in FIELD_VARIANTS:
         raise ValueError(f"field variant must be one of {FIELD_VARIANTS}, got {name!r}")

@@ -38,7 +38,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 from probmap.datasets.g2o import pose_graph_arrays, read_pose_graph  # noqa: E402
-from probmap.slam.posegraph import optimize_pose_graph  # noqa: E402
+from probmap.slam.posegraph.optimize import optimize_pose_graph  # noqa: E402
 
 GRAPHS = [
     "M3500.g2o",
@@ -104,7 +104,7 @@ def verdict(ours: float, theirs: float, gtsam_capped: bool) -> str:
 def incremental(every: int = 100, n: int = 2000, closures: int = 12) -> None:
     """Time PoseGraph2D re-optimizations on a growing graph (see the module docstring)."""
     from probmap.geometry.se2 import between, compose
-    from probmap.slam.posegraph import OptimizerConfig, PoseGraph2D
+    from probmap.slam.posegraph.optimize import OptimizerConfig, PoseGraph2D
 
     rng = np.random.default_rng(0)
     truth = np.zeros((n, 3))

@@ -145,7 +145,7 @@ def main() -> None:
     ap.add_argument("--margin", type=float, default=0.01)
     args = ap.parse_args()
     from probmap.metrics.relations import read_relations, read_trajectory
-    from probmap.pipelines.grid_slam import load_laser_log, run_graph_slam
+    from probmap.pipelines.laser_slam import load_laser_log, run_graph_slam
 
     data = Path(os.environ.get("PROBMAP_DATA", "../shared/data"))
     given = dict(t.split("=", 1) for t in args.trajectory)

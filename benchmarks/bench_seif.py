@@ -26,8 +26,8 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from probmap.datasets.simulation import simulate_landmarks  # noqa: E402
-from probmap.slam.ekf import EKFSLAM  # noqa: E402
-from probmap.slam.seif import SeifConfig, build_seif  # noqa: E402
+from probmap.slam.landmark.ekf import EKFSLAM  # noqa: E402
+from probmap.slam.landmark.seif import SeifConfig, build_seif  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import _isam2_peer  # noqa: E402

@@ -32,8 +32,8 @@ import numpy as np  # noqa: E402
 from probmap.datasets import registry  # noqa: E402
 from probmap.datasets.simulation import simulate_landmarks  # noqa: E402
 from probmap.pipelines.landmark_slam import default_ekf_config, evaluate, run_landmark_slam  # noqa: E402
-from probmap.slam.ekf import EKFSLAM  # noqa: E402
-from probmap.slam.seif import SeifConfig, build_seif  # noqa: E402
+from probmap.slam.landmark.ekf import EKFSLAM  # noqa: E402
+from probmap.slam.landmark.seif import SeifConfig, build_seif  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import _isam2_peer  # noqa: E402

@@ -32,7 +32,7 @@ import numpy as np  # noqa: E402
 from probmap.geometry.se2 import wrap_angle  # noqa: E402
 from probmap.models.measurement import RangeBearingModel  # noqa: E402
 from probmap.models.motion import VelocityModel  # noqa: E402
-from probmap.slam.ekf import EKFSLAM  # noqa: E402
+from probmap.slam.landmark.ekf import EKFSLAM  # noqa: E402
 
 K_OBS = 10
 

@@ -1,6 +1,6 @@
 """Where graph SLAM's relation error comes from, on one log (issue 18's hospital seam).
 
-Runs ``run_graph_slam`` (the default ``GraphSlamConfig`` unless ``--set`` changes a field) and
+Runs ``run_graph_slam`` (the default ``SubmapSlamConfig`` unless ``--set`` changes a field) and
 splits the relation error (Kuemmerle et al. 2009) of the estimate and of raw odometry into
 
 - *local* relations, whose two times lie less than ``--local-seconds`` apart (the shape of the
@@ -51,10 +51,10 @@ def _value(text: str) -> Any:
 
 
 def configure(settings: list[str]) -> Any:
-    """The default GraphSlamConfig with ``field=value`` (or ``matcher.field=value``) applied."""
-    from probmap.slam.graph_slam import GraphSlamConfig
+    """The default SubmapSlamConfig with ``field=value`` (or ``matcher.field=value``) applied."""
+    from probmap.slam.laser.submap_slam import SubmapSlamConfig
 
-    cfg = GraphSlamConfig()
+    cfg = SubmapSlamConfig()
     for s in settings:
         key, _, text = s.partition("=")
         if key.startswith("matcher."):
@@ -101,7 +101,7 @@ def main() -> None:
     ap.add_argument("--local-seconds", type=float, default=60.0)
     args = ap.parse_args()
     from probmap.metrics.relations import read_relations
-    from probmap.pipelines.grid_slam import load_laser_log, run_graph_slam
+    from probmap.pipelines.laser_slam import load_laser_log, run_graph_slam
 
     data = Path(os.environ.get("PROBMAP_DATA", "../shared/data"))
     log, relf = LOGS[args.log]

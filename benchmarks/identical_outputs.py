@@ -73,16 +73,37 @@ def jobs(quick: bool) -> list[tuple[str, list[str]]]:
     end = ["--end-time", "300"] if quick else []
     for name, src in LASER.items():
         for method in ("graph", "rbpf"):
-            out.append((f"laser/{name}/{method}", ["slam", "grid", src, "-o", "{out}/slam",
-                                                    "--method", method, *end]))
+            out.append(
+                (
+                    f"laser/{name}/{method}",
+                    ["slam", "grid", src, "-o", "{out}/slam", "--method", method, *end],
+                )
+            )
     for robot in (1, 2, 3):
         for method in LANDMARK_METHODS:
-            out.append((f"landmark/mrclam{robot}/{method}",
-                        ["slam", method, "mrclam7", "--robot", str(robot), "-o", "{out}",
-                         "--no-plot", *end]))
+            out.append(
+                (
+                    f"landmark/mrclam{robot}/{method}",
+                    [
+                        "slam",
+                        method,
+                        "mrclam7",
+                        "--robot",
+                        str(robot),
+                        "-o",
+                        "{out}",
+                        "--no-plot",
+                        *end,
+                    ],
+                )
+            )
     for method in LANDMARK_METHODS:
-        out.append((f"landmark/victoria-park/{method}",
-                    ["slam", method, "victoria-park", "-o", "{out}", "--no-plot", *end]))
+        out.append(
+            (
+                f"landmark/victoria-park/{method}",
+                ["slam", method, "victoria-park", "-o", "{out}", "--no-plot", *end],
+            )
+        )
     for graph in sorted((DATA / "pose-graphs").iterdir()):
         out.append((f"posegraph/{graph.name}", ["optimize", str(graph), "-o", "{out}/out.g2o"]))
     return out

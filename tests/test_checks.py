@@ -23,8 +23,8 @@ from probmap._checks import (
 from probmap.filters.mcl import MCLConfig
 from probmap.pipelines.fit import FitConfig
 from probmap.slam.graphslam import GraphSLAMConfig
-from probmap.slam.scan_matching import MatcherConfig
-from probmap.slam.seif import SeifConfig
+from probmap.slam.landmark.seif import SeifConfig
+from probmap.slam.laser.scan_matching import MatcherConfig
 
 VALUES = [-math.inf, -2.5, -1, -1e-12, 0, 0.0, 1e-300, 0.5, 1, 2, 7.25, 1e300, math.inf, math.nan]
 

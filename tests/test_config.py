@@ -36,7 +36,7 @@ CLASSES = _config_classes()
 
 def test_the_search_finds_the_configs_we_know():
     names = {c.__name__ for c in CLASSES}
-    known = {"GraphSlamConfig", "GridSlamConfig", "MatcherConfig", "OptimizerConfig", "EKFConfig"}
+    known = {"SubmapSlamConfig", "RbpfConfig", "MatcherConfig", "OptimizerConfig", "EKFConfig"}
     known |= {"SeifConfig", "MCLConfig", "KLDConfig", "LocalizeConfig", "MappingConfig"}
     known |= {"MapMappingConfig"}
     assert known <= names, known - names
@@ -65,21 +65,21 @@ def _changed():
     from probmap.filters.kld import KLDConfig
     from probmap.filters.mcl import MCLConfig
     from probmap.pipelines.localize import LocalizeConfig
-    from probmap.slam.ekf import EKFConfig
-    from probmap.slam.graph_slam import GraphSlamConfig
-    from probmap.slam.gridslam import GridSlamConfig
-    from probmap.slam.posegraph import OptimizerConfig
-    from probmap.slam.scan_matching import MatcherConfig
-    from probmap.slam.seif import SeifConfig
+    from probmap.slam.landmark.ekf import EKFConfig
+    from probmap.slam.landmark.seif import SeifConfig
+    from probmap.slam.laser.rbpf import RbpfConfig
+    from probmap.slam.laser.scan_matching import MatcherConfig
+    from probmap.slam.laser.submap_slam import SubmapSlamConfig
+    from probmap.slam.posegraph.optimize import OptimizerConfig
 
     return [
-        GraphSlamConfig(
+        SubmapSlamConfig(
             submap_scans=30,
             matcher=MatcherConfig(linear_window=0.3, beam_skip=2),
             recover_window=(0.7, 0.25),
             robust="cauchy",
         ),
-        GridSlamConfig(particles=5, degeneracy_guard=False, odometry_noise=(0.2, 0.1, 0.3, 0.4)),
+        RbpfConfig(particles=5, degeneracy_guard=False, odometry_noise=(0.2, 0.1, 0.3, 0.4)),
         MCLConfig(n_particles=500, kld=KLDConfig(epsilon=0.1, bin_size=(0.2, 0.2, 0.1))),
         LocalizeConfig(initial_pose=(1.0, -2.5, math.pi / 3), max_range=8.0, augmented=True),
         EKFConfig(visibility_range=12.5, outlier_probability=0.01),
@@ -98,7 +98,7 @@ def test_changed_values_round_trip(cfg):
 
 def test_numpy_scalars_dump_as_plain_numbers():
     np = pytest.importorskip("numpy")
-    from probmap.slam.scan_matching import MatcherConfig
+    from probmap.slam.laser.scan_matching import MatcherConfig
 
     cfg = MatcherConfig(sigma=np.float64(0.07), iterations=np.int64(4))
     back = load_config(MatcherConfig, dump_config(cfg))
@@ -106,19 +106,19 @@ def test_numpy_scalars_dump_as_plain_numbers():
 
 
 def test_partial_file_keeps_defaults_nested_ones_included():
-    from probmap.slam.graph_slam import GraphSlamConfig
+    from probmap.slam.laser.submap_slam import SubmapSlamConfig
 
-    default = GraphSlamConfig()
-    cfg = load_config(GraphSlamConfig, "submap_scans: 30\nmatcher:\n  linear_window: 0.3\n")
-    # the matcher's other fields keep GraphSlamConfig's matcher defaults, not MatcherConfig()'s
+    default = SubmapSlamConfig()
+    cfg = load_config(SubmapSlamConfig, "submap_scans: 30\nmatcher:\n  linear_window: 0.3\n")
+    # the matcher's other fields keep SubmapSlamConfig's matcher defaults, not MatcherConfig()'s
     expected = dataclasses.replace(
         default, submap_scans=30, matcher=dataclasses.replace(default.matcher, linear_window=0.3)
     )
     assert cfg == expected
     # ints where a float is asked, YAML 1.1's "1e-3" string and .inf are numbers
-    cfg = load_config(GraphSlamConfig, "resolution: 1\nmin_distance: 1e-3\n")
+    cfg = load_config(SubmapSlamConfig, "resolution: 1\nmin_distance: 1e-3\n")
     assert cfg.resolution == 1.0 and type(cfg.resolution) is float and cfg.min_distance == 1e-3
-    from probmap.slam.ekf import EKFConfig
+    from probmap.slam.landmark.ekf import EKFConfig
 
     assert load_config(EKFConfig, "visibility_range: .inf\n").visibility_range == math.inf
 
@@ -133,7 +133,7 @@ def test_optional_nested_dataclass_from_null_and_from_a_mapping():
 
 BAD = [
     ("matcher:\n  linear_window: x\n", "cfg.yaml: matcher.linear_window: expected a number, got 'x'"),
-    ("submap_scns: 3\n", "cfg.yaml: submap_scns: unknown field of GraphSlamConfig (did you mean submap_scans?)"),
+    ("submap_scns: 3\n", "cfg.yaml: submap_scns: unknown field of SubmapSlamConfig (did you mean submap_scans?)"),
     ("matcher: {sigmaa: 1}\n", "cfg.yaml: matcher.sigmaa: unknown field of MatcherConfig"),
     ("submap_scans: 3.5\n", "cfg.yaml: submap_scans: expected an integer, got 3.5"),
     ("submap_scans: true\n", "cfg.yaml: submap_scans: expected an integer, got True"),
@@ -146,56 +146,56 @@ BAD = [
     ("matcher: 3\n", "cfg.yaml: matcher: expected a mapping of MatcherConfig fields, got 3"),
     ("matcher:\n  linear_window: -1\n", "cfg.yaml: matcher: linear_window must be >= 0"),
     ("resolution: -1\n", "cfg.yaml: resolution"),
-    ("- 1\n- 2\n", "cfg.yaml: expected a mapping of GraphSlamConfig fields, got a list"),
+    ("- 1\n- 2\n", "cfg.yaml: expected a mapping of SubmapSlamConfig fields, got a list"),
     ("a: [\n", "cfg.yaml: line 2: not valid YAML"),
-    ("config_class: GridSlamConfig\n", "cfg.yaml: config_class: expected GraphSlamConfig, got"),
+    ("config_class: RbpfConfig\n", "cfg.yaml: config_class: expected SubmapSlamConfig, got"),
     ("probmap_version: [1]\n", "cfg.yaml: probmap_version: expected a version string"),
-    ("1: 2\n", "cfg.yaml: 1: unknown field of GraphSlamConfig"),
+    ("1: 2\n", "cfg.yaml: 1: unknown field of SubmapSlamConfig"),
 ]  # fmt: skip
 
 
 @pytest.mark.parametrize(("text", "message"), BAD)
 def test_bad_input_is_one_value_error_naming_file_and_field(tmp_path, text, message):
-    from probmap.slam.graph_slam import GraphSlamConfig
+    from probmap.slam.laser.submap_slam import SubmapSlamConfig
 
     path = tmp_path / "cfg.yaml"
     path.write_text(text)
     with pytest.raises(ValueError) as info:
-        load_config(GraphSlamConfig, path)
+        load_config(SubmapSlamConfig, path)
     msg = str(info.value)
     assert "\n" not in msg
     assert msg.replace(str(tmp_path) + "/", "").startswith(message), msg
     with pytest.raises(ValueError, match=re.escape(message.replace("cfg.yaml", "<config>"))):
-        load_config(GraphSlamConfig, text + "# text")
+        load_config(SubmapSlamConfig, text + "# text")
 
 
 def test_bad_literal_in_a_nested_optimizer_and_a_post_init_error_at_the_top():
-    from probmap.slam.gridslam import GridSlamConfig
-    from probmap.slam.posegraph import OptimizerConfig
+    from probmap.slam.laser.rbpf import RbpfConfig
+    from probmap.slam.posegraph.optimize import OptimizerConfig
 
     with pytest.raises(ValueError, match=r"^x.yaml: chart: expected one of 'logmap', 'xyt'"):
         load_config(OptimizerConfig, "chart: polar\n", source="x.yaml")
     with pytest.raises(ValueError, match=r"^x.yaml: particles must be >= 1, got 0$"):
-        load_config(GridSlamConfig, "particles: 0\n", source="x.yaml")
+        load_config(RbpfConfig, "particles: 0\n", source="x.yaml")
 
 
 def test_missing_file_and_non_dataclass_arguments(tmp_path):
-    from probmap.slam.gridslam import GridSlamConfig
+    from probmap.slam.laser.rbpf import RbpfConfig
 
     with pytest.raises(FileNotFoundError, match="nope.yaml"):
-        load_config(GridSlamConfig, tmp_path / "nope.yaml")
+        load_config(RbpfConfig, tmp_path / "nope.yaml")
     with pytest.raises(FileNotFoundError, match="nope.yaml"):
-        load_config(GridSlamConfig, str(tmp_path / "nope.yaml"))
+        load_config(RbpfConfig, str(tmp_path / "nope.yaml"))
     with pytest.raises(TypeError):
         load_config(dict, "a: 1")  # type: ignore[type-var]
     with pytest.raises(TypeError):
-        dump_config(GridSlamConfig)
+        dump_config(RbpfConfig)
     with pytest.raises(TypeError):
         dump_config({"a": 1})
 
 
 def test_write_config_failure_leaves_no_file(tmp_path):
-    from probmap.slam.scan_matching import MatcherConfig
+    from probmap.slam.laser.scan_matching import MatcherConfig
 
     with pytest.raises(OSError, match="cannot write"):
         write_config(tmp_path / "no" / "c.yaml", MatcherConfig())

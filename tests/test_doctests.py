@@ -31,7 +31,7 @@ MIN_EXAMPLES = {
     "probmap.grid.spec": 1,
     "probmap.mapping.map_mapping": 1,
     "probmap.models.beam": 2,
-    "probmap.slam.posegraph": 1,
+    "probmap.slam.posegraph.optimize": 1,
 }
 
 

@@ -11,7 +11,7 @@ from probmap.datasets import carmen, protocol, rosbag
 from probmap.filters import particle
 from probmap.grid import io as grid_io
 from probmap.grid import occupancy, semantic_io
-from probmap.slam import seif
+from probmap.slam.landmark import seif
 
 
 @pytest.mark.parametrize(

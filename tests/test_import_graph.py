@@ -113,29 +113,18 @@ def _core_files() -> list[Path]:
     return [p for pkg in CORE if (SRC / pkg).is_dir() for p in sorted((SRC / pkg).rglob("*.py"))]
 
 
-def _shim_targets(tree: ast.AST) -> set[int]:
-    """``id`` of every string constant inside a call to ``probmap._deprecation.moved`` (a
-    one-release shim: it names a new home as a string and imports it only on lookup)."""
-    ids: set[int] = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "moved":
-            ids.update(id(c) for c in ast.walk(node) if isinstance(c, ast.Constant))
-    return ids
-
-
 def layer_violations(path: Path, source: str | None = None) -> list[str]:
     """Why the core file ``path`` breaks the layer rule (empty when it keeps it).
 
     Two kinds: an ``import`` (anywhere in the file, at the top or inside a function) of an upper
     package, and a string naming an upper module (``importlib.import_module("probmap.cli...")``,
-    ``__import__``) outside a deprecation shim's ``moved(...)`` call.
+    ``__import__``).
     """
     text = path.read_text(encoding="utf-8") if source is None else source
     tree = ast.parse(text)
     bad = [
         f"imports {m}" for m in sorted(_imported_modules(path, text)) if m.split(".")[1] in UPPER
     ]
-    shims = _shim_targets(tree)
     prefixes = tuple(f"probmap.{u}" for u in UPPER)
     for node in ast.walk(tree):
         if (
@@ -144,9 +133,8 @@ def layer_violations(path: Path, source: str | None = None) -> list[str]:
             and node.value.startswith(prefixes)
             and node.value.split(".")[1] in UPPER  # probmap.cli, not probmap.climb
             and " " not in node.value  # a module name, not prose in a docstring
-            and id(node) not in shims
         ):
-            bad.append(f"names {node.value!r} (line {node.lineno}) outside a moved() shim")
+            bad.append(f"names {node.value!r} (line {node.lineno})")
     return bad
 
 
@@ -159,112 +147,20 @@ def test_core_imports_no_datasets_pipelines_cli_or_viz():
 
 def test_layer_rule_catches_every_form(tmp_path):
     """The checker itself: it sees function-level, relative and ``from probmap import`` imports
-    and import_module strings, and lets a ``moved()`` shim through."""
+    and import_module strings."""
     path = SRC / "grid" / "example.py"  # never written: only names the module for resolution
     cases = {
         "from probmap.datasets.carmen import load_scans": 1,
-        "def f():\n    import probmap.viz.slam\n": 1,
+        "def f():\n    import probmap.viz.landmark_slam\n": 1,
         "from ..pipelines import grid_slam": 1,
         "from .. import cli": 1,
         "from probmap import datasets": 1,
         "import importlib\nimportlib.import_module('probmap.pipelines.fit')": 1,
         "from probmap.grid.spec import GridSpec\nfrom probmap import errors": 0,
-        "__getattr__ = moved(__name__, {'fit_log': 'probmap.pipelines.fit'})": 0,
         '"""See probmap.pipelines.fit for the log reader."""': 0,
     }
     for source, n in cases.items():
         assert len(layer_violations(path, source)) == n, source
-
-
-#: Where a one-release shim may forward a name: the packages of the target layout that receive
-#: code (the core, the pipelines, the metrics), never the upper readers, CLI or plots.
-SHIM_HOMES = (*CORE, "pipelines", "metrics")
-
-
-def _shim_table(node: ast.expr) -> dict[str, str]:
-    """``{name: new module}`` of the second argument of a ``moved()`` call, read from the source:
-    a dict literal (``**`` spreads included) and ``dict.fromkeys([names], "module")``."""
-    if isinstance(node, ast.Dict):
-        table: dict[str, str] = {}
-        for key, value in zip(node.keys, node.values, strict=True):
-            if key is None:
-                table.update(_shim_table(value))
-            else:
-                table[ast.literal_eval(key)] = ast.literal_eval(value)
-        return table
-    if isinstance(node, ast.Call) and ast.unparse(node.func) == "dict.fromkeys":
-        names, home = (ast.literal_eval(a) for a in node.args)
-        return dict.fromkeys(names, home)
-    raise AssertionError(f"cannot read the shim table {ast.unparse(node)!r}")
-
-
-def shim_tables() -> dict[str, dict[str, str]]:
-    """``{old module: {name: new module}}`` for every ``moved()`` shim in the package."""
-    found: dict[str, dict[str, str]] = {}
-    for path in sorted(SRC.rglob("*.py")):
-        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "moved":
-                found.setdefault(_module_of(path), {}).update(_shim_table(node.args[1]))
-    return found
-
-
-def _module_path(module: str) -> Path | None:
-    base = SRC.parent / module.replace(".", "/")
-    for candidate in (base.with_suffix(".py"), base / "__init__.py"):
-        if candidate.is_file():
-            return candidate
-    return None
-
-
-def _top_level_names(path: Path) -> set[str]:
-    """Names a module defines or imports at its top level (not through ``__getattr__``)."""
-    names: set[str] = set()
-    for node in ast.parse(path.read_text(encoding="utf-8")).body:
-        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
-            names.add(node.name)
-        elif isinstance(node, ast.Assign | ast.AnnAssign):
-            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
-            names.update(t.id for t in targets if isinstance(t, ast.Name))
-        elif isinstance(node, ast.ImportFrom | ast.Import):
-            names.update((a.asname or a.name).split(".")[0] for a in node.names)
-    return names
-
-
-def test_shims_point_at_modules_that_exist():
-    """Every ``moved()`` shim forwards each name to another module of the target layout that
-    exists and defines that name itself (not through a shim of its own)."""
-    tables = shim_tables()
-    assert {"probmap.grid.fit", "probmap.filters.localize"} <= set(tables), sorted(tables)
-    for old, table in sorted(tables.items()):
-        assert table, f"{old}: an empty shim"
-        for name, new in sorted(table.items()):
-            where = f"{old}.{name} -> {new}"
-            assert new != old and new.split(".")[0] == "probmap", where
-            assert new.split(".")[1] in SHIM_HOMES, where
-            path = _module_path(new)
-            assert path is not None, f"{where}: no such module"
-            assert name in _top_level_names(path), f"{where}: the new module does not define it"
-
-
-def test_shim_reader_reads_every_form():
-    """The shim reader on the three forms the package uses, so that the check cannot pass by
-    reading nothing."""
-    calls = {
-        "moved(__name__, {'fit_log': 'probmap.pipelines.fit'})": {
-            "fit_log": "probmap.pipelines.fit"
-        },
-        "moved(__name__, dict.fromkeys(['a', 'b'], 'probmap.sim.floorplan'))": {
-            "a": "probmap.sim.floorplan",
-            "b": "probmap.sim.floorplan",
-        },
-        "moved(__name__, {**dict.fromkeys(['a'], 'probmap.x'), 'b': 'probmap.y'})": {
-            "a": "probmap.x",
-            "b": "probmap.y",
-        },
-    }
-    for source, table in calls.items():
-        call = ast.parse(source).body[0].value  # type: ignore[attr-defined]
-        assert _shim_table(call.args[1]) == table, source
 
 
 # ----------------------------------------------------------------- module cycles
@@ -295,3 +191,150 @@ def test_named_module_cycles_are_broken(a, b):
     graph = module_graph()
     assert a in graph and b in graph
     assert not (b in graph[a] and a in graph[b]), f"{a} <-> {b}"
+
+
+# ----------------------------------------------------------------- the SLAM wing's walls
+def _wing(module: str) -> str | None:
+    """``laser`` or ``landmark`` for a module of ``probmap.slam.laser``/``probmap.slam.landmark``."""
+    parts = module.split(".")
+    return parts[2] if len(parts) > 2 and parts[:2] == ["probmap", "slam"] else None
+
+
+def wing_violations(graph: dict[str, set[str]]) -> list[str]:
+    """Imports from laser SLAM into landmark SLAM or back."""
+    walls = {("laser", "landmark"), ("landmark", "laser")}
+    return [
+        f"{a} imports {b}"
+        for a, targets in sorted(graph.items())
+        for b in sorted(targets)
+        if (_wing(a), _wing(b)) in walls
+    ]
+
+
+def test_laser_and_landmark_slam_never_import_each_other():
+    graph = module_graph()
+    assert "probmap.slam.laser.submap_slam" in graph and "probmap.slam.landmark.ekf" in graph
+    assert not wing_violations(graph), wing_violations(graph)
+
+
+def test_wing_rule_catches_a_planted_import():
+    graph = {
+        "probmap.slam.laser.rbpf": {"probmap.slam.landmark.association", "probmap.grid.spec"},
+        "probmap.slam.landmark.ekf": {"probmap.slam.posegraph.optimize"},
+    }
+    assert wing_violations(graph) == [
+        "probmap.slam.laser.rbpf imports probmap.slam.landmark.association"
+    ]
+
+
+# ----------------------------------------------------------------- no files in the algorithms
+#: The algorithm packages: arrays in, arrays out; reading and writing files is the job of
+#: ``datasets``, ``grid.io`` and the pipelines.
+ALGORITHMS = ("slam", "filters", "models", "geometry", "mapping")
+#: Modules whose import means serialization or file access.
+_FILE_MODULES = {"pickle", "shelve", "marshal", "dill", "cloudpickle", "tempfile", "shutil"}
+_FILE_MODULES |= {"gzip", "bz2", "lzma", "zipfile", "tarfile", "probmap._atomic"}
+#: Calls that open, read or write files (a name or the last part of an attribute).
+_FILE_CALLS = {"open", "read_text", "write_text", "read_bytes", "write_bytes", "tofile"}
+_FILE_CALLS |= {"load", "save", "savez", "savez_compressed", "loadtxt", "savetxt", "fromfile"}
+_FILE_CALLS |= {"genfromtxt", "remove", "unlink", "rename", "replace", "mkdir", "makedirs"}
+
+
+def file_violations(source: str) -> list[str]:
+    """Why a module of an algorithm package touches files (empty when it does not).
+
+    ``replace`` is read as a file operation only as ``os.replace`` or on a path, not as
+    ``dataclasses.replace`` or ``str.replace``: a call with one argument or a keyword argument
+    is not ``os.replace(src, dst)``.
+    """
+    bad: list[str] = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import | ast.ImportFrom):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            if isinstance(node, ast.ImportFrom) and node.module:
+                names.append(node.module)
+            bad += [f"imports {n} (line {node.lineno})" for n in names if n in _FILE_MODULES]
+        elif isinstance(node, ast.Call):
+            func = node.func
+            name = func.id if isinstance(func, ast.Name) else getattr(func, "attr", None)
+            if name not in _FILE_CALLS:
+                continue
+            if name == "replace" and (
+                not isinstance(func, ast.Attribute)
+                or ast.unparse(func.value) not in ("os", "Path", "path")
+            ):
+                continue
+            if name in ("load", "save") and not (
+                isinstance(func, ast.Attribute) and ast.unparse(func.value) in ("np", "numpy")
+            ):
+                continue
+            if name == "open" and isinstance(func, ast.Attribute):
+                if ast.unparse(func.value) not in ("os", "io", "Path", "path", "gzip", "bz2"):
+                    continue
+            bad.append(f"calls {ast.unparse(func)} (line {node.lineno})")
+    return bad
+
+
+def test_algorithm_packages_open_no_files_and_use_no_pickle():
+    files = [p for pkg in ALGORITHMS for p in sorted((SRC / pkg).rglob("*.py"))]
+    assert len(files) > 30
+    bad = {
+        str(p.relative_to(SRC)): v
+        for p in files
+        if (v := file_violations(p.read_text(encoding="utf-8")))
+    }
+    assert not bad, "file access in an algorithm package: " + "; ".join(
+        f"{k}: {v}" for k, v in bad.items()
+    )
+
+
+def test_file_rule_catches_every_form():
+    cases = {
+        "import pickle": 1,
+        "from pickle import dumps": 1,
+        "from probmap._atomic import atomic_write": 1,
+        "with open(p) as f: pass": 1,
+        "Path(p).write_text('x')": 1,
+        "np.savez(p, a=a)": 1,
+        "x = np.load(p)": 1,
+        "os.replace(a, b)": 1,
+        "import shutil": 1,
+        "cfg = dataclasses.replace(cfg, a=1)": 0,
+        "s = 'a'.replace('a', 'b')": 0,
+        "x = self.load(3)": 0,
+        "import numpy as np\nx = np.zeros(3)": 0,
+    }
+    for source, n in cases.items():
+        assert len(file_violations(source)) == n, source
+
+
+# ----------------------------------------------------------------- names and sizes
+def _names() -> set[str]:
+    """Every module and package name of probmap (``_kernels``, ``submap_slam``, ``laser``)."""
+    names = {p.stem for p in SRC.rglob("*.py") if p.stem != "__init__"}
+    return names | {p.parent.name for p in SRC.rglob("__init__.py")}
+
+
+def underscore_twins(names: set[str]) -> list[set[str]]:
+    """Groups of names that differ only by underscores or case."""
+    groups: dict[str, set[str]] = {}
+    for n in names:
+        groups.setdefault(n.replace("_", "").lower(), set()).add(n)
+    return [g for g in groups.values() if len(g) > 1]
+
+
+def test_no_two_module_names_differ_only_by_underscores():
+    names = _names()
+    assert {"submap_slam", "rbpf", "laser", "landmark", "posegraph"} <= names
+    assert not underscore_twins(names), underscore_twins(names)
+    assert underscore_twins({"graph_slam", "graphslam", "ekf"}) == [{"graph_slam", "graphslam"}]
+
+
+def test_no_module_over_1000_lines_but_the_kernels():
+    long = {
+        str(p.relative_to(SRC)): n
+        for p in SRC.rglob("*.py")
+        if "_kernels" not in p.stem
+        and (n := len(p.read_text(encoding="utf-8").splitlines())) > 1000
+    }
+    assert not long, long

@@ -1,4 +1,4 @@
-"""``probmap._records.field_sums`` and the count records that add with it, against sums written
+"""``probmap._sums.field_sums`` and the count records that add with it, against sums written
 out field by field."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import dataclasses
 
 import pytest
 
-from probmap._records import field_sums
+from probmap._sums import field_sums
 from probmap.datasets.validate import ReadingReport
 from probmap.grid.occupancy import ScanStats
 

@@ -1,8 +1,8 @@
 """YAML <-> frozen dataclasses: load, dump and write probmap's configuration objects.
 
-Every configuration class of the package (``GraphSlamConfig``, ``GridSlamConfig``,
+Every configuration class of the package (``SubmapSlamConfig``, ``RbpfConfig``,
 ``MCLConfig``, ...) is a frozen dataclass; this module reads one from YAML and writes one back,
-generically, from the field types: nested dataclasses (``GraphSlamConfig.matcher``), tuples,
+generically, from the field types: nested dataclasses (``SubmapSlamConfig.matcher``), tuples,
 ``Literal`` choices, ``X | None``, and ``float``/``int``/``bool``/``str``.
 
 A file lists only the fields it changes; the others keep the class's defaults (a nested
@@ -312,7 +312,7 @@ def load_config(
     FileNotFoundError
         No such file.
 
-    >>> from probmap.slam.scan_matching import MatcherConfig
+    >>> from probmap.slam.laser.scan_matching import MatcherConfig
     >>> load_config(MatcherConfig, "linear_window: 0.3\\n").linear_window
     0.3
     >>> load_config(MatcherConfig, "linear_window: x\\n", source="cfg.yaml")

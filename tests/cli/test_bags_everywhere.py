@@ -127,8 +127,8 @@ def test_match(monkeypatch, tour, tmp_path):
     log, bag = tour
     run(monkeypatch, "probmap.cli.mapping", "map", log, "-o", tmp_path / "m", "-r", "0.05")
     args = ("--scan", "40", "--x", "0.05")
-    a = run(monkeypatch, "probmap.cli.gridslam", "match", tmp_path / "m.npz", log, *args)
-    b = run(monkeypatch, "probmap.cli.gridslam", "match", tmp_path / "m.npz", bag, *args)
+    a = run(monkeypatch, "probmap.cli.laser_slam", "match", tmp_path / "m.npz", log, *args)
+    b = run(monkeypatch, "probmap.cli.laser_slam", "match", tmp_path / "m.npz", bag, *args)
     same_rows(a, b)
 
 
@@ -154,8 +154,8 @@ def test_localize(monkeypatch, tour, tmp_path):
 
 def test_slam_grid_graph(monkeypatch, tour, tmp_path):
     log, bag = tour
-    a = run(monkeypatch, "probmap.cli.gridslam", "slam", "grid", log, "-o", tmp_path / "a")
-    b = run(monkeypatch, "probmap.cli.gridslam", "slam", "grid", bag, "-o", tmp_path / "b")
+    a = run(monkeypatch, "probmap.cli.laser_slam", "slam", "grid", log, "-o", tmp_path / "a")
+    b = run(monkeypatch, "probmap.cli.laser_slam", "slam", "grid", bag, "-o", tmp_path / "b")
     same_rows(a, b)
     ta = np.loadtxt(tmp_path / "a.trajectory.csv", delimiter=",", skiprows=1)
     tb = np.loadtxt(tmp_path / "b.trajectory.csv", delimiter=",", skiprows=1)
@@ -165,8 +165,8 @@ def test_slam_grid_graph(monkeypatch, tour, tmp_path):
 def test_slam_grid_rbpf(monkeypatch, tour, tmp_path):
     log, bag = tour
     args = ("--method", "rbpf", "-n", "5")
-    a = run(monkeypatch, "probmap.cli.gridslam", "slam", "grid", log, "-o", tmp_path / "a", *args)
-    b = run(monkeypatch, "probmap.cli.gridslam", "slam", "grid", bag, "-o", tmp_path / "b", *args)
+    a = run(monkeypatch, "probmap.cli.laser_slam", "slam", "grid", log, "-o", tmp_path / "a", *args)
+    b = run(monkeypatch, "probmap.cli.laser_slam", "slam", "grid", bag, "-o", tmp_path / "b", *args)
     same_rows(a, b)
     ta = np.loadtxt(tmp_path / "a.trajectory.csv", delimiter=",", skiprows=1)
     tb = np.loadtxt(tmp_path / "b.trajectory.csv", delimiter=",", skiprows=1)

@@ -8,7 +8,7 @@ import re
 import pytest
 from typer.testing import CliRunner
 
-import probmap.cli.slam
+import probmap.cli.landmark_slam
 from probmap.cli import register
 from probmap.cli.app import app
 
@@ -21,7 +21,7 @@ def small(monkeypatch):
 
     ds = simulate_landmarks(30, 40, seed=3)
     # every landmark command reads its dataset through slam.open_landmark_dataset
-    monkeypatch.setattr(probmap.cli.slam, "open_landmark_dataset", lambda *args: ds)
+    monkeypatch.setattr(probmap.cli.landmark_slam, "open_landmark_dataset", lambda *args: ds)
 
 
 def test_footnote_explains_exactly_the_columns_shown(small):

@@ -49,12 +49,12 @@ def test_map_and_demo_record_their_command_line(monkeypatch, sim_log, tmp_path):
 
 
 def test_slam_grid_records_its_command_line(monkeypatch, sim_log, tmp_path):
-    from probmap.slam.graph_slam import GraphSlamConfig
+    from probmap.slam.laser.submap_slam import SubmapSlamConfig
 
     log = sim_log(tmp_path / "tour.clf")
     command = _run(monkeypatch, "slam", "grid", log, "-o", tmp_path / "s")
-    _check(tmp_path / "s.config.yaml", "GraphSlamConfig", command)
-    assert isinstance(load_config(GraphSlamConfig, tmp_path / "s.config.yaml"), GraphSlamConfig)
+    _check(tmp_path / "s.config.yaml", "SubmapSlamConfig", command)
+    assert isinstance(load_config(SubmapSlamConfig, tmp_path / "s.config.yaml"), SubmapSlamConfig)
 
 
 @pytest.mark.parametrize("method", ["ekf", "fastslam"])

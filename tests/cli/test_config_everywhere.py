@@ -138,8 +138,8 @@ def square_graph(tmp_path_factory):
 
 
 def test_optimize_config(square_graph, tmp_path):
-    from probmap.pipelines.pose_graph import PoseGraphConfig
-    from probmap.slam.posegraph import OptimizerConfig
+    from probmap.pipelines.optimize import PoseGraphConfig
+    from probmap.slam.posegraph.optimize import OptimizerConfig
 
     ok("optimize", square_graph, "-o", tmp_path / "default.g2o")
     assert recorded(tmp_path / "default.config.yaml", PoseGraphConfig) == PoseGraphConfig()
@@ -296,12 +296,12 @@ def test_match_bad_config(short_log, tmp_path):
 def small_landmarks(monkeypatch):
     """``slam seif`` and ``slam compare`` on a short simulated run (40 steps, 30 landmarks)
     instead of the registry's 2,000-step simulation."""
-    import probmap.cli.slam
+    import probmap.cli.landmark_slam
     from probmap.datasets.simulation import simulate_landmarks
 
     ds = simulate_landmarks(30, 40, seed=3)
     # every landmark command reads its dataset through slam.open_landmark_dataset
-    monkeypatch.setattr(probmap.cli.slam, "open_landmark_dataset", lambda *args: ds)
+    monkeypatch.setattr(probmap.cli.landmark_slam, "open_landmark_dataset", lambda *args: ds)
     return ds
 
 
@@ -310,7 +310,7 @@ def _csv(path):
 
 
 def test_seif_config(small_landmarks, tmp_path):
-    from probmap.slam.seif import SeifConfig
+    from probmap.slam.landmark.seif import SeifConfig
 
     def seif(out, *args):
         return ok("slam", "seif", "simulation", "-o", tmp_path / out, "--no-plot", *args)

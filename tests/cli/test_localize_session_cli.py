@@ -10,6 +10,7 @@ from typer.testing import CliRunner
 
 from probmap.cli import register
 from probmap.cli.app import app
+from probmap.pipelines.sessions import load_session
 
 register(app)
 runner = CliRunner()
@@ -62,8 +63,7 @@ def last_value(path, entity: str, component: str):
 
 def test_localize_in_a_session_with_a_recording(tmp_path):
     pytest.importorskip("rerun")
-    from probmap.pipelines.grid_slam import load_laser_log, run_graph_slam
-    from probmap.slam.graph_slam import GraphSlam
+    from probmap.pipelines.laser_slam import load_laser_log, run_graph_slam
     from probmap.viz.live import read_recording
 
     log = write_log(tmp_path / "tour.log")
@@ -77,7 +77,7 @@ def test_localize_in_a_session_with_a_recording(tmp_path):
     assert "(read " in res.output and "compute " in res.output and "write " in res.output
     traj = np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1, ndmin=2)
     # against the session's own trajectory (computed here, not by the command)
-    slam = GraphSlam.load_session(session)
+    slam = load_session(session)
     slam.finish()
     t, poses = slam.trajectory()
     assert len(t) == 90

@@ -90,7 +90,7 @@ def test_map_without_save_partial_writes_nothing(tmp_path, sim_log, monkeypatch)
 
 def test_slam_ctrl_c_writes_the_steps_so_far(tmp_path, monkeypatch):
     pytest.importorskip("rerun")
-    from probmap.slam.ekf import EKFSLAM
+    from probmap.slam.landmark.ekf import EKFSLAM
     from probmap.viz.live import read_recording
 
     _ctrl_c_on_call(monkeypatch, EKFSLAM, "update", 300)
@@ -117,7 +117,7 @@ def test_slam_ctrl_c_writes_the_steps_so_far(tmp_path, monkeypatch):
 
 
 def test_slam_without_save_partial_writes_nothing(tmp_path, monkeypatch):
-    from probmap.slam.fastslam import FastSLAM
+    from probmap.slam.landmark.fastslam import FastSLAM
 
     _ctrl_c_on_call(monkeypatch, FastSLAM, "update", 20)
     out = tmp_path / "out"
@@ -186,9 +186,9 @@ def test_slam_ctrl_c_while_writing_leaves_nothing(tmp_path, monkeypatch, capsys)
     import typer
 
     import probmap.pipelines.landmark_slam as pipeline
-    from probmap.cli.slam import run_and_report
+    from probmap.cli.landmark_slam import run_and_report
     from probmap.datasets.simulation import simulate_landmarks
-    from probmap.slam.ekf import EKFSLAM
+    from probmap.slam.landmark.ekf import EKFSLAM
 
     real = pipeline.write_slam_outputs
 

@@ -84,7 +84,7 @@ def test_real_victoria_park_graph(shared_data):
 
 def test_write_g2o_is_the_arrays_writer_with_landmarks_and_fix(tmp_path):
     """Oracle: the expected text written out by hand from the records' definitions."""
-    from probmap.slam.posegraph import write_pose_graph_g2o
+    from probmap.datasets.g2o import write_pose_graph_g2o
 
     g = PoseGraph()
     g.poses[5] = np.array([0.1, -0.0, 3.0])

@@ -141,7 +141,7 @@ def test_arrays_refuse_landmark_edges(tmp_path):
 @pytest.mark.realdata
 def test_w10000_equiv_lines_are_kept_not_merged(shared_data):
     """GTSAM's load2D ignores EQUIV: 10 000 poses, 64 311 edges, initial error 2.76031e7."""
-    from probmap.slam.posegraph import graph_error
+    from probmap.slam.posegraph.optimize import graph_error
 
     g = read_pose_graph(shared_data("pose-graphs/w10000.graph"))
     a = pose_graph_arrays(g)
@@ -153,7 +153,7 @@ def test_w10000_equiv_lines_are_kept_not_merged(shared_data):
 
 @pytest.mark.realdata
 def test_kitti_without_vertices_matches_gtsam_initial_error(shared_data):
-    from probmap.slam.posegraph import graph_error
+    from probmap.slam.posegraph.optimize import graph_error
 
     g = read_pose_graph(shared_data("pose-graphs/kitti_00.g2o"))
     a = pose_graph_arrays(g)

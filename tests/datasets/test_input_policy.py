@@ -167,7 +167,7 @@ def test_mixed_beam_counts_are_not_dropped_readings(tmp_path):
 def test_a_log_without_usable_readings_fails_in_every_pipeline(tmp_path, value):
     from probmap.pipelines import MappingConfig, map_log, map_log_map
     from probmap.pipelines.fit import fit_log
-    from probmap.pipelines.grid_slam import load_laser_log, slam_log
+    from probmap.pipelines.laser_slam import load_laser_log, slam_log
 
     path = write(tmp_path / "blind.clf", walk(12, beams=20, value=float(value)))
     calls = [
@@ -376,7 +376,7 @@ def test_motion_models_reject_nan():
 def _ekf(cov, **cfg):
     from probmap.models.measurement import RangeBearingModel
     from probmap.models.motion import VelocityModel
-    from probmap.slam.ekf import EKFSLAM, EKFConfig
+    from probmap.slam.landmark.ekf import EKFSLAM, EKFConfig
 
     return EKFSLAM(
         VelocityModel(),

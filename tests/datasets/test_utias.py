@@ -6,7 +6,7 @@ import pytest
 from probmap.datasets.protocol import DatasetError
 from probmap.datasets.utias import MRCLAM
 from probmap.pipelines.landmark_slam import default_ekf_config, evaluate, run_landmark_slam
-from probmap.slam.ekf import EKFSLAM
+from probmap.slam.landmark.ekf import EKFSLAM
 
 HEAD = "# h\n# h\n# h\n# h\n"
 

@@ -6,7 +6,7 @@ import pytest
 from probmap.datasets.protocol import Dataset, DatasetError
 from probmap.datasets.victoria_park import MAT_CLOCK_OFFSET_S, VictoriaPark
 from probmap.pipelines.landmark_slam import default_ekf_config, evaluate, run_landmark_slam
-from probmap.slam.ekf import EKFSLAM
+from probmap.slam.landmark.ekf import EKFSLAM
 
 
 def write_vp(d, inputs=None, meas=None, gps=None):

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 
 from probmap.pipelines.landmark_slam import default_ekf_config, default_fastslam_config
-from probmap.slam.fastslam import FastSLAMConfig
+from probmap.slam.landmark.fastslam import FastSLAMConfig
 
 
 class VictoriaPark:  # the dataset class is recognised by name, as default_ekf_config does

@@ -4,7 +4,7 @@ import numpy as np
 
 from probmap.datasets.simulation import simulate_landmarks
 from probmap.pipelines.landmark_slam import dead_reckoning, evaluate, run_landmark_slam
-from probmap.slam.ekf import EKFSLAM
+from probmap.slam.landmark.ekf import EKFSLAM
 
 
 def test_pipeline_runs_and_evaluates_simulation():

@@ -21,8 +21,6 @@ from probmap.pipelines.landmark_slam import (
     run_landmark_slam,
 )
 from probmap.slam import _graphslam_kernels as _k
-from probmap.slam.base import LandmarkSLAM
-from probmap.slam.ekf import EKFSLAM
 from probmap.slam.graphslam import (
     GraphSLAM,
     GraphSLAMConfig,
@@ -38,6 +36,8 @@ from probmap.slam.graphslam import (
     optimize_graphslam,
     segment_log,
 )
+from probmap.slam.landmark.base import LandmarkSLAM
+from probmap.slam.landmark.ekf import EKFSLAM
 
 
 def _record(est: GraphSLAM, dataset) -> GraphSLAM:

@@ -13,7 +13,6 @@ import pytest
 from probmap.datasets.simulation import simulate_landmarks
 from probmap.models.measurement import RangeBearingModel
 from probmap.pipelines.landmark_slam import evaluate, run_landmark_slam
-from probmap.slam.association import chi2_gate
 from probmap.slam.graphslam import (
     GraphSLAM,
     GraphSLAMConfig,
@@ -29,6 +28,7 @@ from probmap.slam.graphslam import (
     optimize_graphslam,
     optimize_graphslam_front_end,
 )
+from probmap.slam.landmark.association import chi2_gate
 
 
 def _record(est: GraphSLAM, dataset) -> GraphSLAM:
@@ -400,7 +400,7 @@ def test_victoria_park_first_200_s(shared_data):
     track the GPS about as well as the EKF (within 15 %) and far better than dead reckoning."""
     from probmap.datasets.victoria_park import VictoriaPark
     from probmap.pipelines.landmark_slam import default_ekf_config
-    from probmap.slam.ekf import EKFSLAM
+    from probmap.slam.landmark.ekf import EKFSLAM
 
     ds = VictoriaPark(shared_data("victoria-park"), end_time=200.0)
     gs = evaluate(run_landmark_slam(build_graphslam(ds, GraphSLAMConfig()), ds), ds)

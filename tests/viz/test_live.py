@@ -12,7 +12,7 @@ import pytest
 pytest.importorskip("rerun")
 
 from probmap.datasets.carmen import load_scans  # noqa: E402
-from probmap.pipelines.grid_slam import load_laser_log, run_graph_slam  # noqa: E402
+from probmap.pipelines.laser_slam import load_laser_log, run_graph_slam  # noqa: E402
 from probmap.viz.live import GraphSlamObserver, LiveView, _ellipse, read_recording  # noqa: E402
 
 

@@ -120,7 +120,7 @@ def shown_steps(steps, every: int) -> list[int]:
 
 
 def _ekf(ds):
-    from probmap.slam.ekf import EKFSLAM
+    from probmap.slam.landmark.ekf import EKFSLAM
 
     return EKFSLAM(ds.motion_model, ds.measurement_model, ds.initial_pose, ds.initial_covariance)
 
@@ -214,7 +214,7 @@ def _first_steps(ds, k: int):
 
 def test_watching_a_seif_does_not_change_it(tmp_path):
     """SEIF's landmarks() stores the mean it recovers; the observer reads a copy."""
-    from probmap.slam.seif import SeifConfig, build_seif
+    from probmap.slam.landmark.seif import SeifConfig, build_seif
 
     ds = simulate_landmarks(15, 80, seed=1)
     rrd = tmp_path / "seif.rrd"
@@ -230,7 +230,7 @@ def test_watching_a_seif_does_not_change_it(tmp_path):
 
 def test_watching_fastslam_does_not_change_it(tmp_path):
     """The heaviest particle's map, read during the run, leaves the particles as they were."""
-    from probmap.slam.fastslam import FastSLAM, FastSLAMConfig
+    from probmap.slam.landmark.fastslam import FastSLAM, FastSLAMConfig
 
     ds = simulate_landmarks(10, 60, seed=6)
 

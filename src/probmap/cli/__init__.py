@@ -22,15 +22,15 @@ def register(app: typer.Typer) -> None:
     from probmap.cli import evaluate
 
     evaluate.register(app)
-    from probmap.cli import slam
+    from probmap.cli import landmark_slam
 
-    slam.register(app)
+    landmark_slam.register(app)
     from probmap.cli import seif
 
     seif.register(app)
-    from probmap.cli import gridslam
+    from probmap.cli import laser_slam
 
-    gridslam.register(app)
+    laser_slam.register(app)
     from probmap.cli import map_mapping
 
     map_mapping.register(app)

@@ -59,7 +59,7 @@ def optimize_command(
         from probmap.cli.common import Stopwatch, resolve_config
         from probmap.datasets.g2o import read_pose_graph, with_poses, write_g2o
         from probmap.pipelines import check_output_prefix
-        from probmap.pipelines.pose_graph import PoseGraphConfig, optimize_graph
+        from probmap.pipelines.optimize import PoseGraphConfig, optimize_graph
 
         watch = Stopwatch()
         target = check_output_prefix(output, "optimized.g2o")

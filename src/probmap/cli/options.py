@@ -6,7 +6,7 @@ always travel together (a ROS bag's topics and frames; the live view) form an
 :func:`with_option_groups` expands it, in place, into the group's options for typer, then
 hands the command the group's one combined value. ``--help`` lists the same options in the
 same order as if each had been written out. The live view's options and their group are in
-:mod:`probmap.cli.watch`, the landmark commands' in :mod:`probmap.cli.slam`.
+:mod:`probmap.cli.watch`, the landmark commands' in :mod:`probmap.cli.landmark_slam`.
 
 A command's own options (one command each) stay in its signature, where typer reads them; runs
 of different options written alike (``x: float | None = typer.Option(None, "--x", help=...)``)

@@ -10,7 +10,7 @@ import typer
 
 from probmap.cli import options as opt
 from probmap.cli.common import cli_errors
-from probmap.cli.slam import (
+from probmap.cli.landmark_slam import (
     LandmarkSource,
     dataset_argument,
     landmark_source_options,
@@ -51,7 +51,7 @@ def _seif_config(file_cfg: Any, max_active: int | None, context_hops: int | None
     (``--max-active 0``: unbounded)."""
     import dataclasses
 
-    from probmap.slam.seif import SeifConfig
+    from probmap.slam.landmark.seif import SeifConfig
 
     if max_active is not None and max_active < 0:
         raise ValueError(f"--max-active must be >= 0, got {max_active}")
@@ -102,7 +102,7 @@ def _method_config(
 
 
 def _seif(ds: Any, cfg: Any) -> Any:
-    from probmap.slam.seif import build_seif
+    from probmap.slam.landmark.seif import build_seif
 
     return build_seif(ds, cfg)
 
@@ -132,9 +132,9 @@ def seif_command(
     watch = Stopwatch()  # the summary time covers the whole command
     limit_threads(threads)
     with cli_errors():
-        from probmap.cli.slam import run_and_report
+        from probmap.cli.landmark_slam import run_and_report
         from probmap.config import load_config
-        from probmap.slam.seif import SeifConfig
+        from probmap.slam.landmark.seif import SeifConfig
 
         file_cfg = None if config is None else load_config(SeifConfig, config)
         cfg = _seif_config(file_cfg, max_active, context_hops)
@@ -182,8 +182,8 @@ def compare_command(
         from probmap.cli.common import progress_bar
         from probmap.config import load_config
         from probmap.pipelines.landmark_slam import default_ekf_config, evaluate, run_landmark_slam
-        from probmap.slam.ekf import build_ekf
-        from probmap.slam.seif import SeifConfig
+        from probmap.slam.landmark.ekf import build_ekf
+        from probmap.slam.landmark.seif import SeifConfig
 
         chosen = [m.strip().lower() for m in methods.split(",") if m.strip()]
         if not chosen or any(m not in COMPARED for m in chosen):
@@ -203,7 +203,7 @@ def compare_command(
         estimators: list[tuple[str, Any]] = []
         for method in dict.fromkeys(chosen):
             if method == "ekf":
-                from probmap.slam.ekf import EKFConfig
+                from probmap.slam.landmark.ekf import EKFConfig
 
                 ekf_cfg = _method_config(
                     EKFConfig, own, "ekf", config, lambda: default_ekf_config(ds)
@@ -213,7 +213,7 @@ def compare_command(
                 estimators.append((seif_name, _seif(ds, seif_cfg)))
             elif method == "fastslam":
                 from probmap.pipelines.landmark_slam import default_fastslam_config
-                from probmap.slam.fastslam import FastSLAM, FastSLAMConfig
+                from probmap.slam.landmark.fastslam import FastSLAM, FastSLAMConfig
 
                 fs_cfg = _method_config(
                     FastSLAMConfig, own, "fastslam", config, lambda: default_fastslam_config(ds)

@@ -39,7 +39,7 @@ def live_view_options() -> Any:
     on): the same three options on every command with a live view (an
     :func:`~probmap.cli.options.option_group`). The command gets them as one dict,
     ``{"viz": ..., "viz_save": ..., "save_partial": ...}``, the keywords of the functions that
-    run it (:func:`probmap.cli.slam.run_and_report`)."""
+    run it (:func:`probmap.cli.landmark_slam.run_and_report`)."""
     from probmap.cli.options import option_group
 
     return option_group(

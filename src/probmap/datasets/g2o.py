@@ -28,15 +28,18 @@ from __future__ import annotations
 import math
 import os
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from probmap._atomic import atomic_write
 from probmap._typing import FloatArray, IntArray
 from probmap.datasets.validate import text_lines
 from probmap.errors import DatasetError
+from probmap.geometry.se2 import pose_batch
 
 __all__ = [
     "LandmarkEdge",
@@ -48,6 +51,7 @@ __all__ = [
     "read_pose_graph",
     "with_poses",
     "write_g2o",
+    "write_pose_graph_g2o",
 ]
 
 
@@ -259,7 +263,7 @@ def write_g2o(path: str | os.PathLike[str], graph: PoseGraph) -> Path:
 
     Vertices in the order of ``graph.poses`` and ``graph.landmarks``, then the ``FIX`` lines,
     then the edges in list order; the lines are written by the package's one g2o writer,
-    :func:`probmap.slam.posegraph.write_pose_graph_g2o`. TORO input is written as g2o
+    :func:`write_pose_graph_g2o`. TORO input is written as g2o
     (``VERTEX_SE2``/``EDGE_SE2`` with the information in g2o's order); ``EQUIV`` pairs have no
     g2o record and are not written.
 
@@ -268,8 +272,6 @@ def write_g2o(path: str | os.PathLike[str], graph: PoseGraph) -> Path:
     ValueError
         An edge names a vertex the graph does not have.
     """
-    from probmap.slam.posegraph import write_pose_graph_g2o
-
     pose_row = {vid: k for k, vid in enumerate(graph.poses)}
     mark_row = {vid: k for k, vid in enumerate(graph.landmarks)}
 
@@ -303,7 +305,7 @@ def write_g2o(path: str | os.PathLike[str], graph: PoseGraph) -> Path:
 
 @dataclass(frozen=True, eq=False)
 class PoseGraphArrays:
-    """A graph's poses and pose edges as the arrays :mod:`probmap.slam.posegraph` takes.
+    """A graph's poses and pose edges as the arrays :mod:`probmap.slam.posegraph.optimize` takes.
 
     Attributes
     ----------
@@ -377,3 +379,131 @@ def with_poses(graph: PoseGraph, ids: ArrayLike, poses: ArrayLike) -> PoseGraph:
         format=graph.format,
         chained=graph.chained,
     )
+
+
+def write_pose_graph_g2o(
+    path: str | os.PathLike[str],
+    poses: ArrayLike,
+    edges: ArrayLike,
+    measurements: ArrayLike,
+    information: ArrayLike,
+    *,
+    ids: ArrayLike | None = None,
+    landmarks: ArrayLike | None = None,
+    landmark_ids: ArrayLike | None = None,
+    landmark_edges: ArrayLike | None = None,
+    landmark_measurements: ArrayLike | None = None,
+    landmark_information: ArrayLike | None = None,
+    fixed_ids: Sequence[int] = (),
+) -> Path:
+    """Write a pose(-landmark) graph given as arrays to ``path`` in g2o format, atomically.
+
+    The one g2o writer of the package (:func:`write_g2o` writes a :class:`PoseGraph` through it). Records, in this order, at full
+    precision (``repr`` of every float): ``VERTEX_SE2 id x y theta`` per pose,
+    ``VERTEX_XY id x y`` per landmark, ``FIX id`` per fixed id, ``EDGE_SE2 i j dx dy dtheta``
+    plus the upper triangle of the information matrix (row by row) per pose edge, and
+    ``EDGE_SE2_XY i j dx dy`` plus the upper triangle of the 2x2 information per landmark
+    edge.
+
+    Parameters
+    ----------
+    path : path-like
+    poses : array_like, shape (N, 3)
+    edges : array_like, shape (E, 2), int
+        Row indices into ``poses``.
+    measurements : array_like, shape (E, 3)
+    information : array_like, shape (E, 3, 3)
+    ids : array_like of int, shape (N,), optional
+        Vertex ids to write (default ``0 .. N-1``).
+    landmarks : array_like, shape (M, 2), optional
+        Landmark positions, metres (default none).
+    landmark_ids : array_like of int, shape (M,), optional
+        Their vertex ids (default ``N .. N+M-1``).
+    landmark_edges : array_like, shape (L, 2), int, optional
+        Per landmark edge, the row of its pose in ``poses`` and of its landmark in
+        ``landmarks``.
+    landmark_measurements : array_like, shape (L, 2), optional
+        The landmark's position in the pose's frame, metres.
+    landmark_information : array_like, shape (L, 2, 2), optional
+    fixed_ids : sequence of int
+        Vertex ids written as ``FIX`` lines.
+
+    Returns
+    -------
+    Path
+    """
+    x = pose_batch(poses)
+    vid = _as_ids(ids, len(x), 0, "ids")
+    lm = np.zeros((0, 2)) if landmarks is None else np.asarray(landmarks, dtype=np.float64)
+    if lm.ndim != 2 or lm.shape[1] != 2:
+        raise ValueError(f"landmarks must have shape (M, 2), got {lm.shape}")
+    lid = _as_ids(landmark_ids, len(lm), len(x), "landmark_ids")
+    pe = _edge_arrays("", edges, measurements, information, 3, len(x), len(x))
+    if landmark_edges is None:
+        landmark_edges, landmark_measurements = np.zeros((0, 2), np.int64), np.zeros((0, 2))
+        landmark_information = np.zeros((0, 2, 2))
+    le = _edge_arrays(
+        "landmark_", landmark_edges, landmark_measurements, landmark_information, 2, len(x), len(lm)
+    )
+    lines = [
+        f"VERTEX_SE2 {n} {p[0]!r} {p[1]!r} {p[2]!r}"
+        for n, p in zip(vid.tolist(), x.tolist(), strict=True)
+    ]
+    lines += [
+        f"VERTEX_XY {n} {p[0]!r} {p[1]!r}" for n, p in zip(lid.tolist(), lm.tolist(), strict=True)
+    ]
+    lines += [f"FIX {int(n)}" for n in fixed_ids]
+    _edge_lines(lines, "EDGE_SE2", vid[pe[0][:, 0]], vid[pe[0][:, 1]], pe[1], pe[2])
+    _edge_lines(lines, "EDGE_SE2_XY", vid[le[0][:, 0]], lid[le[0][:, 1]], le[1], le[2])
+    with atomic_write(path, "w") as f:
+        f.write("\n".join(lines) + "\n")
+    return Path(path)
+
+
+def _as_ids(ids: ArrayLike | None, n: int, first: int, name: str) -> IntArray:
+    """Vertex ids ``(n,)`` as int64, by default ``first .. first+n-1``."""
+    vid = np.arange(first, first + n) if ids is None else np.asarray(ids, dtype=np.int64)
+    if vid.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},), got {vid.shape}")
+    return vid
+
+
+def _edge_arrays(
+    name: str,
+    edges: ArrayLike,
+    measurements: ArrayLike | None,
+    information: ArrayLike | None,
+    dim: int,
+    n_i: int,
+    n_j: int,
+) -> tuple[IntArray, FloatArray, FloatArray]:
+    """Edges ``(E, 2)`` with rows ``< (n_i, n_j)``, measurements ``(E, dim)`` and information
+    ``(E, dim, dim)`` checked for their shapes and bounds only (a file may hold any values)."""
+    e = np.asarray(edges)
+    if e.size and not np.issubdtype(e.dtype, np.integer):
+        raise ValueError(f"{name}edges must hold integer row indices, got dtype {e.dtype}")
+    e = e.astype(np.int64).reshape(-1, 2) if e.size == 0 else e.astype(np.int64)
+    E = len(e)
+    z = np.asarray(measurements, dtype=np.float64)
+    om = np.asarray(information, dtype=np.float64)
+    if e.shape != (E, 2) or z.shape != (E, dim) or om.shape != (E, dim, dim):
+        raise ValueError(
+            f"{name}edges, {name}measurements and {name}information must have shapes "
+            f"(E, 2), (E, {dim}) and (E, {dim}, {dim}), got {e.shape}, {z.shape} and {om.shape}"
+        )
+    for col, n in ((0, n_i), (1, n_j)):
+        bad = np.flatnonzero((e[:, col] < 0) | (e[:, col] >= n))
+        if bad.size:
+            k = int(bad[0])
+            raise ValueError(f"{name}edge {k} {tuple(e[k].tolist())}: index {col} outside [0, {n})")
+    return e, z, om
+
+
+def _edge_lines(
+    lines: list[str], tag: str, i: IntArray, j: IntArray, z: FloatArray, info: FloatArray
+) -> None:
+    """Append one g2o edge line per row: ``tag i j z...`` and the upper triangle of ``info``."""
+    iu = np.triu_indices(info.shape[1])
+    upper = info[:, iu[0], iu[1]].tolist()
+    for a, b, zz, u in zip(i.tolist(), j.tolist(), z.tolist(), upper, strict=True):
+        lines.append(f"{tag} {a} {b} " + " ".join(repr(v) for v in (*zz, *u)))

@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from probmap._records import field_sums
+from probmap._sums import field_sums
 from probmap.errors import DatasetError
 
 __all__ = [

@@ -14,7 +14,7 @@
 
 Poses are ``(x, y, theta)`` in the map frame (m, rad).
 
-Two tiers, as in :mod:`probmap.slam.seif`: array functions that state Table 8.2's steps
+Two tiers, as in :mod:`probmap.slam.landmark.seif`: array functions that state Table 8.2's steps
 (:func:`mcl_sample_motion`, line 4; :func:`mcl_weight`, line 5 with normalisation;
 :func:`mcl_resample`, lines 8-11 with Tables 4.4, 8.3 and 8.4; :func:`mcl_likelihood_averages`
 and :func:`mcl_random_fraction`, Table 8.3; :func:`mcl_sample_and_weight_scan`, the fused

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from probmap._records import field_sums
+from probmap._sums import field_sums
 from probmap._typing import FloatArray
 from probmap.errors import GridBoundsError  # noqa: F401  (re-exported: its old home)
 from probmap.grid._storage import (

@@ -7,7 +7,7 @@ particle costs one rotation and one table lookup per beam. Max-range readings co
 (Table 6.3, line 4). The model works on a plain ``(spec, occupancy)`` pair (see
 :mod:`probmap.models.grid_map`) and is vectorised over poses ``(N, 3)`` and beams ``(B,)``.
 
-It is not the scan matcher's field (:class:`probmap.slam.scan_matching.MatchField`), although
+It is not the scan matcher's field (:class:`probmap.slam.laser.scan_matching.MatchField`), although
 both are a Gaussian of the distance to an obstacle: this one is a normalised density (the
 Gaussian of the distance to the nearest occupied cell centre, float32, mixed with a uniform
 ``z_rand / z_max``), looked up in the endpoint's cell and summed as log-likelihoods by Monte

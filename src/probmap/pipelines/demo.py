@@ -14,15 +14,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from probmap._atomic import atomic_outputs, atomic_write
-from probmap._deprecation import moved
 
 __all__ = ["run_localize_demo"]
-
-# The simulated world moved to probmap.sim.localization; the old path works for one release.
-__getattr__ = moved(
-    __name__,
-    dict.fromkeys(["LocalizationWorld", "simulate_localization_world"], "probmap.sim.localization"),
-)
 
 
 def _write_csv_atomic(path: Path, header: list[str], rows: NDArray[np.float64]) -> None:

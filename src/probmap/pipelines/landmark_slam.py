@@ -32,7 +32,7 @@ from probmap.metrics.trajectory import (
     reject_jumps,
     relative_pose_error,
 )
-from probmap.slam.base import LandmarkSLAM
+from probmap.slam.landmark.base import LandmarkSLAM
 
 __all__ = [
     "SlamResult",
@@ -370,7 +370,7 @@ def default_ekf_config(dataset: object) -> Any:
     * MRCLAM: known-id observations beyond the 0.9999 chi-square gate are rejected (barcode
       misreads); camera field of view +-0.6 rad, 6 m range for miss counting.
     """
-    from probmap.slam.ekf import EKFConfig
+    from probmap.slam.landmark.ekf import EKFConfig
 
     kind = type(dataset).__name__
     if kind == "VictoriaPark":
@@ -401,7 +401,7 @@ def default_graphslam_config(dataset: object) -> Any:
 
 def default_fastslam_config(dataset: object, config: Any = None) -> Any:
     """FastSLAM settings suited to a dataset, mirroring :func:`default_ekf_config`: ``config``
-    (a :class:`~probmap.slam.fastslam.FastSLAMConfig`, default its defaults) with the dataset's
+    (a :class:`~probmap.slam.landmark.fastslam.FastSLAMConfig`, default its defaults) with the dataset's
     fields set.
 
     * Victoria Park: trees are expected within 25 m ahead (half plane), for the counter that
@@ -409,7 +409,7 @@ def default_fastslam_config(dataset: object, config: Any = None) -> Any:
     """
     import dataclasses
 
-    from probmap.slam.fastslam import FastSLAMConfig
+    from probmap.slam.landmark.fastslam import FastSLAMConfig
 
     cfg = config if config is not None else FastSLAMConfig()
     if type(dataset).__name__ == "VictoriaPark":

@@ -276,12 +276,11 @@ _PICKLE_MAGIC = b"\x80"
 
 def load_localization_map(path: str | os.PathLike[str]) -> LocalizationMap:
     """A map to localize in: a map_server YAML map, or a graph-SLAM session saved by
-    ``probmap slam grid --save-session`` (:meth:`GraphSlam.save_session
-    <probmap.slam.graph_slam.GraphSlam.save_session>`).
+    ``probmap slam grid --save-session`` (:func:`~probmap.pipelines.sessions.save_session`).
 
     A session's run is finished as ``slam grid`` finishes it (the final optimization), and
     its occupancy grid is rendered with every scan at its optimized pose
-    (:meth:`GraphSlam.map <probmap.slam.graph_slam.GraphSlam.map>`): the map ``slam grid``
+    (:meth:`SubmapSlam.map <probmap.slam.laser.submap_slam.SubmapSlam.map>`): the map ``slam grid``
     wrote beside the session. Its frame is the session's, the sensor odometry frame of its
     first scan. A session is a Python pickle: load only sessions you wrote.
 
@@ -306,7 +305,7 @@ def load_localization_map(path: str | os.PathLike[str]) -> LocalizationMap:
     """
     p = Path(path)
     if p.is_dir():  # a folder given to slam grid --save-session holds slam.session
-        from probmap.pipelines.grid_slam import SESSION_NAME
+        from probmap.pipelines.laser_slam import SESSION_NAME
 
         p = p / SESSION_NAME
     if not p.is_file():
@@ -325,10 +324,10 @@ def load_localization_map(path: str | os.PathLike[str]) -> LocalizationMap:
             raise ValueError(neither)
     import pickle
 
-    from probmap.slam.graph_slam import GraphSlam
+    from probmap.pipelines.sessions import load_session
 
     try:
-        slam = GraphSlam.load_session(p)
+        slam = load_session(p)
     except ValueError as exc:
         if "format version" in str(exc):
             raise

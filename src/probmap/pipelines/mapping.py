@@ -281,7 +281,7 @@ def run_mapping_demo(
     """Map the simulated floor plan (range noise, dropped beams) and score it against the truth.
 
     Accuracy is the fraction of observed cells whose trinary class at p = 0.5 matches the true
-    map (see :func:`probmap.grid.simworld.map_accuracy`). ``config`` (a :class:`MappingConfig`:
+    map (see :func:`probmap.metrics.map.map_accuracy`). ``config`` (a :class:`MappingConfig`:
     resolution, inverse sensor model, prior, clamp) replaces ``resolution``; the configuration
     used (``MappingConfig(resolution=resolution)`` without one) is recorded as
     ``PREFIX.config.yaml`` with ``command`` on its first line; its log-reading fields (``max_range``, ``poses``,

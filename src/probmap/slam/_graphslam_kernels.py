@@ -28,7 +28,7 @@ from numba import njit
 
 from probmap.geometry._kernels import wrap
 from probmap.models._motion_kernels import ackermann_rates
-from probmap.slam._landmark_kernels import ZERO_RANGE, gemm, range_bearing
+from probmap.slam.landmark._kernels import ZERO_RANGE, gemm, range_bearing
 
 KIND_VELOCITY = 0
 KIND_ACKERMANN = 1
@@ -329,7 +329,7 @@ def block_tridiagonal_inverse(D, U, P_node, P_cross):  # pragma: no cover - comp
 def _range_bearing_one(x, off, m0, m1, zh, Hx, Hm):  # pragma: no cover - compiled
     """Range-bearing prediction ``zh (2,)`` of landmark ``(m0, m1)`` from pose ``x`` with the
     sensor at ``off = (dx, dy, dth)`` in the robot frame, and its Jacobians ``Hx (2, 3)``,
-    ``Hm (2, 2)`` (:func:`~probmap.slam._landmark_kernels.range_bearing`). Returns False at
+    ``Hm (2, 2)`` (:func:`~probmap.slam.landmark._kernels.range_bearing`). Returns False at
     zero range."""
     r, b = range_bearing(x[0], x[1], x[2], off, m0, m1, Hm, Hx)
     zh[0] = r

@@ -77,7 +77,7 @@ from probmap.geometry.se2 import wrap_angle
 from probmap.models.measurement import RangeBearingModel
 from probmap.models.motion import AckermannModel, VelocityModel
 from probmap.slam import _graphslam_kernels as _k
-from probmap.slam.association import (
+from probmap.slam.landmark.association import (
     validate_control,
     validate_initial_state,
     validate_observations,
@@ -278,7 +278,7 @@ class GraphSLAMProblem:
     Attributes
     ----------
     motion_model, measurement_model
-        As for :class:`~probmap.slam.ekf.EKFSLAM`.
+        As for :class:`~probmap.slam.landmark.ekf.EKFSLAM`.
     prior_mean : ndarray, shape (3,)
         ``mu_0`` of the anchoring prior on the first pose.
     prior_information : ndarray, shape (3, 3)
@@ -1474,7 +1474,7 @@ def graphslam_associate(
 
     The poses are walked in order along the odometry (the segments' motion and noise); at each
     pose its observations are associated by maximum likelihood with Mahalanobis gating
-    (:func:`~probmap.slam.association.associate_ml`, Table 10.2 lines 16-18) against the
+    (:func:`~probmap.slam.landmark.association.associate_ml`, Table 10.2 lines 16-18) against the
     landmarks mapped so far, with ``S = H_x P H_x^T + H_m P_m H_m^T + Q`` from the pose's and each
     landmark's own covariance. The matched ones correct the pose and those landmarks together
     (one EKF update of the pose and the few landmarks involved, Table 10.1 lines 12-18, their
@@ -1552,7 +1552,7 @@ def _associate_python(
 ) -> tuple[IntArray, FloatArray, FloatArray]:
     """:func:`graphslam_associate` for any measurement model with ``predict_many`` and
     ``inverse`` (and the reference of its compiled kernel in the tests)."""
-    from probmap.slam.association import NEW, associate_ml
+    from probmap.slam.landmark.association import NEW, associate_ml
 
     K = problem.n_nodes
     model = problem.measurement_model
@@ -1889,7 +1889,7 @@ class GraphSLAM:
     Parameters
     ----------
     motion_model, measurement_model, initial_pose, initial_covariance
-        As for :class:`~probmap.slam.ekf.EKFSLAM` (the same noise parameters).
+        As for :class:`~probmap.slam.landmark.ekf.EKFSLAM` (the same noise parameters).
         ``initial_covariance`` must be positive definite: its inverse anchors the first pose.
     config : GraphSLAMConfig, optional
     """

@@ -19,7 +19,7 @@ world frame is the map's: x to the right, y up, metres. Entities:
 
 Every logged item carries the timeline ``scan`` (the scan index) so that the viewer can scrub
 through the run. :class:`GraphSlamObserver` is the observer that
-:func:`probmap.pipelines.grid_slam.run_graph_slam` calls after each scan;
+:func:`probmap.pipelines.laser_slam.run_graph_slam` calls after each scan;
 :class:`MappingObserver` and :class:`LandmarkSlamObserver` watch ``probmap map`` and landmark
 SLAM.
 """
@@ -244,7 +244,7 @@ class _Throttled:
 
 
 class GraphSlamObserver(_Throttled):
-    """Streams a :class:`~probmap.slam.graph_slam.GraphSlam` run to a :class:`LiveView`.
+    """Streams a :class:`~probmap.slam.laser.submap_slam.SubmapSlam` run to a :class:`LiveView`.
 
     Called after every scan (``observer(index, slam, ranges, angles)``); it logs the newest
     node's scan every ``every`` nodes and each finished submap once. What grows with the run
@@ -313,7 +313,7 @@ class GraphSlamObserver(_Throttled):
             self._submaps += 1
 
     def finish(self, run: Any) -> None:
-        """The final map, trajectory, submaps and closures of the run (``GraphSlamRun``)."""
+        """The final map, trajectory, submaps and closures of the run (``SubmapSlamRun``)."""
         v = self.view
         v.step(len(run.times))
         self._new_submaps(run.slam, run.slam.graph.poses)

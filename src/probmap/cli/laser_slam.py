@@ -1,0 +1,516 @@
+"""``probmap slam grid`` (grid SLAM from a raw log) and ``probmap match`` (one scan on a map)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from probmap.cli import options as opt
+from probmap.cli._provenance import command_line
+from probmap.cli.common import (
+    check_choice,
+    cli_errors,
+    input_rows,
+    laser_input,
+    print_summary,
+    resolve_config,
+)
+from probmap.cli.landmark_slam import slam_app
+from probmap.cli.watch import (
+    open_view,
+    save_partial_option,
+    stop_on_ctrl_c,
+    viz_option,
+    viz_save_option,
+)
+
+
+@slam_app.command("grid")
+@opt.with_option_groups
+def grid_command(
+    log: Path = typer.Argument(
+        ..., help="A raw CARMEN log (plain, .gz or .bz2), a ROS 1/2 bag or a dataset name."
+    ),
+    output: str = opt.output_option(
+        "Output prefix (PREFIX.yaml, ...); an existing folder (or a name ending in /) "
+        "writes FOLDER/slam.*. Missing folders are created."
+    ),
+    method: str = typer.Option(
+        "graph",
+        "--method",
+        help="graph: submaps, loop closure and pose-graph optimization (default); "
+        "rbpf: Rao-Blackwellized particle filter.",
+    ),
+    end_time: float | None = typer.Option(
+        None, "--end-time", help="Use only the first this many seconds of the log."
+    ),
+    bag_options: dict[str, Any] = opt.ros_bag_options(),
+    config: Path | None = opt.config_option(
+        "A YAML configuration: SubmapSlamConfig fields (graph) or RbpfConfig fields "
+        "(rbpf; the options below override it). Fields left out keep their defaults."
+    ),
+    particles: int | None = opt.particles_option("rbpf: number of particles [default: 30]."),
+    linear_update: float | None = typer.Option(
+        None,
+        "--linear-update",
+        help="rbpf: process a scan after this many metres of travel [default: 0.5].",
+    ),
+    angular_update: float | None = typer.Option(
+        None,
+        "--angular-update",
+        help="rbpf: ... or after this many radians of rotation [default: 0.25].",
+    ),
+    seed: int | None = opt.seed_option("rbpf: random seed [default: 0]."),
+    guard: bool | None = typer.Option(
+        None,
+        "--guard/--no-guard",
+        help="rbpf: keep the odometry along featureless corridors [default: guard].",
+    ),
+    skip_bad_lines: bool = opt.skip_bad_lines_option(),
+    viz: bool = viz_option("graph: watch the run in the rerun viewer (extra 'viz')."),
+    viz_save: Path | None = viz_save_option(
+        "graph: record the live view into FILE.rrd (open it later with 'rerun FILE.rrd')."
+    ),
+    tum: bool = opt.tum_option(
+        "Also write PREFIX.tum: the trajectory in the TUM format (evo_ape, evo_rpe)."
+    ),
+    save_partial: bool = save_partial_option(
+        "graph: on Ctrl-C, finish with the scans so far and write their map and trajectory "
+        "(exit 130); a second Ctrl-C aborts without writing."
+    ),
+    save_session: Path | None = typer.Option(
+        None,
+        "--save-session",
+        help="graph: also write the run's state to FILE (a folder: FOLDER/slam.session), to "
+        "continue it later with --resume (a Python pickle: load only sessions you wrote).",
+    ),
+    resume: Path | None = typer.Option(
+        None,
+        "--resume",
+        help="graph: continue the session saved in FILE (a folder: FOLDER/slam.session) with "
+        "this log, in the same odometry frame (the rest of a log); the outputs cover the whole "
+        "session.",
+    ),
+) -> None:
+    """Grid SLAM from a raw log or ROS bag: writes the map (PREFIX.yaml/.pgm/.npz/.png, as
+    'probmap map'), PREFIX.trajectory.csv (robot pose at every scan time) and, for the graph
+    method, the pose graph PREFIX.g2o and PREFIX.plot.png (map, trajectory, loop closures), and
+    PREFIX.config.yaml (the configuration used, with the probmap version); with --tum also
+    PREFIX.tum, the trajectory in the TUM format that evo reads."""
+    from probmap.cli.common import Stopwatch
+
+    watch = Stopwatch()  # the summary time covers the whole command
+    with cli_errors():
+        check_choice("--method", method, ("graph", "rbpf"))
+        log = laser_input(log)
+        from probmap.pipelines import check_output_prefix
+
+        prefix = check_output_prefix(output, "slam")
+        rbpf_options = {
+            "particles": particles,
+            "linear_update": linear_update,
+            "angular_update": angular_update,
+            "seed": seed,
+            "degeneracy_guard": guard,
+        }
+        if method == "graph":
+            _graph(
+                log, prefix, end_time, bag_options, config, skip_bad_lines=skip_bad_lines,
+                viz=viz, viz_save=viz_save, save_partial=save_partial, tum=tum,
+                save_session=save_session, resume=resume, watch=watch,
+            )  # fmt: skip
+        else:
+            if viz or viz_save is not None:
+                raise ValueError("--viz and --viz-save watch the graph method (--method graph)")
+            if save_session is not None or resume is not None:
+                raise ValueError("--save-session and --resume are for the graph method")
+            _rbpf(
+                log, prefix, rbpf_options, end_time, config, skip_bad_lines=skip_bad_lines,
+                bag_options=bag_options,
+                tum=tum, watch=watch,
+            )  # fmt: skip
+
+
+def _graph(
+    log: Path,
+    output: Path,
+    end_time: float | None,
+    bag_options: dict,
+    config: Path | None,
+    *,
+    skip_bad_lines: bool = False,
+    viz: bool = False,
+    viz_save: Path | None = None,
+    save_partial: bool = True,
+    tum: bool = False,
+    save_session: Path | None = None,
+    resume: Path | None = None,
+    watch: Any = None,
+) -> None:
+    import os
+    import resource
+    import shutil
+    import tempfile
+    import warnings
+
+    from probmap._atomic import atomic_outputs
+    from probmap.cli.common import Stopwatch, progress_bar
+    from probmap.config import write_config
+    from probmap.pipelines import check_output_prefix
+    from probmap.pipelines.laser_slam import (
+        SESSION_NAME,
+        load_laser_log,
+        run_graph_slam,
+        write_graph_slam,
+    )
+    from probmap.slam.laser.submap_slam import SubmapSlamConfig
+
+    # a folder names its default file, as -o does (issue 20's output rule)
+    if save_session is not None and save_session.is_dir():
+        save_session = save_session / SESSION_NAME
+    if resume is not None and resume.is_dir():
+        resume = resume / SESSION_NAME
+    session = None
+    if resume is not None:
+        from probmap.pipelines.sessions import load_session
+
+        if config is not None:
+            raise ValueError("--resume continues with the session's own configuration; no --config")
+        session = load_session(resume)
+        cfg = session.config
+    else:
+        cfg = resolve_config(SubmapSlamConfig, config)
+    prefix = check_output_prefix(output)
+    if save_session is not None:
+        from probmap.pipelines import check_output_folder
+
+        check_output_folder(save_session.parent if str(save_session.parent) else Path("."))
+    from probmap.cli.common import note_first_compile
+    from probmap.errors import BadLinesWarning
+
+    note_first_compile(
+        "probmap.slam.laser._match_kernels",
+        "probmap.slam.laser._bnb_kernels",
+        "probmap.slam.posegraph._kernels",
+    )
+    observer = None
+    view = open_view(f"probmap slam grid {log.name}", viz, viz_save)
+    if view is not None:
+        from probmap.viz.live import GraphSlamObserver
+
+        observer = GraphSlamObserver(view)
+
+    watch = watch if watch is not None else Stopwatch()
+    with warnings.catch_warnings():
+        # the summary reports skipped lines; no Python warning text on the terminal
+        warnings.simplefilter("ignore", BadLinesWarning)
+        with watch("read"):
+            batch = load_laser_log(
+                log, end_time=end_time, bag_options=bag_options, skip_bad_lines=skip_bad_lines
+            )
+    with watch("compute"), progress_bar(f"graph SLAM {log.name}", unit="scans") as bar:
+        task = bar.add_task(log.name, total=len(batch.times))
+
+        def tick(done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total)
+
+        # the session is saved before the map is built, into a temporary file; it joins the
+        # other outputs (all or none) below
+        part = None
+        if save_session is not None:
+            fd, name = tempfile.mkstemp(suffix=".session")
+            os.close(fd)
+            part = Path(name)
+        try:
+            with stop_on_ctrl_c(save_partial, unit="scan") as stop:
+                run = run_graph_slam(
+                    batch, None if session is not None else cfg, progress=tick,
+                    observer=observer, stop=stop, resume=session, save_session=part,
+                )  # fmt: skip
+        except BaseException:
+            if observer is not None:
+                observer.view.close(keep=False)
+            if part is not None:
+                part.unlink(missing_ok=True)
+            raise
+        if observer is not None:
+            observer.view.close()
+    try:
+        with watch("write"), atomic_outputs():  # every file or none
+            files = write_graph_slam(prefix, run)
+            files.append(write_config(f"{prefix}.config.yaml", cfg, command=command_line()))
+            if save_session is not None and part is not None:
+                from probmap._atomic import atomic_write
+
+                with open(part, "rb") as src, atomic_write(save_session, "wb") as dst:
+                    shutil.copyfileobj(src, dst)
+                files.append(save_session)
+            if tum:
+                from probmap.datasets.tum import write_tum
+
+                files.append(write_tum(f"{prefix}.tum", run.times, run.poses))
+    finally:
+        if part is not None:
+            part.unlink(missing_ok=True)
+    spec = run.grid.spec
+    weights = run.closure_weights
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+    rows = [
+        ("scans", f"{len(run.times):,}"),
+        *input_rows(batch.readings, batch.skipped_lines),
+        *(
+            [("resumed", f"{resume}: {run.scans_total - len(batch.times):,} scans before this log")]
+            if resume is not None
+            else []
+        ),
+        ("nodes", f"{run.nodes:,}"),
+        ("submaps", f"{run.submaps:,}"),
+        (
+            "loop closures",
+            f"{len(weights):,} accepted of {run.searched:,} searched "
+            f"({int((weights >= 0.5).sum()):,} kept by the robust cost)",
+        ),
+        ("map", f"{spec.width} x {spec.height} cells at {spec.resolution:g} m"),
+        ("optimization", f"{run.optimize_seconds:.1f} s"),
+        _time_row(watch, run.duration, run.seconds),
+        ("peak memory", f"{rss:.0f} MiB"),
+    ]
+    rows += [("wrote", str(f)) for f in files]
+    if viz_save is not None:
+        rows.append(("recorded", f"{viz_save} (rerun {viz_save})"))
+    if run.interrupted:
+        rows.insert(1, ("interrupted", f"at scan {len(run.times):,} of {run.scans_total:,}"))
+    print_summary("grid SLAM (graph)", rows)
+    if run.interrupted:
+        print(
+            f"interrupted: wrote the map and trajectory of the first {len(run.times):,} of "
+            f"{run.scans_total:,} scans",
+            file=sys.stderr,
+        )
+        raise typer.Exit(130)
+
+
+def _time_row(watch: Any, duration: float, seconds: float) -> tuple[str, str]:
+    """The summary's time row: the whole command split into its phases, and how much faster
+    than the log's own duration the SLAM itself ran."""
+    name, value = watch.row()
+    if duration > 0:
+        return name, f"{value}, SLAM {duration / max(seconds, 1e-9):.1f}x real time"
+    return name, f"{value} (the log has no timestamps: no real-time factor)"
+
+
+def _rbpf(
+    log: Path,
+    output: Path,
+    options: dict,
+    end_time: float | None,
+    config: Path | None,
+    *,
+    skip_bad_lines: bool = False,
+    bag_options: dict | None = None,
+    tum: bool = False,
+    watch: Any = None,
+) -> None:
+    import time
+    import warnings
+
+    from probmap._atomic import atomic_outputs
+    from probmap.cli.common import Stopwatch, progress_bar
+    from probmap.config import write_config
+    from probmap.grid.io import save_map
+    from probmap.pipelines import check_output_prefix
+    from probmap.pipelines.laser_slam import slam_log, write_trajectory
+    from probmap.slam.laser.rbpf import RbpfConfig
+
+    watch = watch if watch is not None else Stopwatch()
+    cfg = resolve_config(RbpfConfig, config, options)
+    prefix = check_output_prefix(output)
+    t0 = time.perf_counter()
+    with (
+        progress_bar(f"grid SLAM {log.name}", unit="scans") as bar,
+        warnings.catch_warnings(record=True) as caught,
+    ):
+        warnings.simplefilter("always")
+        task = bar.add_task(log.name, total=0)
+        reports: list = []
+        read_end: list[float] = []
+
+        def tick(done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total)
+
+        def read(report: Any) -> None:  # called once the log is read, before the SLAM
+            read_end.append(time.perf_counter())
+            reports.append(report)
+
+        result = slam_log(
+            log,
+            cfg,
+            end_time=end_time,
+            progress=tick,
+            skip_bad_lines=skip_bad_lines,
+            readings=read,
+            bag_options=bag_options,
+        )
+    t1 = time.perf_counter()
+    t_read = read_end[0] if read_end else t1 - result.seconds
+    watch.phases["read"] = watch.phases.get("read", 0.0) + t_read - t0
+    watch.phases["compute"] = watch.phases.get("compute", 0.0) + t1 - t_read
+    from probmap.errors import BadLinesWarning
+
+    for w in caught:
+        if not issubclass(w.category, BadLinesWarning):  # counted in the summary
+            typer.echo(f"warning: {w.message}", err=True)
+    with watch("write"), atomic_outputs():  # every file or none; a missing folder is created
+        files = save_map(prefix, result.grid)
+        traj = write_trajectory(f"{prefix}.trajectory.csv", result.times, result.poses)
+        written = write_config(f"{prefix}.config.yaml", cfg, command=command_line())
+        from probmap.viz.maps import save_map_figure
+
+        extra: list[Path] = [
+            save_map_figure(
+                f"{prefix}.plot.png", result.grid, trajectory=result.poses, title=log.name
+            )
+        ]
+        if tum:
+            from probmap.datasets.tum import write_tum
+
+            extra.append(write_tum(f"{prefix}.tum", result.times, result.poses))
+    duration = float(result.times[-1] - result.times[0])
+    spec = result.grid.spec
+    rows = [
+        ("scans", f"{len(result.times):,} ({result.processed:,} processed)"),
+        *input_rows(reports[0] if reports else None),
+        ("particles", f"{cfg.particles} ({result.resamples} resamplings)"),
+        ("failed matches", f"{result.failed_matches:,}"),
+        ("map", f"{spec.width} x {spec.height} cells at {spec.resolution:g} m"),
+        ("map tiles", f"{result.map_bytes / 2**20:.1f} MiB (peak)"),
+        _time_row(watch, duration, result.seconds),
+    ]
+    rows += [("wrote", str(f)) for f in [*files, traj, written, *extra]]
+    print_summary("grid SLAM (rbpf)", rows)
+
+
+@opt.with_option_groups
+def match_command(
+    map_file: Path = typer.Argument(..., help="A map: PREFIX.npz or a map_server PREFIX.yaml."),
+    log: Path = typer.Argument(
+        ..., help="The log holding the scan: CARMEN, ROS 1/2 bag or a dataset name."
+    ),
+    scan: int = typer.Option(0, "--scan", help="Index of the front-laser scan in the log."),
+    x: float | None = typer.Option(None, "--x", help="Initial x (m); default the log's pose."),
+    y: float | None = typer.Option(None, "--y", help="Initial y (m)."),
+    theta: float | None = typer.Option(None, "--theta", help="Initial heading (rad)."),
+    sigma: float | None = typer.Option(
+        None, "--sigma", help="Match field width (m) [default: 0.05]."
+    ),
+    window: float | None = typer.Option(
+        None, "--window", help="Search half-width in x and y (m) [default: 0.3]."
+    ),
+    angular_window: float | None = typer.Option(
+        None, "--angular-window", help="Search half-width in heading (rad) [default: 0.2]."
+    ),
+    config: Path | None = opt.config_option(
+        "A YAML file of MatcherConfig fields (sigma, linear_window, linear_step, "
+        "angular_window, angular_step, iterations, usable_range, beam_skip) over the defaults "
+        "above; the options given here override it."
+    ),
+    skip_bad_lines: bool = opt.skip_bad_lines_option(),
+    bag_options: dict[str, Any] = opt.ros_bag_options(),
+) -> None:
+    """Match one scan of a log against a map: prints the pose, its standard deviations and
+    the match score (correlative search refined by Gauss-Newton)."""
+    with cli_errors():
+        import numpy as np
+
+        from probmap.cli._provenance import config_over
+        from probmap.cli.common import Stopwatch
+        from probmap.datasets.scans import open_scans
+        from probmap.slam.laser.scan_matching import (
+            MatcherConfig,
+            MatchField,
+            match_scan,
+            scan_points,
+        )
+
+        watch = Stopwatch()
+        if not map_file.exists():
+            raise FileNotFoundError(f"{map_file}: no such file")
+        log = laser_input(log)
+        # the command's own search window is wider than MatcherConfig's (one scan, no motion)
+        base = MatcherConfig(sigma=0.05, linear_window=0.3, angular_window=0.2)
+        options = {"sigma": sigma, "linear_window": window, "angular_window": angular_window}
+        cfg = config_over(base, config, options)
+        suffix = map_file.suffix.lower()
+        if suffix not in (".npz", ".yaml", ".yml"):
+            raise ValueError(f"{map_file}: expected a .npz or map_server .yaml map")
+        import warnings
+
+        from probmap.datasets.validate import require_usable, validate_ranges
+        from probmap.errors import BadLinesWarning
+
+        with watch("read"):
+            if suffix == ".npz":
+                from probmap.grid.io import load_npz
+
+                grid = load_npz(map_file)
+            else:
+                from probmap.grid.io import read_map_server
+
+                m = read_map_server(map_file)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", BadLinesWarning)  # counted in the summary
+                batch = open_scans(
+                    log,
+                    poses="corrected",
+                    skip_bad_lines=skip_bad_lines,
+                    bag_options=bag_options,
+                )
+        with watch("compute"):
+            if suffix == ".npz":
+                field = MatchField.from_grid(grid, cfg.sigma)
+            else:
+                occ = np.nan_to_num(m.probability, nan=0.0) > m.occupied_thresh
+                field = MatchField.from_occupied(occ, m.spec, cfg.sigma)
+            n = len(batch.times)
+            if not 0 <= scan < n:
+                raise ValueError(f"--scan must lie in 0..{n - 1} for {log}, got {scan}")
+            _, one = validate_ranges(
+                batch.ranges[scan : scan + 1], batch.max_range, beams=batch.beams[scan : scan + 1]
+            )
+            require_usable(one, f"{log}, scan {scan}", batch.max_range)
+            angles = np.asarray(batch.angles)
+            angles = angles if angles.ndim == 1 else angles[scan]
+            guess = np.asarray(batch.laser_poses[scan], dtype=np.float64).copy()
+            for i, v in enumerate((x, y, theta)):
+                if v is not None:
+                    guess[i] = v
+            pts = scan_points(batch.ranges[scan], angles, float(batch.max_range), cfg.usable_range)
+            res = match_scan(field, pts, guess, cfg)
+        sd = np.sqrt(np.diag(res.covariance))
+        print_summary(
+            f"scan {scan} of {log.name} on {map_file.name}",
+            [
+                ("initial", f"x={guess[0]:.3f} y={guess[1]:.3f} theta={guess[2]:.4f}"),
+                (
+                    "matched",
+                    f"x={res.pose[0]:.3f} y={res.pose[1]:.3f} theta={res.pose[2]:.4f}",
+                ),
+                ("std dev", f"x={sd[0]:.4f} m y={sd[1]:.4f} m theta={sd[2]:.5f} rad"),
+                ("score", f"{res.score:.3f} ({res.points} endpoints)"),
+                *input_rows(batch.readings, batch.skipped_lines),
+                (
+                    "matcher",
+                    f"sigma {cfg.sigma:g} m, window {cfg.linear_window:g} m / "
+                    f"{cfg.angular_window:g} rad",
+                ),
+                watch.row(),
+            ],
+        )
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``match`` to ``app`` (``slam grid`` is on :data:`slam_app`)."""
+    app.command("match")(match_command)

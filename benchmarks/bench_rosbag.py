@@ -32,7 +32,7 @@ from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from probmap.datasets.carmen import load_scans
-from probmap.datasets.rosbag import RosBag, load_bag_scans
+from probmap.datasets.ros.scans import RosBag, load_bag_scans
 
 REAL = (
     Path(__file__).resolve().parents[2]

@@ -20,7 +20,7 @@ FLAGS = doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE
 
 #: Modules whose examples must not quietly disappear, with the least number of examples each.
 MIN_EXAMPLES = {
-    "probmap.datasets.rosbag": 2,
+    "probmap.datasets.ros.tf": 2,
     "probmap.filters.kld": 1,
     "probmap.filters.resampling": 1,
     "probmap.grid.logodds": 1,

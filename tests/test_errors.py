@@ -7,7 +7,8 @@ import warnings
 import pytest
 
 from probmap import errors
-from probmap.datasets import carmen, protocol, rosbag
+from probmap.datasets import carmen, protocol
+from probmap.datasets.ros import scans as ros_scans
 from probmap.filters import particle
 from probmap.grid import io as grid_io
 from probmap.grid import occupancy, semantic_io
@@ -18,7 +19,7 @@ from probmap.slam.landmark import seif
     ("module", "name"),
     [
         (protocol, "DatasetError"),
-        (rosbag, "BagError"),
+        (ros_scans, "BagError"),
         (grid_io, "MapFileError"),
         (semantic_io, "SemanticFileError"),
         (carmen, "BadLinesWarning"),

@@ -119,7 +119,7 @@ def test_fuzz_bag_reader_on_cut_and_corrupted_bags(shared_data, tmp_path_factory
     """A real ROS 1 bag cut anywhere in its first 4 kB and followed by junk, or junk alone
     under a bag's name: a BagError/DatasetError naming the file."""
     pytest.importorskip("rosbags")
-    from probmap.datasets.rosbag import load_bag_scans
+    from probmap.datasets.ros.scans import load_bag_scans
 
     src = shared_data("ros-bags/b0-2014-07-21-12-42-53-short.bag")
     d = tmp_path_factory.mktemp("bag")

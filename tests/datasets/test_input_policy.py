@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from probmap.datasets.carmen import CarmenLog, load_scans
 from probmap.datasets.g2o import read_pose_graph
 from probmap.datasets.landmarks import read_numeric_table
-from probmap.datasets.rosbag import _validated_ranges
+from probmap.datasets.ros.scans import _validated_ranges
 from probmap.datasets.validate import (
     PoseLimits,
     PoseTracker,
@@ -633,7 +633,7 @@ def _glitch_bag(path: Path, glitch: int | None) -> Path:
 
 
 def test_bag_implausible_pose_names_the_message_or_is_skipped(tmp_path):
-    from probmap.datasets.rosbag import load_bag_scans
+    from probmap.datasets.ros.scans import load_bag_scans
     from probmap.errors import BagError
 
     good = load_bag_scans(_glitch_bag(tmp_path / "good.bag", None))

@@ -18,19 +18,16 @@ from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from bagwriter import BagBuilder  # noqa: E402
 from probmap.datasets.records import LaserScan  # noqa: E402
-from probmap.datasets.rosbag import (  # noqa: E402
-    BagError,
-    RosBag,
-    TfBuffer,
-    is_bag,
-    load_bag_scans,
+from probmap.datasets.ros._bag import require_rosbags  # noqa: E402
+from probmap.datasets.ros.maps import (  # noqa: E402
     occupancy_percent,
     read_map_from_bag,
-    require_rosbags,
-    summarize_bag,
     write_map_to_bag,
-    yaw_from_quaternion,
 )
+from probmap.datasets.ros.scans import RosBag, is_bag, load_bag_scans  # noqa: E402
+from probmap.datasets.ros.summary import summarize_bag  # noqa: E402
+from probmap.datasets.ros.tf import TfBuffer, yaw_from_quaternion  # noqa: E402
+from probmap.errors import BagError  # noqa: E402
 from probmap.pipelines import MappingConfig  # noqa: E402
 from probmap.sim.floorplan import simulate_laser_world  # noqa: E402
 

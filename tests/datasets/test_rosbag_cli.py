@@ -10,7 +10,7 @@ from typer.testing import CliRunner  # noqa: E402
 
 from probmap.cli import register  # noqa: E402
 from probmap.cli.app import app  # noqa: E402
-from probmap.datasets.rosbag import write_map_to_bag  # noqa: E402
+from probmap.datasets.ros.maps import write_map_to_bag  # noqa: E402
 from probmap.grid.occupancy import OccupancyGrid  # noqa: E402
 
 register(app)
@@ -74,7 +74,7 @@ def test_probmap_map_on_a_simulated_bag_and_to_bag(tmp_path):
 
     from probmap.cli import register
     from probmap.cli.app import app
-    from probmap.datasets.rosbag import read_map_from_bag
+    from probmap.datasets.ros.maps import read_map_from_bag
     from probmap.grid.io import load_npz
     from probmap.sim.floorplan import simulate_laser_world
 

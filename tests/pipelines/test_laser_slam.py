@@ -230,7 +230,7 @@ def test_truncated_log_names_the_file(tmp_path):
 
 def test_bag_without_a_scan_topic_is_refused(tmp_path):
     pytest.importorskip("rosbags")
-    from probmap.datasets.rosbag import BagError
+    from probmap.errors import BagError
 
     bag = write_odometry_only_bag(tmp_path / "odom.bag")
     with pytest.raises(BagError, match="no sensor_msgs/LaserScan") as info:

@@ -26,7 +26,8 @@ def info_command(
         from rich.console import Console
         from rich.table import Table
 
-        from probmap.datasets.rosbag import SCAN_TYPES, summarize_bag
+        from probmap.datasets.ros.scans import SCAN_TYPES
+        from probmap.datasets.ros.summary import summarize_bag
 
         bag = laser_input(bag)
         s = summarize_bag(bag)

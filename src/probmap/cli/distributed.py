@@ -39,7 +39,8 @@ def write_bag(
 ) -> Path:
     """Write ``mapping.grid`` into the new bag ``to_bag`` in the frame of the bag ``source``
     (inside the caller's :func:`probmap._atomic.atomic_outputs` block ``outputs``)."""
-    from probmap.datasets.rosbag import RosBag, write_map_to_bag
+    from probmap.datasets.ros.maps import write_map_to_bag
+    from probmap.datasets.ros.scans import RosBag
 
     frame = RosBag(source, **(bag_options or {})).resolve_frames()[0]
     outputs.folder(to_bag.parent if str(to_bag.parent) else Path("."))

@@ -40,7 +40,7 @@ def _read_reference(
         except ValueError as exc:
             raise CliError(f"{path}: expected CSV columns time,x,y,theta: {exc}") from None
         return data[:, 0] + offset, data[:, 1:4]
-    from probmap.datasets.rosbag import is_bag
+    from probmap.datasets.ros.scans import is_bag
     from probmap.datasets.scans import open_scans
 
     ref = open_scans(

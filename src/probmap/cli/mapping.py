@@ -101,7 +101,7 @@ def map_command(
         log = logs[0]
         prefix = check_output_prefix(output, "map")
         if to_bag is not None:
-            from probmap.datasets.rosbag import is_bag
+            from probmap.datasets.ros.scans import is_bag
 
             if not is_bag(log):
                 raise ValueError(f"--to-bag needs a ROS bag as input; {log} is not one")
@@ -233,7 +233,8 @@ def _map_one(
                 result = write_map(prefix, result, cfg, command=command_line())
                 files = [str(f) for f in result.files]
                 if to_bag is not None:
-                    from probmap.datasets.rosbag import RosBag, write_map_to_bag
+                    from probmap.datasets.ros.maps import write_map_to_bag
+                    from probmap.datasets.ros.scans import RosBag
 
                     frame = RosBag(log, **bag_options).resolve_frames()[0]
                     outputs.folder(to_bag.parent if str(to_bag.parent) else Path("."))

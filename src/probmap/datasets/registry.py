@@ -61,7 +61,7 @@ def _carmen(path: Path, **kw: Any) -> Any:
 
 
 def _rosbag(path: Path, **kw: Any) -> Any:
-    from probmap.datasets.rosbag import RosBag
+    from probmap.datasets.ros.scans import RosBag
 
     return RosBag(path, **kw)
 

@@ -98,7 +98,7 @@ def open_scans(
         Skip and count malformed or implausible lines (bags: scans) instead of failing.
     bag_options : dict, optional
         ``scan_topic``, ``odom_topic``, ``fixed_frame``, ``laser_frame``, ``echo``, as for
-        :class:`probmap.datasets.rosbag.RosBag`; by default topics and frames are guessed.
+        :class:`probmap.datasets.ros.scans.RosBag`; by default topics and frames are guessed.
         Given for a CARMEN log, they are an error.
     end_time : float, optional
         Keep the scans of the first ``end_time`` seconds only (``t <= t0 + end_time``).
@@ -127,7 +127,7 @@ def open_scans(
     ValueError
         A bad option, or bag options for a CARMEN log.
     """
-    from probmap.datasets.rosbag import is_bag
+    from probmap.datasets.ros.scans import is_bag
 
     if poses not in ("corrected", "odometry"):
         raise ValueError(f"poses must be 'corrected' or 'odometry', got {poses!r}")
@@ -138,7 +138,7 @@ def open_scans(
     p = resolve_log(path, data_directory)
     shown = path if p == Path(path) else p  # errors name the path as given, or the file
     if is_bag(p):
-        from probmap.datasets.rosbag import load_bag_scans
+        from probmap.datasets.ros.scans import load_bag_scans
 
         batch = load_bag_scans(
             p, dtype=dtype, pose_limits=pose_limits, skip_bad_lines=skip_bad_lines, **given

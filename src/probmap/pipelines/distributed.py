@@ -421,7 +421,7 @@ def map_logs_distributed(
         Some (or all) inputs could not be mapped; the message names each file and its error,
         once (a bad input is not retried).
     """
-    from probmap.datasets.rosbag import is_bag
+    from probmap.datasets.ros.scans import is_bag
     from probmap.datasets.scans import resolve_log
 
     _require_dask()
@@ -508,7 +508,7 @@ def map_log_map_distributed(
     the work runs where the cluster is (a bigger machine, ``--scheduler``). A bad input's error
     is raised once, as :class:`DistributedMappingError` naming the file.
     """
-    from probmap.datasets.rosbag import is_bag
+    from probmap.datasets.ros.scans import is_bag
 
     _require_dask()
     f = Path(path)

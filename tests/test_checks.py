@@ -22,7 +22,7 @@ from probmap._checks import (
 )
 from probmap.filters.mcl import MCLConfig
 from probmap.pipelines.fit import FitConfig
-from probmap.slam.graphslam import GraphSLAMConfig
+from probmap.slam.landmark.graphslam import GraphSLAMConfig
 from probmap.slam.scan_matching import MatcherConfig
 from probmap.slam.seif import SeifConfig
 

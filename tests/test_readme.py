@@ -178,7 +178,7 @@ def test_every_module_in_the_architecture_tree_exists():
     src = README.parent / "src" / "probmap"
     package, named = "", []
     for line in m.group(1).splitlines():
-        head = re.match(r"\s+(\w+)/\s", line)
+        head = re.match(r"\s+([\w/]+)/\s", line)  # a package, or a nested one (slam/landmark/...)
         if head:
             package = head.group(1)
         for name in re.findall(r"(?<![\w.])(\w+\.py|py\.typed)\b", line):

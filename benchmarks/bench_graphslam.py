@@ -39,8 +39,8 @@ from probmap.pipelines.landmark_slam import (  # noqa: E402
     evaluate,
     run_landmark_slam,
 )
-from probmap.slam.graphslam import build_graphslam  # noqa: E402
 from probmap.slam.landmark.ekf import EKFSLAM  # noqa: E402
+from probmap.slam.landmark.graphslam import build_graphslam  # noqa: E402
 
 
 def _get(m: dict[str, Any], *keys: str) -> float:

@@ -9,8 +9,9 @@ resident memory, landmarks mapped and the GPS error after an SE(2) fit.
 Part 2 takes GraphSLAM's final factor graph on that log (its poses, odometry factors, range-
 bearing factors with the correspondences the front end and the merges found) and solves it from
 the same starting point (the front end's poses, landmarks at their first sighting) twice:
-GraphSLAM's Gauss-Newton/Levenberg-Marquardt (:func:`probmap.slam.graphslam.optimize_graphslam`,
-no covariances) and GTSAM's ``LevenbergMarquardtOptimizer`` on the same graph built from GTSAM's
+GraphSLAM's Gauss-Newton/Levenberg-Marquardt
+(:func:`probmap.slam.landmark.graphslam.optimize_graphslam`, no covariances) and GTSAM's
+``LevenbergMarquardtOptimizer`` on the same graph built from GTSAM's
 own factors (``PriorFactorPose2``, ``BetweenFactorPose2`` with the same odometry and noise,
 ``BearingRangeFactor2D`` with the same noise). GTSAM's range-bearing factor has no sensor offset,
 so its pose variables are the laser's poses ``x (+) o`` (the odometry conjugated by ``o``, its
@@ -73,7 +74,7 @@ def _estimator(method: str, ds: Any) -> Any:
 
         return build_seif(ds)
     if method == "graphslam":
-        from probmap.slam.graphslam import build_graphslam
+        from probmap.slam.landmark.graphslam import build_graphslam
 
         return build_graphslam(ds, default_graphslam_config(ds))
     if method in ("fastslam", "fastslam1"):
@@ -132,7 +133,7 @@ def graphslam_problem(ds: Any) -> tuple[Any, Any, Any, Any, Any]:
     from dataclasses import replace
 
     from probmap.pipelines.landmark_slam import default_graphslam_config
-    from probmap.slam.graphslam import (
+    from probmap.slam.landmark.graphslam import (
         build_graphslam,
         graphslam_associate,
         optimize_graphslam_front_end,
@@ -167,7 +168,7 @@ def gtsam_graph(prob: Any, cfg: Any) -> tuple[Any, Any, Any, Any]:
     into GTSAM values, a function ``poses(values)`` back, and the sensor offset."""
     import gtsam
 
-    from probmap.slam.graphslam import _body_increments
+    from probmap.slam.landmark.graphslam.correspondence import _body_increments
 
     d, Sig = _body_increments(prob, cfg.motion_noise_floor)
     O = gtsam.Pose2(*prob.measurement_model.sensor_offset)
@@ -234,7 +235,8 @@ def graphslam_against_gtsam(end_time: float | None) -> list[str]:
     import gtsam
 
     from probmap.pipelines.landmark_slam import _gps_metrics
-    from probmap.slam.graphslam import _Linearizer, optimize_graphslam
+    from probmap.slam.landmark.graphslam import optimize_graphslam
+    from probmap.slam.landmark.graphslam.linearize import _Linearizer
 
     ds = _dataset(end_time)
     t0 = time.perf_counter()

@@ -22,7 +22,7 @@ from probmap._checks import (
 )
 from probmap.filters.mcl import MCLConfig
 from probmap.pipelines.fit import FitConfig
-from probmap.slam.graphslam import GraphSLAMConfig
+from probmap.slam.landmark.graphslam import GraphSLAMConfig
 from probmap.slam.landmark.seif import SeifConfig
 from probmap.slam.laser.scan_matching import MatcherConfig
 

@@ -250,7 +250,7 @@ def test_watching_fastslam_does_not_change_it(tmp_path):
 
 
 def test_graphslam_shows_its_final_solve(tmp_path):
-    from probmap.slam.graphslam import build_graphslam
+    from probmap.slam.landmark.graphslam import build_graphslam
 
     ds = simulate_landmarks(15, 60, seed=2)
     rrd = tmp_path / "graph.rrd"

@@ -398,7 +398,7 @@ def graphslam_command(
 
         from probmap.config import load_config
         from probmap.pipelines.landmark_slam import default_graphslam_config
-        from probmap.slam.graphslam import GraphSLAMConfig, build_graphslam
+        from probmap.slam.landmark.graphslam import GraphSLAMConfig, build_graphslam
 
         file_cfg = None if config is None else load_config(GraphSLAMConfig, config)
         ds = read_landmark_dataset(watch, output, dataset, source)

@@ -222,7 +222,7 @@ def compare_command(
                 estimators.append((f"FastSLAM-{fs_cfg.version}.0", fs))
             else:
                 from probmap.pipelines.landmark_slam import default_graphslam_config
-                from probmap.slam.graphslam import GraphSLAMConfig, build_graphslam
+                from probmap.slam.landmark.graphslam import GraphSLAMConfig, build_graphslam
 
                 gs_cfg = _method_config(
                     GraphSLAMConfig, own, "graphslam", config, lambda: default_graphslam_config(ds)

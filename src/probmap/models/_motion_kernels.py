@@ -2,8 +2,8 @@
 
 The one home of the Ackermann model's speed conversion and its derivatives: the Python model
 (:class:`~probmap.models.motion.AckermannModel`) calls it per step and landmark GraphSLAM's chain
-kernel (:mod:`probmap.slam._graphslam_kernels`) calls it inside its compiled loop, so both run the
-same arithmetic (plain IEEE operations, no ``fastmath``: the same bits either way).
+kernel (:mod:`probmap.slam.landmark.graphslam._kernels`) calls it inside its compiled loop, so both
+run the same arithmetic (plain IEEE operations, no ``fastmath``: the same bits either way).
 """
 
 from __future__ import annotations

@@ -389,7 +389,7 @@ def default_graphslam_config(dataset: object) -> Any:
       more than 3 poses that do not see it before its third sighting is dropped, the EKF's
       rule for spurious landmarks (:func:`default_ekf_config`).
     """
-    from probmap.slam.graphslam import GraphSLAMConfig
+    from probmap.slam.landmark.graphslam import GraphSLAMConfig
 
     kind = type(dataset).__name__
     if kind == "MRCLAM":

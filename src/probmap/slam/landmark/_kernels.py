@@ -1,6 +1,6 @@
 """Numba primitives shared by the landmark SLAM kernels (private).
 
-:mod:`probmap.slam._graphslam_kernels` and :mod:`probmap.slam.landmark._fastslam_kernels` both
+:mod:`probmap.slam.landmark.graphslam._kernels` and :mod:`probmap.slam.landmark._fastslam_kernels` both
 predict range-bearing measurements with their Jacobians and multiply small dense blocks inside
 compiled loops; this module is the one home of those pieces (the angle wrap they share with the
 pose-graph kernels is :func:`probmap.geometry._kernels.wrap`). Inputs are plain float64

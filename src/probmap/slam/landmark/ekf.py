@@ -655,7 +655,7 @@ class EKFSLAM:
 
 def build_ekf(dataset: Any, config: EKFConfig | None = None) -> EKFSLAM:
     """An :class:`EKFSLAM` for a landmark dataset (its models, initial pose and covariance), as
-    :func:`~probmap.slam.graphslam.build_graphslam` and :func:`~probmap.slam.landmark.seif.build_seif`
+    :func:`~probmap.slam.landmark.graphslam.build_graphslam` and :func:`~probmap.slam.landmark.seif.build_seif`
     build theirs.
 
     Parameters

@@ -1,7 +1,7 @@
 """Numba kernels of landmark GraphSLAM (private): the odometry chain and the step smoother.
 
-:mod:`probmap.slam.graphslam` validates inputs and owns the factor graph; these kernels only
-run the motion model along the steps of a log, which is the one part of GraphSLAM that walks
+:mod:`probmap.slam.landmark.graphslam` validates inputs and owns the factor graph; these kernels
+only run the motion model along the steps of a log, which is the one part of GraphSLAM that walks
 every odometry record (60,000 on an MRCLAM robot) at every linearization.
 
 Conventions
@@ -341,7 +341,7 @@ def _range_bearing_one(x, off, m0, m1, zh, Hx, Hm):  # pragma: no cover - compil
 def associate_front_end(
     x0, P0, d, Sig, obs_ptr, z, off, Q, gate, new_gate, reach, slot, X, Lm, Pm
 ):  # pragma: no cover - compiled
-    """The GraphSLAM front end (``graphslam.graphslam_associate``) for the range-bearing model.
+    """The GraphSLAM front end (``graphslam_associate``) for the range-bearing model.
 
     Walks the nodes along the segment increments ``d (K-1, 3)`` with noise ``Sig (K-1, 3, 3)``
     (both in the start node's frame); at node ``s`` associates observations

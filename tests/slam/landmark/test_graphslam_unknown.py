@@ -13,13 +13,10 @@ import pytest
 from probmap.datasets.simulation import simulate_landmarks
 from probmap.models.measurement import RangeBearingModel
 from probmap.pipelines.landmark_slam import evaluate, run_landmark_slam
-from probmap.slam.graphslam import (
+from probmap.slam.landmark.association import chi2_gate
+from probmap.slam.landmark.graphslam import (
     GraphSLAM,
     GraphSLAMConfig,
-    _associate_python,
-    _body_increments,
-    _Linearizer,
-    _merge_candidates,
     build_graphslam,
     graphslam_associate,
     graphslam_correspondence_test,
@@ -28,7 +25,12 @@ from probmap.slam.graphslam import (
     optimize_graphslam,
     optimize_graphslam_front_end,
 )
-from probmap.slam.landmark.association import chi2_gate
+from probmap.slam.landmark.graphslam.correspondence import (
+    _associate_python,
+    _body_increments,
+    _merge_candidates,
+)
+from probmap.slam.landmark.graphslam.linearize import _Linearizer
 
 
 def _record(est: GraphSLAM, dataset) -> GraphSLAM:
@@ -204,7 +206,7 @@ def test_negative_evidence_drops_a_landmark_seen_once_then_missed():
     """The EKF's provisional-landmark rule replayed on the smoothed path: on a simulation that
     sees every landmark in range and field of view, the landmarks keep their confirmation,
     while one whose later sightings are removed (seen once, then in view and not seen) goes."""
-    from probmap.slam.graphslam import _confirmed_before_misses
+    from probmap.slam.landmark.graphslam.correspondence import _confirmed_before_misses
 
     sim = _sim(3, True, n=10, steps=120)
     cfg = GraphSLAMConfig(
@@ -308,7 +310,7 @@ def test_batch_solve_equals_gtsam_on_a_small_landmark_graph():
             )
         )
     # the same starting point as GraphSLAM's (Table 11.1's dead reckoning, first sightings)
-    from probmap.slam.graphslam import graphslam_initialize
+    from probmap.slam.landmark.graphslam import graphslam_initialize
 
     X0, L0 = graphslam_initialize(prob, cfg.motion_noise_floor)
     init = gtsam.Values()
@@ -349,8 +351,8 @@ def test_sparse_cholesky_solves_like_a_dense_solve(n, seed):
     analysis (the first solve goes through the ordering's LU, the second through the kernel)."""
     import scipy.sparse as sp
 
-    from probmap.slam import _graphslam_kernels as _k
-    from probmap.slam.graphslam import _SparseCholesky
+    from probmap.slam.landmark.graphslam import _kernels as _k
+    from probmap.slam.landmark.graphslam.solve import _SparseCholesky
 
     H = _spd(n, seed)
     b = np.random.default_rng(seed).normal(size=n)
@@ -382,7 +384,7 @@ def test_sparse_cholesky_solves_like_a_dense_solve(n, seed):
 def test_sparse_cholesky_falls_back_on_an_indefinite_matrix():
     import scipy.sparse as sp
 
-    from probmap.slam.graphslam import _SparseCholesky
+    from probmap.slam.landmark.graphslam.solve import _SparseCholesky
 
     H = sp.csc_matrix(np.array([[2.0, 1.0, 0.0], [1.0, 3.0, 1.0], [0.0, 1.0, 4.0]]))
     b = np.array([1.0, 2.0, 3.0])

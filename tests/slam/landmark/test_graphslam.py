@@ -20,12 +20,11 @@ from probmap.pipelines.landmark_slam import (
     evaluate,
     run_landmark_slam,
 )
-from probmap.slam import _graphslam_kernels as _k
-from probmap.slam.graphslam import (
+from probmap.slam.landmark.base import LandmarkSLAM
+from probmap.slam.landmark.ekf import EKFSLAM
+from probmap.slam.landmark.graphslam import (
     GraphSLAM,
     GraphSLAMConfig,
-    _Linearizer,
-    _range_bearing,
     build_graphslam,
     graphslam_initialize,
     graphslam_linearize,
@@ -36,8 +35,9 @@ from probmap.slam.graphslam import (
     optimize_graphslam,
     segment_log,
 )
-from probmap.slam.landmark.base import LandmarkSLAM
-from probmap.slam.landmark.ekf import EKFSLAM
+from probmap.slam.landmark.graphslam import _kernels as _k
+from probmap.slam.landmark.graphslam.linearize import _Linearizer
+from probmap.slam.landmark.graphslam.problem import _model_params, _range_bearing
 
 
 def _record(est: GraphSLAM, dataset) -> GraphSLAM:
@@ -63,7 +63,7 @@ def _sim_graphslam(seed: int = 3, config: GraphSLAMConfig | None = None, **kw):
 )
 def test_chain_kernel_matches_the_motion_model(model, u):
     """The compiled chain step is the model's predict and V M V^T (the EKF's arithmetic)."""
-    kind, p = __import__("probmap.slam.graphslam", fromlist=["x"])._model_params(model)
+    kind, p = _model_params(model)
     x = np.array([0.3, -1.2, 2.9])
     xn, G, Q = np.empty(3), np.empty((3, 3)), np.empty((3, 3))
     assert _k.model_step(kind, p, x, u[0], u[1], 0.07, xn, G, Q) == _k.STATUS_OK
@@ -540,7 +540,10 @@ def test_cli_slam_graphslam_writes_the_ekf_outputs(tmp_path):
 def test_correspondence_test_is_table_11_8():
     """d2 and the density of Delta = m_j - m_k = 0 from the dense inverse of H; one landmark's
     sightings split under two ids pass the test, two different landmarks do not."""
-    from probmap.slam.graphslam import graphslam_correspondence_test, landmark_joint_covariance
+    from probmap.slam.landmark.graphslam import (
+        graphslam_correspondence_test,
+        landmark_joint_covariance,
+    )
 
     sim = simulate_landmarks(10, 60, seed=3, density=0.06)
     est = build_graphslam(sim)
@@ -612,7 +615,7 @@ def test_cli_compare_with_graphslam():
 
 
 def test_unknown_correspondences_refuse_too_many_hypotheses():
-    from probmap.slam.graphslam import optimize_graphslam_unknown
+    from probmap.slam.landmark.graphslam import optimize_graphslam_unknown
 
     sim = simulate_landmarks(10, 20, seed=1, density=0.06, known_correspondences=False)
     est = _record(build_graphslam(sim), sim)

@@ -11,7 +11,7 @@ only) are compared with the truth:
 - ``drift``: the final node's error along the corridor (metres; + = too far);
 - ``lateral``: its error across the corridor.
 
-Run: ``python benchmarks/bench_matcher_bias.py [--fov 180 360] [--set matcher.sigma=0.1]
+Run: ``python benchmarks/bench_matcher_bias.py [--fov 180 360] [--set local.matcher.sigma=0.1]
 [--seeds 3] [--field known]``; every ``--fov`` is a row (``--heading`` rotates the whole world:
 a check that nothing depends on the map frame, since the submaps are laid out in their anchor's
 frame). ``--field VARIANT --diagnose --log clinic`` runs ``graph_slam_diagnose.py`` on a real
@@ -147,7 +147,8 @@ def local_slam_bias(world: dict[str, Any], cfg: Any) -> dict[str, float]:
     from probmap.geometry.se2 import between
     from probmap.slam.laser.submap_slam import SubmapSlam
 
-    cfg = replace(cfg, closure_every=10**9, optimize_every=0, wide_search_every=0)
+    closures = replace(cfg.closures, every=10**9, wide_search_every=0)
+    cfg = replace(cfg, closures=closures, optimization=replace(cfg.optimization, every=0))
     slam = SubmapSlam(cfg, max_range=float(world["max_range"]))
     for k in range(len(world["poses"])):
         slam.add_scan(0.1 * k, world["ranges"][k], world["angles"], world["odometry"][k])

@@ -13,7 +13,7 @@ robust cost overruled (weight below 0.5), and the loop relations' error over the
 (where a seam opens).
 
 Run: ``PROBMAP_DATA=../shared/data python benchmarks/graph_slam_diagnose.py
-[--log clinic|intel] [--end SECONDS] [--set odometry_sd_rate=0.002,0.02 --set matcher.sigma=0.035]``.
+[--log clinic|intel] [--end SECONDS] [--set local.odometry_sd_rate=0.002,0.02 --set local.matcher.sigma=0.035]``.
 """
 
 from __future__ import annotations
@@ -51,16 +51,19 @@ def _value(text: str) -> Any:
 
 
 def configure(settings: list[str]) -> Any:
-    """The default SubmapSlamConfig with ``field=value`` (or ``matcher.field=value``) applied."""
+    """The default SubmapSlamConfig with ``section.field=value`` (``closures.min_score=0.6``,
+    ``local.matcher.sigma=0.04``) applied."""
     from probmap.slam.laser.submap_slam import SubmapSlamConfig
+
+    def put(obj: Any, path: list[str], value: Any) -> Any:
+        if len(path) == 1:
+            return replace(obj, **{path[0]: value})
+        return replace(obj, **{path[0]: put(getattr(obj, path[0]), path[1:], value)})
 
     cfg = SubmapSlamConfig()
     for s in settings:
         key, _, text = s.partition("=")
-        if key.startswith("matcher."):
-            cfg = replace(cfg, matcher=replace(cfg.matcher, **{key[8:]: _value(text)}))
-        else:
-            cfg = replace(cfg, **{key: _value(text)})
+        cfg = put(cfg, key.split("."), _value(text))
     return cfg
 
 

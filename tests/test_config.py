@@ -69,15 +69,21 @@ def _changed():
     from probmap.slam.landmark.seif import SeifConfig
     from probmap.slam.laser.rbpf import RbpfConfig
     from probmap.slam.laser.scan_matching import MatcherConfig
-    from probmap.slam.laser.submap_slam import SubmapSlamConfig
+    from probmap.slam.laser.submap_slam import (
+        LocalMatchingConfig,
+        OptimizationConfig,
+        SubmapConfig,
+        SubmapSlamConfig,
+    )
     from probmap.slam.posegraph.optimize import OptimizerConfig
 
     return [
         SubmapSlamConfig(
-            submap_scans=30,
-            matcher=MatcherConfig(linear_window=0.3, beam_skip=2),
-            recover_window=(0.7, 0.25),
-            robust="cauchy",
+            submaps=SubmapConfig(scans=30),
+            local=LocalMatchingConfig(
+                matcher=MatcherConfig(linear_window=0.3, beam_skip=2), recover_window=(0.7, 0.25)
+            ),
+            optimization=OptimizationConfig(robust="cauchy"),
         ),
         RbpfConfig(particles=5, degeneracy_guard=False, odometry_noise=(0.2, 0.1, 0.3, 0.4)),
         MCLConfig(n_particles=500, kld=KLDConfig(epsilon=0.1, bin_size=(0.2, 0.2, 0.1))),
@@ -109,15 +115,20 @@ def test_partial_file_keeps_defaults_nested_ones_included():
     from probmap.slam.laser.submap_slam import SubmapSlamConfig
 
     default = SubmapSlamConfig()
-    cfg = load_config(SubmapSlamConfig, "submap_scans: 30\nmatcher:\n  linear_window: 0.3\n")
+    text = "submaps:\n  scans: 30\nlocal:\n  matcher:\n    linear_window: 0.3\n"
+    cfg = load_config(SubmapSlamConfig, text)
     # the matcher's other fields keep SubmapSlamConfig's matcher defaults, not MatcherConfig()'s
+    local = dataclasses.replace(
+        default.local, matcher=dataclasses.replace(default.local.matcher, linear_window=0.3)
+    )
     expected = dataclasses.replace(
-        default, submap_scans=30, matcher=dataclasses.replace(default.matcher, linear_window=0.3)
+        default, submaps=dataclasses.replace(default.submaps, scans=30), local=local
     )
     assert cfg == expected
     # ints where a float is asked, YAML 1.1's "1e-3" string and .inf are numbers
-    cfg = load_config(SubmapSlamConfig, "resolution: 1\nmin_distance: 1e-3\n")
-    assert cfg.resolution == 1.0 and type(cfg.resolution) is float and cfg.min_distance == 1e-3
+    cfg = load_config(SubmapSlamConfig, "submaps: {resolution: 1}\nlocal: {min_distance: 1e-3}\n")
+    res = cfg.submaps.resolution
+    assert res == 1.0 and type(res) is float and cfg.local.min_distance == 1e-3
     from probmap.slam.landmark.ekf import EKFConfig
 
     assert load_config(EKFConfig, "visibility_range: .inf\n").visibility_range == math.inf
@@ -132,20 +143,23 @@ def test_optional_nested_dataclass_from_null_and_from_a_mapping():
 
 
 BAD = [
-    ("matcher:\n  linear_window: x\n", "cfg.yaml: matcher.linear_window: expected a number, got 'x'"),
-    ("submap_scns: 3\n", "cfg.yaml: submap_scns: unknown field of SubmapSlamConfig (did you mean submap_scans?)"),
-    ("matcher: {sigmaa: 1}\n", "cfg.yaml: matcher.sigmaa: unknown field of MatcherConfig"),
-    ("submap_scans: 3.5\n", "cfg.yaml: submap_scans: expected an integer, got 3.5"),
-    ("submap_scans: true\n", "cfg.yaml: submap_scans: expected an integer, got True"),
-    ("resolution: true\n", "cfg.yaml: resolution: expected a number, got True"),
-    ("resolution: null\n", "cfg.yaml: resolution: expected a number, got None"),
-    ("robust: foo\n", "cfg.yaml: robust: expected one of"),
-    ("recover_window: [1]\n", "cfg.yaml: recover_window: expected a list of 2 values, got 1"),
-    ("recover_window: 1\n", "cfg.yaml: recover_window: expected a list, got 1"),
-    ("recover_window: [1, a]\n", "cfg.yaml: recover_window[1]: expected a number, got 'a'"),
-    ("matcher: 3\n", "cfg.yaml: matcher: expected a mapping of MatcherConfig fields, got 3"),
-    ("matcher:\n  linear_window: -1\n", "cfg.yaml: matcher: linear_window must be >= 0"),
-    ("resolution: -1\n", "cfg.yaml: resolution"),
+    ("local:\n  matcher:\n    linear_window: x\n", "cfg.yaml: local.matcher.linear_window: expected a number, got 'x'"),
+    ("submaps: {scns: 3}\n", "cfg.yaml: submaps.scns: unknown field of SubmapConfig (did you mean scans?)"),
+    ("submap_scans: 3\n", "cfg.yaml: submap_scans: this key is now submaps.scans"),
+    ("closure_min_score: 0.6\n", "cfg.yaml: closure_min_score: this key is now closures.min_score"),
+    ("matcher: {sigma: 1}\n", "cfg.yaml: matcher: this key is now local.matcher"),
+    ("local: {matcher: {sigmaa: 1}}\n", "cfg.yaml: local.matcher.sigmaa: unknown field of MatcherConfig"),
+    ("submaps: {scans: 3.5}\n", "cfg.yaml: submaps.scans: expected an integer, got 3.5"),
+    ("submaps: {scans: true}\n", "cfg.yaml: submaps.scans: expected an integer, got True"),
+    ("submaps: {resolution: true}\n", "cfg.yaml: submaps.resolution: expected a number, got True"),
+    ("submaps: {resolution: null}\n", "cfg.yaml: submaps.resolution: expected a number, got None"),
+    ("optimization: {robust: foo}\n", "cfg.yaml: optimization.robust: expected one of"),
+    ("local: {recover_window: [1]}\n", "cfg.yaml: local.recover_window: expected a list of 2 values, got 1"),
+    ("local: {recover_window: 1}\n", "cfg.yaml: local.recover_window: expected a list, got 1"),
+    ("local: {recover_window: [1, a]}\n", "cfg.yaml: local.recover_window[1]: expected a number, got 'a'"),
+    ("local: {matcher: 3}\n", "cfg.yaml: local.matcher: expected a mapping of MatcherConfig fields, got 3"),
+    ("local: {matcher: {linear_window: -1}}\n", "cfg.yaml: local.matcher: linear_window must be >= 0"),
+    ("submaps: {resolution: -1}\n", "cfg.yaml: submaps"),
     ("- 1\n- 2\n", "cfg.yaml: expected a mapping of SubmapSlamConfig fields, got a list"),
     ("a: [\n", "cfg.yaml: line 2: not valid YAML"),
     ("config_class: RbpfConfig\n", "cfg.yaml: config_class: expected SubmapSlamConfig, got"),

@@ -2,15 +2,17 @@
 
 Every configuration class of the package (``SubmapSlamConfig``, ``RbpfConfig``,
 ``MCLConfig``, ...) is a frozen dataclass; this module reads one from YAML and writes one back,
-generically, from the field types: nested dataclasses (``SubmapSlamConfig.matcher``), tuples,
+generically, from the field types: nested dataclasses (``SubmapSlamConfig.local``), tuples,
 ``Literal`` choices, ``X | None``, and ``float``/``int``/``bool``/``str``.
 
 A file lists only the fields it changes; the others keep the class's defaults (a nested
 dataclass given in part keeps its other fields from the field's default)::
 
-    submap_scans: 30
-    matcher:
-      linear_window: 0.3
+    submaps:
+      scans: 30
+    local:
+      matcher:
+        linear_window: 0.3
 
 :func:`dump_config` writes every field, with two more keys that record where the file came
 from: ``probmap_version`` (the package version that wrote it) and ``config_class`` (the class
@@ -19,6 +21,12 @@ class it is asked for. Every problem (unknown key, wrong type, a value the class
 is one :class:`ValueError` naming the file and the field::
 
     cfg.yaml: matcher.linear_window: expected a number, got 'x'
+
+A class whose fields moved into nested sections lists its old keys in a class attribute
+``MOVED_KEYS`` (``{"old_key": "section.new_key"}``); a file that still uses one gets an error
+naming the new key::
+
+    cfg.yaml: closure_min_score: this key is now closures.min_score
 
 Only PyYAML's safe loader and dumper are used. The module imports nothing of probmap but
 :mod:`probmap._atomic`, so every layer may use it.
@@ -253,6 +261,9 @@ def _build(cls: type[T], data: Mapping[Any, Any], where: str, base: Any = None) 
     kwargs: dict[str, Any] = {}
     for key, value in data.items():
         if not isinstance(key, str) or key not in fields:
+            moved = getattr(cls, "MOVED_KEYS", {}).get(key)
+            if moved is not None:  # a key of an earlier, flat layout of this class
+                raise _Bad(_join(where, str(key)), f"this key is now {moved}")
             close = difflib.get_close_matches(str(key), list(fields), n=1)
             hint = f" (did you mean {close[0]}?)" if close else ""
             raise _Bad(_join(where, str(key)), f"unknown field of {cls.__name__}{hint}")

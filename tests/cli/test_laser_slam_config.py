@@ -57,7 +57,7 @@ def test_graph_config_takes_effect_and_is_recorded(sim_log, tmp_path):
     # the run without --config records the defaults
     assert load_config(SubmapSlamConfig, tmp_path / "d.config.yaml") == SubmapSlamConfig()
     cfg_file = tmp_path / "small.yaml"
-    cfg_file.write_text("submap_scans: 5\nmatcher:\n  linear_window: 0.2\n")
+    cfg_file.write_text("submaps: {scans: 5}\nlocal:\n  matcher:\n    linear_window: 0.2\n")
     res = run("slam", "grid", sim_log, "-o", tmp_path / "s", "--config", cfg_file)
     assert res.exit_code == 0, res.output
     assert _summary_int(res.output, "submaps") > default_submaps
@@ -70,8 +70,11 @@ def test_graph_config_takes_effect_and_is_recorded(sim_log, tmp_path):
     assert doc["probmap_version"] == importlib.metadata.version("probmap")
     assert doc["config_class"] == "SubmapSlamConfig"
     default = SubmapSlamConfig()
+    local = dataclasses.replace(
+        default.local, matcher=dataclasses.replace(default.local.matcher, linear_window=0.2)
+    )
     expected = dataclasses.replace(
-        default, submap_scans=5, matcher=dataclasses.replace(default.matcher, linear_window=0.2)
+        default, submaps=dataclasses.replace(default.submaps, scans=5), local=local
     )
     assert load_config(SubmapSlamConfig, written) == expected
     # the recorded file runs again, to the same trajectory
@@ -108,9 +111,10 @@ def _one_line_error(res, *words):
 @pytest.mark.parametrize(
     ("method", "text", "words"),
     [
-        ("graph", "matcher:\n  linear_window: x\n", ["bad.yaml", "matcher.linear_window", "'x'"]),
-        ("graph", "submap_scan: 5\n", ["bad.yaml", "submap_scan", "submap_scans?"]),
-        ("graph", "submap_scans: 0\n", ["bad.yaml", "submap_scans"]),
+        ("graph", "local: {matcher: {linear_window: x}}\n", ["bad.yaml", "local.matcher", "'x'"]),
+        ("graph", "submaps: {scan: 5}\n", ["bad.yaml", "submaps.scan", "scans?"]),
+        ("graph", "submaps: {scans: 0}\n", ["bad.yaml", "scans"]),
+        ("graph", "submap_scans: 5\n", ["bad.yaml", "submap_scans", "now submaps.scans"]),
         ("graph", "particles: 3\n", ["bad.yaml", "particles", "SubmapSlamConfig"]),
         ("rbpf", "particles: three\n", ["bad.yaml", "particles", "integer"]),
         ("rbpf", "config_class: SubmapSlamConfig\n", ["bad.yaml", "RbpfConfig"]),

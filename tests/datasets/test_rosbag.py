@@ -18,7 +18,7 @@ from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from bagwriter import BagBuilder  # noqa: E402
 from probmap.datasets.records import LaserScan  # noqa: E402
-from probmap.datasets.ros._bag import require_rosbags  # noqa: E402
+from probmap.datasets.ros._reader import require_rosbags  # noqa: E402
 from probmap.datasets.ros.maps import (  # noqa: E402
     occupancy_percent,
     read_map_from_bag,

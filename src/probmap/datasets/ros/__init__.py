@@ -14,6 +14,6 @@ any of its modules does not import ``rosbags``. Four parts, one module each:
 - :mod:`~probmap.datasets.ros.maps`: occupancy grids written to and read from bags
   (:func:`~.maps.write_map_to_bag`, :func:`~.maps.read_map_from_bag`).
 
-``_bag`` holds what they share: the lazy ``rosbags`` import (:func:`~._bag.require_rosbags`,
+``_reader`` holds what they share: the lazy ``rosbags`` import (:func:`~._reader.require_rosbags`,
 whose error names the ``ros`` extra), opening a bag and reading and decoding its messages.
 """

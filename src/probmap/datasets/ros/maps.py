@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 
 from probmap._atomic import atomic_path
 from probmap._typing import FloatArray
-from probmap.datasets.ros._bag import (
+from probmap.datasets.ros._reader import (
     _deserialize,
     _messages,
     _open_reader,

@@ -39,7 +39,7 @@ import numpy as np
 
 from probmap._typing import FloatArray
 from probmap.datasets.records import LaserScan, Odometry, ScanBatch, stack_beams
-from probmap.datasets.ros._bag import (
+from probmap.datasets.ros._reader import (
     _NS,
     _deserialize,
     _messages,

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from probmap.datasets.ros._bag import _NS, _deserialize, _messages, _open_reader
+from probmap.datasets.ros._reader import _NS, _deserialize, _messages, _open_reader
 from probmap.datasets.ros.tf import TF_TYPES, TfBuffer, _add_tf
 
 __all__ = ["BagSummary", "TopicSummary", "summarize_bag"]

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from probmap._typing import FloatArray
-from probmap.datasets.ros._bag import _stamp
+from probmap.datasets.ros._reader import _stamp
 from probmap.geometry.se2 import compose, inverse, wrap_angle
 
 __all__ = ["TfBuffer", "yaw_from_quaternion"]

@@ -41,9 +41,8 @@ from __future__ import annotations
 
 import math
 import time
-from collections import OrderedDict
 from dataclasses import dataclass, field, replace
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -51,6 +50,13 @@ from numpy.typing import ArrayLike, NDArray
 from probmap._checks import require_at_least, require_nonnegative_finite, require_positive_finite
 from probmap.geometry.se2 import between, compose, inverse, wrap_angle
 from probmap.grid.occupancy import InverseSensorModel, OccupancyGrid
+from probmap.slam.laser.closures import (
+    ClosureConfig,
+    LoopClosing,
+    LoopClosure,
+    edge_information,
+    require_pair,
+)
 from probmap.slam.laser.scan_matching import (
     MatcherConfig,
     correlative_search,
@@ -63,9 +69,11 @@ from probmap.slam.laser.submaps import Submap
 from probmap.slam.posegraph.optimize import RobustKernel
 
 __all__ = [
+    "LocalMatchingConfig",
+    "OptimizationConfig",
+    "SubmapConfig",
     "SubmapSlam",
     "SubmapSlamConfig",
-    "LoopClosure",
     "spread_between_nodes",
 ]
 
@@ -93,14 +101,12 @@ class _Match(NamedTuple):
 
 
 @dataclass(frozen=True)
-class SubmapSlamConfig:
-    """Parameters of :class:`SubmapSlam`. One configuration for every log: none of them is tuned
-    to one building (see the README for the assumptions they make).
+class LocalMatchingConfig:
+    """Local SLAM of :class:`SubmapSlam`: the motion filter, scan-to-submap matching and the
+    weights of the local edges.
 
     Parameters
     ----------
-    resolution : float
-        Cell side of submaps and of the final map, metres.
     min_distance, min_rotation : float
         Motion filter: a scan becomes a node once the odometry moved this far (metres) or turned
         this much (radians) since the last node.
@@ -119,14 +125,9 @@ class SubmapSlamConfig:
         0.0306 to 0.0207 m (composed from the odometry, correction spread alike); from the
         Intel log it is 0.0168 m against 0.0166 m, but rotation 0.31 against 0.48 deg.
         ``False`` composes them from the odometry.
-    submap_scans : int
-        Nodes per submap; a new submap starts every ``submap_scans // 2`` nodes, so each node
-        is in two submaps.
     matcher : MatcherConfig
         Local scan-to-submap matcher (search window around the odometry prediction, match field
         width, usable range).
-    field_radius : int
-        Cells beyond which the match field is 0.
     min_match_score : float
         Least mean match score (0..1) for local SLAM to trust a match; below it the odometry
         prediction is kept.
@@ -159,82 +160,52 @@ class SubmapSlamConfig:
         defaults, odometry and scan matching weigh alike, so where the matcher is fooled (a
         featureless corridor, a crowd, a range scale that disagrees with the wheels) the
         odometry pulls back. ``odometry_sd[0] = 0`` leaves the edge out.
-    closure_min_score : float
-        Least branch-and-bound score (mean match field over the scan's endpoints) of a closure.
-    wide_min_score : float
-        Least score of a closure searched in a window wider than ``near_window``.
-    closure_window : tuple of float
-        ``(metres, radians)``: half-widths of the search window against a submap the node is
-        tied to by local SLAM or a closure (no accumulated travel between them).
-    window_growth : tuple of float
-        Growth of those half-widths per metre of travel between the node and the submap along
-        the shortest chain of local-SLAM links and accepted closures (the uncertainty the
-        odometry and scan matching accumulate). Near searches count a closure as no travel
-        between its submap and the node's; far searches and the trust bound count the
-        closure's distance from its submap's anchor too, because a chain of closures each
-        against the submap just behind it (local SLAM handing the robot from one submap to
-        the next) is no shortcut: drift grows along it as it does along the trajectory.
-    max_window : tuple of float
-        Largest half-widths of that window.
-    wide_window : tuple of float
-        Half-widths of the periodic wide search (at least the submap's own window).
-    wide_search_every : int
-        Nodes between wide searches (0 = never).
-    near_window : float
-        Windows up to this half-width (metres) are *near* searches: run for up to
-        ``closure_candidates`` submaps per node and accepted on their score alone. Wider
-        (*far*) searches run for one submap every ``far_every`` nodes (the one searched least
-        recently) and must be confirmed by consensus.
-    far_every : int
-        Nodes between far searches (their windows reach ``max_window`` after a long stretch
-        without a loop, so each is a costly search; 4 keeps every log at 40x real time or
-        more).
-    consensus : tuple of float
-        ``(metres, radians)``: a far closure is accepted once ``consensus_checks`` earlier
-        nodes, moved by the correction it implies (the rigid motion from the current estimate
-        to the closure's pose), match the same submap or its neighbours within this window.
-    consensus_nodes : int
-        The earlier nodes checked lie up to this many nodes back.
-    consensus_checks : int
-        Confirmations a far closure needs. 3 since far matches down to ``drift_min_score``
-        count: a weaker match needs more evidence. With 2 the hospital's last loop stayed
-        open (0.215 m against 0.118 m); Intel scores 0.0180 m with 3, as it did with 2, and
-        the simulated ring accepts no false closure with either.
-    trust_drift : float
-        A confirmed far closure whose correction (how far it moves the node's current
-        estimate, metres) is at most ``closure_window[0] + trust_drift * travel`` (``travel``
-        as for the windows) is *trusted*: it and its confirmations stay quadratic for good. A
-        drift of a few percent of the distance is what local SLAM and odometry plausibly
-        accumulate (a scale the laser and the wheels disagree on); a robust cost would weigh
-        such a correction against the stiffness of the whole loop, which independent edges
-        overstate, and drop it. A larger correction (the wide search or a long window found
-        it) is taken quadratically for one optimization and then guarded by the robust cost.
-        0 trusts none. 0.05 is a third of ``window_growth``: the search windows allow for the
-        worst drift, the trust bound for a plausible one. ``travel`` is the far searches'.
-    drift_min_score : float
-        Least score of a far match whose implied correction lies within that trust bound;
-        such a match needs ``consensus_checks`` confirmations at this score too. A far match
-        scoring below ``wide_min_score`` whose correction is larger is dropped at once. A
-        revisit after a long loop often scores low (the place changed, it is seen from
-        elsewhere: 0.45-0.56 on the hospital's last re-entry), while an aliased stretch of a
-        repetitive corridor can score as well but implies a jump of whole corridor periods
-        (8.6 m at 0.53 in the simulated ring); the prior on drift tells them apart. A value
-        at or above ``wide_min_score`` turns the rule off.
-    closure_every : int
-        Search closures for every ``closure_every``-th node.
-    closure_candidates : int
-        Finished submaps searched per node: the nearest ones whose extent the window reaches.
-    closure_points : int
-        Endpoints used by the closure search (the scan is subsampled evenly to this many).
-    robust : str
-        Robust cost of closure edges: ``"dcs"``, ``"cauchy"``, ``"huber"`` or ``"none"``.
-    robust_scale : float
-        Its scale (``Phi`` of DCS, the kernel width of Cauchy and Huber, in units of the
-        whitened error).
-    optimize_every : int
-        Nodes between optimizations.
-    final_iterations : int
-        Largest number of Levenberg-Marquardt iterations of the final optimization.
+    """
+
+    min_distance: float = 0.2
+    min_rotation: float = 0.1
+    match_every_scan: bool = True
+    matcher: MatcherConfig = field(default_factory=_local_matcher)
+    min_match_score: float = 0.25
+    recover_score: float = 0.4
+    recover_window: tuple[float, float] = (0.6, 0.1)
+    local_sd: tuple[float, float] = (0.02, 0.005)
+    anchor_sd_rate: float = 0.1
+    odometry_sd: tuple[float, float] = (0.02, 0.005)
+    odometry_sd_rate: tuple[float, float] = (0.02, 0.02)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.match_every_scan, bool):
+            raise ValueError(
+                f"match_every_scan must be true or false, got {self.match_every_scan!r}"
+            )
+        for name in ("min_distance", "min_rotation", "anchor_sd_rate"):
+            require_nonnegative_finite(name, getattr(self, name))
+        for name in ("min_match_score", "recover_score"):
+            v = getattr(self, name)
+            if not 0.0 <= v <= 1.0:
+                raise ValueError(f"{name} must lie in [0, 1], got {v}")
+        for name in ("local_sd", "odometry_sd_rate"):
+            require_pair(name, getattr(self, name), positive=True)
+        for name in ("recover_window", "odometry_sd"):
+            require_pair(name, getattr(self, name), positive=False)
+        if self.odometry_sd[0] > 0 and not self.odometry_sd[1] > 0:
+            raise ValueError(f"odometry_sd needs a positive rotation part, got {self.odometry_sd}")
+
+
+@dataclass(frozen=True)
+class SubmapConfig:
+    """Submaps of :class:`SubmapSlam` and the final map: their cells, size and sensor model.
+
+    Parameters
+    ----------
+    resolution : float
+        Cell side of submaps and of the final map, metres.
+    scans : int
+        Nodes per submap; a new submap starts every ``scans // 2`` nodes, so each node
+        is in two submaps.
+    field_radius : int
+        Cells beyond which the match field is 0.
     p_hit, p_miss : float
         Inverse sensor model of submaps and of the final map.
     max_clear_range : float
@@ -245,115 +216,128 @@ class SubmapSlamConfig:
     """
 
     resolution: float = 0.05
-    min_distance: float = 0.2
-    min_rotation: float = 0.1
-    match_every_scan: bool = True
-    submap_scans: int = 40
-    matcher: MatcherConfig = field(default_factory=_local_matcher)
+    scans: int = 40
     field_radius: int = 3
-    min_match_score: float = 0.25
-    recover_score: float = 0.4
-    recover_window: tuple[float, float] = (0.6, 0.1)
-    local_sd: tuple[float, float] = (0.02, 0.005)
-    anchor_sd_rate: float = 0.1
-    odometry_sd: tuple[float, float] = (0.02, 0.005)
-    odometry_sd_rate: tuple[float, float] = (0.02, 0.02)
-    closure_sd: tuple[float, float] = (0.05, 0.01)
-    closure_min_score: float = 0.55
-    wide_min_score: float = 0.55
-    closure_window: tuple[float, float] = (0.5, 0.1)
-    window_growth: tuple[float, float] = (0.15, 0.005)
-    max_window: tuple[float, float] = (20.0, 0.5)
-    wide_window: tuple[float, float] = (20.0, 0.5)
-    wide_search_every: int = 50
-    near_window: float = 2.0
-    far_every: int = 4
-    consensus: tuple[float, float] = (0.3, 0.05)
-    consensus_nodes: int = 10
-    consensus_checks: int = 3
-    trust_drift: float = 0.05
-    drift_min_score: float = 0.45
-    closure_every: int = 1
-    closure_candidates: int = 3
-    closure_points: int = 90
-    robust: RobustKernel = "dcs"
-    robust_scale: float = 1.0
-    optimize_every: int = 50
-    final_iterations: int = 50
     p_hit: float = 0.7
     p_miss: float = 0.4
     max_clear_range: float = 10.0
     grid_cache: int = 8
 
     def __post_init__(self) -> None:
-        for name in ("resolution", "robust_scale", "near_window"):
-            require_positive_finite(name, getattr(self, name))
-        if not isinstance(self.match_every_scan, bool):
-            raise ValueError(
-                f"match_every_scan must be true or false, got {self.match_every_scan!r}"
-            )
-        for name in (
-            "min_distance", "min_rotation", "max_clear_range", "anchor_sd_rate", "trust_drift",
-        ):  # fmt: skip
-            require_nonnegative_finite(name, getattr(self, name))
-        for name in (
-            "min_match_score", "recover_score", "closure_min_score", "wide_min_score",
-            "drift_min_score",
-        ):  # fmt: skip
-            v = getattr(self, name)
-            if not 0.0 <= v <= 1.0:
-                raise ValueError(f"{name} must lie in [0, 1], got {v}")
-        for name in ("local_sd", "closure_sd", "odometry_sd_rate"):
-            _require_pair(name, getattr(self, name), positive=True)
-        for name in (
-            "closure_window", "window_growth", "max_window", "wide_window", "consensus",
-            "recover_window", "odometry_sd",
-        ):  # fmt: skip
-            _require_pair(name, getattr(self, name), positive=False)
-        if self.odometry_sd[0] > 0 and not self.odometry_sd[1] > 0:
-            raise ValueError(f"odometry_sd needs a positive rotation part, got {self.odometry_sd}")
-        require_at_least("submap_scans", self.submap_scans, 2)
-        for name in ("wide_search_every", "optimize_every", "final_iterations"):
-            require_at_least(name, getattr(self, name), 0)
-        for name in (
-            "far_every", "consensus_nodes", "consensus_checks", "closure_every",
-            "closure_candidates", "closure_points", "grid_cache", "field_radius",
-        ):  # fmt: skip
+        require_positive_finite("resolution", self.resolution)
+        require_nonnegative_finite("max_clear_range", self.max_clear_range)
+        require_at_least("scans", self.scans, 2)
+        for name in ("grid_cache", "field_radius"):
             require_at_least(name, getattr(self, name), 1)
-        if self.robust not in ("dcs", "cauchy", "huber", "none"):
-            raise ValueError(f"robust must be dcs, cauchy, huber or none, got {self.robust!r}")
         if not 0.0 < self.p_miss < 0.5 < self.p_hit < 1.0:
             raise ValueError(f"need 0 < p_miss < 0.5 < p_hit < 1, got {self.p_miss}, {self.p_hit}")
 
 
-def _require_pair(name: str, value: Any, *, positive: bool) -> None:
-    """Raise unless ``value`` is a tuple of two finite numbers, each > 0 (``positive``) or
-    >= 0: the ``(metres, radians)`` pairs of :class:`SubmapSlamConfig`."""
-    if (
-        not isinstance(value, tuple)
-        or len(value) != 2
-        or not all(math.isfinite(x) and (x > 0 if positive else x >= 0) for x in value)
-    ):
-        kind = "two positive numbers" if positive else "two numbers >= 0"
-        raise ValueError(f"{name} must be {kind}, got {value}")
+@dataclass(frozen=True)
+class OptimizationConfig:
+    """The pose-graph back end of :class:`SubmapSlam`: robust cost of the closure edges and when
+    Levenberg-Marquardt runs.
+
+    Parameters
+    ----------
+    robust : str
+        Robust cost of closure edges: ``"dcs"``, ``"cauchy"``, ``"huber"`` or ``"none"``.
+    robust_scale : float
+        Its scale (``Phi`` of DCS, the kernel width of Cauchy and Huber, in units of the
+        whitened error).
+    every : int
+        Nodes between optimizations.
+    final_iterations : int
+        Largest number of Levenberg-Marquardt iterations of the final optimization.
+    """
+
+    robust: RobustKernel = "dcs"
+    robust_scale: float = 1.0
+    every: int = 50
+    final_iterations: int = 50
+
+    def __post_init__(self) -> None:
+        require_positive_finite("robust_scale", self.robust_scale)
+        for name in ("every", "final_iterations"):
+            require_at_least(name, getattr(self, name), 0)
+        if self.robust not in ("dcs", "cauchy", "huber", "none"):
+            raise ValueError(f"robust must be dcs, cauchy, huber or none, got {self.robust!r}")
 
 
 @dataclass(frozen=True)
-class LoopClosure:
-    """An accepted loop closure: node ``node`` seen in submap ``submap`` (anchor node
-    ``anchor``) at ``pose`` (sensor pose in the submap frame) with branch-and-bound ``score``;
-    ``far`` when a far search found it (accepted after consensus)."""
+class SubmapSlamConfig:
+    """Parameters of :class:`SubmapSlam`, in four sections. One configuration for every log:
+    none of them is tuned to one building (see the README for the assumptions they make).
 
-    node: int
-    submap: int
-    anchor: int
-    pose: tuple[float, float, float]
-    score: float
-    far: bool
+    Parameters
+    ----------
+    local : LocalMatchingConfig
+        The motion filter, scan-to-submap matching and the weights of the local edges.
+    submaps : SubmapConfig
+        Cells, size and sensor model of the submaps and of the final map.
+    closures : ClosureConfig
+        Loop-closure search and verification (:mod:`probmap.slam.laser.closures`).
+    optimization : OptimizationConfig
+        Robust cost and schedule of the pose-graph optimization.
 
+    Examples
+    --------
+    In YAML, a file lists only what it changes::
 
-def _information(sd: tuple[float, float]) -> NDArray[np.float64]:
-    return np.diag([1.0 / sd[0] ** 2, 1.0 / sd[0] ** 2, 1.0 / sd[1] ** 2])
+        closures:
+          min_score: 0.6
+        submaps:
+          scans: 30
+    """
+
+    local: LocalMatchingConfig = field(default_factory=LocalMatchingConfig)
+    submaps: SubmapConfig = field(default_factory=SubmapConfig)
+    closures: ClosureConfig = field(default_factory=ClosureConfig)
+    optimization: OptimizationConfig = field(default_factory=OptimizationConfig)
+
+    #: keys of the earlier flat layout and where each lives now (for a one-line error)
+    MOVED_KEYS: ClassVar[dict[str, str]] = {
+        "min_distance": "local.min_distance",
+        "min_rotation": "local.min_rotation",
+        "match_every_scan": "local.match_every_scan",
+        "matcher": "local.matcher",
+        "min_match_score": "local.min_match_score",
+        "recover_score": "local.recover_score",
+        "recover_window": "local.recover_window",
+        "local_sd": "local.local_sd",
+        "anchor_sd_rate": "local.anchor_sd_rate",
+        "odometry_sd": "local.odometry_sd",
+        "odometry_sd_rate": "local.odometry_sd_rate",
+        "resolution": "submaps.resolution",
+        "submap_scans": "submaps.scans",
+        "field_radius": "submaps.field_radius",
+        "p_hit": "submaps.p_hit",
+        "p_miss": "submaps.p_miss",
+        "max_clear_range": "submaps.max_clear_range",
+        "grid_cache": "submaps.grid_cache",
+        "closure_sd": "closures.sd",
+        "closure_min_score": "closures.min_score",
+        "wide_min_score": "closures.wide_min_score",
+        "closure_window": "closures.window",
+        "window_growth": "closures.window_growth",
+        "max_window": "closures.max_window",
+        "wide_window": "closures.wide_window",
+        "wide_search_every": "closures.wide_search_every",
+        "near_window": "closures.near_window",
+        "far_every": "closures.far_every",
+        "consensus": "closures.consensus",
+        "consensus_nodes": "closures.consensus_nodes",
+        "consensus_checks": "closures.consensus_checks",
+        "trust_drift": "closures.trust_drift",
+        "drift_min_score": "closures.drift_min_score",
+        "closure_every": "closures.every",
+        "closure_candidates": "closures.candidates",
+        "closure_points": "closures.points",
+        "robust": "optimization.robust",
+        "robust_scale": "optimization.robust_scale",
+        "optimize_every": "optimization.every",
+        "final_iterations": "optimization.final_iterations",
+    }
 
 
 class SubmapSlam:
@@ -381,17 +365,18 @@ class SubmapSlam:
             raise ValueError(f"max_range must be > 0 m, got {max_range}")
         self.max_range = float(max_range)
         self.graph = PoseGraph2D(
-            OptimizerConfig(max_iterations=5, robust=cfg.robust, robust_scale=cfg.robust_scale)
+            OptimizerConfig(
+                max_iterations=5,
+                robust=cfg.optimization.robust,
+                robust_scale=cfg.optimization.robust_scale,
+            )
         )
         self._weights = np.ones(0)
-        self._model = InverseSensorModel(cfg.p_hit, cfg.p_miss, max_clear_range=0.0)
-        self._local_info = _information(cfg.local_sd)
-        self._closure_info = _information(cfg.closure_sd)
+        self._model = InverseSensorModel(cfg.submaps.p_hit, cfg.submaps.p_miss, max_clear_range=0.0)
+        self._local_info = edge_information(cfg.local.local_sd)
         # per node
         self.local: list[NDArray[np.float64]] = []  # local-SLAM poses (drifting frame)
         self.node_scan: list[int] = []  # scan index of each node
-        self._node_points: list[NDArray[np.float64]] = []  # closure endpoints, sensor frame
-        self._node_range: list[float] = []
         # per scan
         self.scan_times: list[float] = []
         self.scan_odometry: list[NDArray[np.float64]] = []
@@ -402,44 +387,27 @@ class SubmapSlam:
         self._angles: list[NDArray[np.float64]] = []
         self.submaps: list[Submap] = []
         self.active: list[Submap] = []
-        self.closures: list[LoopClosure] = []
-        self.searched = 0
         self.failed_matches = 0
         self.recovered = 0  # wide re-searches after a poor local match
         self.odometry_gated = 0  # odometry increments left out (the match searched wide)
         self._odometry_trusted = True
         self.optimizations = 0
         self.optimize_seconds = 0.0
-        self.search_seconds = 0.0
         self._last_node_odometry: NDArray[np.float64] | None = None
         self._since_optimize = 0
         self._travel: list[float] = []  # cumulative path length at each node, metres
-        self._sub_links: list[dict[int, float]] = []  # submap graph: neighbour -> travel
-        self._sub_dist: NDArray[np.float64] | None = None  # travel from the newest submap
-        self._sub_dist_at = 0.0  # node travel when _sub_dist was computed
-        # the same graph for far searches and the trust bound: a closure link also counts
-        # the closure's distance from its submap's anchor (see window_growth)
-        self._far_links: list[dict[int, float]] = []
-        self._far_dist: NDArray[np.float64] | None = None
-        self._far_dist_at = 0.0
-        self._last_searched: list[int] = []  # per submap, the last node that searched it
-        self.far_searched = 0  # far searches run
-        self.far_found = 0  # far searches that found a match (before consensus)
-        self.rejected = 0  # far matches that earlier nodes did not confirm
-        self.drift_rejected = 0  # low-scoring far matches beyond the trust bound
-        self.trusted = 0  # confirmed far closures kept quadratic (trust_drift)
-        self._trusted_edges: set[int] = set()  # their edge indices
-        self._unguarded: list[int] = []
-        self._closure_edges: list[
-            int
-        ] = []  # edge index of each accepted closure  # confirmed closures awaiting their first optimization
-        self._pending_correction = False
-        self._cache: OrderedDict[int, Any] = OrderedDict()
         self._done = False  # finish() was called
-        self._finished: list[Submap] = []
-        self._fin_anchor: list[int] = []
-        self._fin_centre: list[NDArray[np.float64]] = []
-        self._fin_radius: list[float] = []
+        self.loops = LoopClosing(
+            cfg.closures,
+            graph=self.graph,
+            submaps=self.submaps,
+            active=self.active,
+            travel=self._travel,
+            matcher=cfg.local.matcher,
+            min_match_score=cfg.local.min_match_score,
+            grid_cache=cfg.submaps.grid_cache,
+            full_points=self._full_points,
+        )
 
     # ------------------------------------------------------------------ properties
     @property
@@ -494,8 +462,8 @@ class SubmapSlam:
         if self._last_node_odometry is not None:
             u = between(self._last_node_odometry, odo)
             if (
-                math.hypot(u[0], u[1]) < cfg.min_distance
-                and abs(float(wrap_angle(u[2]))) < cfg.min_rotation
+                math.hypot(u[0], u[1]) < cfg.local.min_distance
+                and abs(float(wrap_angle(u[2]))) < cfg.local.min_rotation
             ):
                 self.scan_node.append(len(self.local) - 1)
                 offsets.append(self._offset_between_nodes(r, a, u))
@@ -512,9 +480,9 @@ class SubmapSlam:
         match against the active submap around the odometry increment ``u`` (the increment
         itself when ``match_every_scan`` is off or the match fails). Changes no state."""
         cfg = self.config
-        if not getattr(cfg, "match_every_scan", False) or not self.local:
+        if not cfg.local.match_every_scan or not self.local:
             return np.asarray(u, dtype=np.float64).copy()
-        m = cfg.matcher
+        m = cfg.local.matcher
         pts = scan_points(r, a, self.max_range, m.usable_range, m.beam_skip)
         prev = self.local[-1]
         predicted = compose(prev, u)
@@ -527,7 +495,7 @@ class SubmapSlam:
 
     def _add_node(self, scan: int, r: NDArray, a: NDArray, odo: NDArray) -> None:
         cfg = self.config
-        m = cfg.matcher
+        m = cfg.local.matcher
         pts = scan_points(r, a, self.max_range, m.usable_range, m.beam_skip)
         k = len(self.local)
         if k == 0:
@@ -542,16 +510,18 @@ class SubmapSlam:
             rel = between(prev, local)
             self.graph.add_node(compose(self.graph.pose(k - 1), rel))
             self.graph.add_edge(k - 1, k, rel, self._local_info)
-            if cfg.odometry_sd[0] > 0:
+            if cfg.local.odometry_sd[0] > 0:
                 # the odometry increment as its own edge: where the scan matcher is fooled
                 # (a corridor, a crowd, a range scale that disagrees with the wheels) it pulls
                 # back. Left out when the match had to search beyond the window around the
                 # odometry (the odometry glitched: wheel slip, a late timestamp)
                 d = math.hypot(u[0], u[1])
-                sxy = cfg.odometry_sd[0] + cfg.odometry_sd_rate[0] * d
-                sth = cfg.odometry_sd[1] + cfg.odometry_sd_rate[1] * abs(float(wrap_angle(u[2])))
+                sxy = cfg.local.odometry_sd[0] + cfg.local.odometry_sd_rate[0] * d
+                sth = cfg.local.odometry_sd[1] + cfg.local.odometry_sd_rate[1] * abs(
+                    float(wrap_angle(u[2]))
+                )
                 if self._odometry_trusted:
-                    self.graph.add_edge(k - 1, k, u, _information((sxy, sth)))
+                    self.graph.add_edge(k - 1, k, u, edge_information((sxy, sth)))
                 else:
                     self.odometry_gated += 1
         self._last_node_odometry = odo.copy()
@@ -563,18 +533,17 @@ class SubmapSlam:
         self.local.append(local)
         self.node_scan.append(scan)
         # submaps: start a new one every submap_scans // 2 nodes
-        half = max(cfg.submap_scans // 2, 1)
+        half = max(cfg.submaps.scans // 2, 1)
         if not self.active or self.active[-1].size >= half:
             sm = Submap(
-                len(self.submaps), k, cfg.resolution, m.sigma, cfg.field_radius, self._model
+                len(self.submaps),
+                k,
+                cfg.submaps.resolution,
+                m.sigma,
+                cfg.submaps.field_radius,
+                self._model,
             )
-            far_links = self._far_graph()  # (before the append: an old session copies it)
-            self._sub_links.append({})
-            far_links.append({})
-            self._last_searched.append(-1)
-            if self.submaps:
-                last = self.submaps[-1]
-                self._link(last.index, sm.index, self._travel[k] - self._travel[last.anchor])
+            self.loops.new_submap(sm)
             self.submaps.append(sm)
             self.active.append(sm)
         with np.errstate(invalid="ignore"):  # submaps hold what the matcher uses
@@ -584,18 +553,14 @@ class SubmapSlam:
             sm.insert(k, in_sub, r_sub, a, self.max_range)
             if sm.anchor != k and sm.anchor != k - 1:
                 self.graph.add_edge(sm.anchor, k, in_sub, self._anchor_information(in_sub))
-        while self.active and self.active[0].size >= cfg.submap_scans:
+        while self.active and self.active[0].size >= cfg.submaps.scans:
             self._retire_oldest()
-        # closure endpoints: an even subsample of the scan
-        step = max(1, math.ceil(len(pts) / cfg.closure_points))
-        cpts = np.ascontiguousarray(pts[::step])
-        self._node_points.append(cpts)
-        self._node_range.append(float(np.hypot(cpts[:, 0], cpts[:, 1]).max(initial=0.0)))
-        if k > 0 and k % cfg.closure_every == 0:
-            self._search_closures(k)
+        self.loops.add_node(pts)  # closure endpoints: an even subsample of the scan
+        if k > 0 and k % cfg.closures.every == 0:
+            self.loops.search(k)
         self._since_optimize += 1
-        if cfg.optimize_every and (
-            self._since_optimize >= cfg.optimize_every or self._pending_correction
+        if cfg.optimization.every and (
+            self._since_optimize >= cfg.optimization.every or self.loops.pending_correction
         ):
             self.optimize()
 
@@ -603,20 +568,17 @@ class SubmapSlam:
         """Information of a node-to-anchor edge with relative pose ``rel``: ``local_sd`` with
         the translation part grown by ``anchor_sd_rate`` per metre of the edge's length."""
         cfg = self.config
-        rate = getattr(cfg, "anchor_sd_rate", 0.0)  # sessions saved before the setting: 0
+        rate = cfg.local.anchor_sd_rate
         if rate == 0.0:
             return self._local_info
-        sxy = cfg.local_sd[0] + rate * math.hypot(float(rel[0]), float(rel[1]))
-        return _information((sxy, cfg.local_sd[1]))
+        sxy = cfg.local.local_sd[0] + rate * math.hypot(float(rel[0]), float(rel[1]))
+        return edge_information((sxy, cfg.local.local_sd[1]))
 
     def _retire_oldest(self) -> None:
         """Finish the oldest active submap and make it a closure-search candidate."""
         done = self.active.pop(0)
         done.finish()
-        self._finished.append(done)
-        self._fin_anchor.append(done.anchor)
-        self._fin_centre.append(done.centre)
-        self._fin_radius.append(done.radius)
+        self.loops.add_candidate(done)
 
     def _match_local(self, pts: NDArray, predicted: NDArray) -> NDArray[np.float64]:
         """Scan-to-submap matching of a new node around the odometry prediction (local-SLAM
@@ -636,7 +598,7 @@ class SubmapSlam:
         (9,643 of 9,655 on the Intel log) at a fraction of the correlative search's cost; an
         odometry glitch moves it beyond the window or lowers its score."""
         cfg = self.config
-        m = cfg.matcher
+        m = cfg.local.matcher
         frame = self._match_frame(pts, predicted)
         if frame is None:
             return None
@@ -645,7 +607,7 @@ class SubmapSlam:
         score, _, _ = normal_equations(fld, pts, pose)
         d = between(guess, pose)
         if (
-            score / pts.shape[0] < cfg.recover_score
+            score / pts.shape[0] < cfg.local.recover_score
             or math.hypot(d[0], d[1]) > m.linear_window
             or abs(float(wrap_angle(d[2]))) > m.angular_window
         ):
@@ -666,7 +628,7 @@ class SubmapSlam:
         frame): the correlative search, and the wide one after a poor match. Changes no
         state."""
         cfg = self.config
-        m = cfg.matcher
+        m = cfg.local.matcher
         frame = self._match_frame(pts, predicted)
         if frame is None:
             return _Match(
@@ -678,14 +640,14 @@ class SubmapSlam:
         best, _ = correlative_search(fld, pts, guess, m)
         pose, _, _ = refine(fld, pts, best, m.iterations, (m.linear_step, m.angular_step))
         score, _, _ = normal_equations(fld, pts, pose)
-        if score / pts.shape[0] < cfg.recover_score:
+        if score / pts.shape[0] < cfg.local.recover_score:
             # a poor match: the odometry may be off by more than the window (wheel slip, a
             # late timestamp); search a wide window once and keep it if it matches better
             wide = replace(
                 m,
-                linear_window=cfg.recover_window[0],
+                linear_window=cfg.local.recover_window[0],
                 linear_step=2 * m.linear_step,
-                angular_window=cfg.recover_window[1],
+                angular_window=cfg.local.recover_window[1],
                 angular_step=2 * m.angular_step,
             )
             best2, _ = correlative_search(fld, pts, guess, wide)
@@ -695,297 +657,34 @@ class SubmapSlam:
             if score2 > score + 0.05 * pts.shape[0]:
                 pose, score = pose2, score2
                 took_wide = True
-        if score / pts.shape[0] < cfg.min_match_score:
+        if score / pts.shape[0] < cfg.local.min_match_score:
             return _Match(predicted, True, searched_wide, took_wide, failed=True)
         return _Match(_in_local(anchor, pose), True, searched_wide, took_wide, failed=False)
 
-    # ------------------------------------------------------------------ loop closure
-    def _grids(self, sm: Submap) -> tuple[Any, Any]:
-        """The finished submap's match field and max-grids (LRU cache)."""
-        from probmap.slam.laser.loop_closure import PrecomputedGrids
-
-        hit = self._cache.get(sm.index)
-        if hit is not None:
-            self._cache.move_to_end(sm.index)
-            return hit
-        fld = sm.field()
-        sm.release()
-        grids = PrecomputedGrids.from_field(fld)
-        self._cache[sm.index] = (fld, grids)
-        while len(self._cache) > self.config.grid_cache:
-            self._cache.popitem(last=False)
-        return fld, grids
-
-    def _far_graph(self) -> list[dict[int, float]]:
-        """The far searches' submap graph (a session saved before it existed starts from a
-        copy of the near one)."""
-        if "_far_links" not in self.__dict__:
-            self._far_links = [dict(links) for links in self._sub_links]
-            self._far_dist = None
-            self._far_dist_at = 0.0
-        return self._far_links
-
-    def _link(self, a: int, b: int, travel: float, extent: float = 0.0) -> None:
-        """Link submaps ``a`` and ``b`` in the submap graphs with the travel between them;
-        the far graph adds ``extent`` (a closure's distance from its submap's anchor)."""
-        for links, t in ((self._sub_links, travel), (self._far_graph(), travel + extent)):
-            t = max(float(t), 0.0)
-            if t < links[a].get(b, math.inf):
-                links[a][b] = t
-                links[b][a] = t
-        self._sub_dist = None
-        self._far_dist = None
-
-    def _submap_travel(self, k: int, far: bool = False) -> NDArray[np.float64]:
-        """Travel (metres) from node ``k`` to each submap along the shortest chain of local
-        links and accepted closures (Dijkstra on the submap graph, cached until it changes);
-        ``far``: on the far searches' graph (closures count their extent)."""
-        import heapq
-
-        newest = self.active[-1]
-        links = self._far_graph() if far else self._sub_links
-        dist = self._far_dist if far else self._sub_dist
-        if dist is None or len(dist) != len(self.submaps):
-            dist = np.full(len(self.submaps), np.inf)
-            dist[newest.index] = 0.0
-            heap = [(0.0, newest.index)]
-            while heap:
-                d, a = heapq.heappop(heap)
-                if d > dist[a]:
-                    continue
-                for b, w in links[a].items():
-                    if d + w < dist[b]:
-                        dist[b] = d + w
-                        heapq.heappush(heap, (d + w, b))
-            if far:
-                self._far_dist, self._far_dist_at = dist, self._travel[newest.anchor]
-            else:
-                self._sub_dist, self._sub_dist_at = dist, self._travel[newest.anchor]
-        at = self._far_dist_at if far else self._sub_dist_at
-        return dist + (self._travel[k] - at)
-
-    def _windows(
-        self, travel: NDArray[np.float64]
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Search half-widths (metres, radians) after ``travel`` metres: ``closure_window``
-        grown by ``window_growth`` per metre, capped at ``max_window``."""
-        cfg = self.config
-        lin = np.minimum(cfg.closure_window[0] + cfg.window_growth[0] * travel, cfg.max_window[0])
-        ang = np.minimum(cfg.closure_window[1] + cfg.window_growth[1] * travel, cfg.max_window[1])
-        return lin, ang
-
-    def _search_closures(self, k: int) -> None:
-        """Search node ``k``'s scan against finished submaps (near every node, far every
-        ``far_every`` nodes) and add the closures that pass (far ones after consensus)."""
-        cfg = self.config
-        finished = self._finished
-        if not finished or self._node_points[k].shape[0] < 10:
-            return
-        t0 = time.perf_counter()
-        poses = self.graph.poses
-        xk = poses[k]
-        idx = np.asarray([sm.index for sm in finished], dtype=np.int64)
-        anchors = np.asarray(self._fin_anchor, dtype=np.int64)
-        local_c = np.asarray(self._fin_centre).reshape(-1, 2)
-        radius = np.asarray(self._fin_radius)
-        pa = poses[anchors]
-        c, s_ = np.cos(pa[:, 2]), np.sin(pa[:, 2])
-        cx = pa[:, 0] + c * local_c[:, 0] - s_ * local_c[:, 1]
-        cy = pa[:, 1] + s_ * local_c[:, 0] + c * local_c[:, 1]
-        dist = np.hypot(cx - xk[0], cy - xk[1])
-        lin, ang = self._windows(self._submap_travel(k)[idx])
-        wide = bool(cfg.wide_search_every) and k % cfg.wide_search_every == 0
-        if wide:
-            lin = np.maximum(lin, cfg.wide_window[0])
-            ang = np.maximum(ang, cfg.wide_window[1])
-        reach = dist <= lin + radius
-        near = np.flatnonzero(reach & (lin <= cfg.near_window))
-        near = near[np.argsort(dist[near], kind="stable")][: cfg.closure_candidates]
-        jobs = [(int(i), False) for i in near]
-        if wide or k % cfg.far_every == 0:
-            # far searches: windows from the far graph's travel (never smaller)
-            beyond = lin > cfg.near_window
-            lin_f, ang_f = self._windows(self._submap_travel(k, far=True)[idx])
-            lin = np.where(beyond, np.maximum(lin, lin_f), lin)
-            ang = np.where(beyond, np.maximum(ang, ang_f), ang)
-            reach = dist <= lin + radius
-            far = np.flatnonzero(reach & beyond)
-            if far.size:
-                last = np.asarray(self._last_searched)[idx[far]]
-                jobs.append((int(far[np.argmin(last)]), True))
-        for i, is_far in jobs:
-            sm = finished[i]
-            self._last_searched[sm.index] = k
-            min_score = cfg.closure_min_score
-            if is_far:  # sessions saved before drift_min_score: the wide threshold
-                min_score = min(cfg.wide_min_score, getattr(cfg, "drift_min_score", 1.0))
-            found = self._match_submap(k, sm, xk, float(lin[i]), float(ang[i]), min_score)
-            self.far_searched += is_far
-            if found is None:
-                continue
-            self.far_found += is_far
-            pose, score = found
-            if not is_far:
-                self._accept(k, sm, pose, score, False)
-                continue
-            # far: the correction it implies, as a rigid motion of the current estimate
-            implied = compose(poses[sm.anchor], pose)
-            delta = compose(implied, inverse(xk))
-            passed = cfg.wide_min_score
-            if score < passed:
-                # a low score is believed only for a correction a drift explains
-                shift = math.hypot(implied[0] - xk[0], implied[1] - xk[1])
-                if shift > self._trust_bound(k, sm):
-                    self.drift_rejected = getattr(self, "drift_rejected", 0) + 1
-                    continue
-                passed = min_score
-            self._confirm(k, sm, pose, score, delta, passed)
-        self.search_seconds += time.perf_counter() - t0
-
-    def _match_submap(
-        self, k: int, sm: Submap, xk: NDArray, lin: float, ang: float, min_score: float
-    ) -> tuple[NDArray[np.float64], float] | None:
-        """Branch and bound of node ``k`` in submap ``sm`` around the current estimate, then
-        Gauss-Newton on the full scan; the pose in the submap frame and the search score."""
-        from probmap.slam.laser.loop_closure import branch_and_bound_search
-
-        cfg = self.config
-        if self._node_points[k].shape[0] < 10:  # a blind scan (a consensus check may pick one)
-            return None
-        fld, grids = self._grids(sm)
-        self.searched += 1
-        guess = between(self.graph.pose(sm.anchor), xk)
-        found = branch_and_bound_search(
-            grids,
-            self._node_points[k],
-            guess,
-            linear_window=lin,
-            angular_window=ang,
-            min_score=min_score,
-        )
-        if found is None:
-            return None
-        full = self._full_points(k)
-        m = cfg.matcher
-        pose, _, _ = refine(fld, full, found.pose, m.iterations, (m.linear_step, m.angular_step))
-        score, _, _ = normal_equations(fld, full, pose)
-        if score / max(full.shape[0], 1) < cfg.min_match_score:
-            return None
-        return pose, float(found.score)
-
-    def _confirm(
-        self,
-        k: int,
-        sm: Submap,
-        pose: NDArray,
-        score: float,
-        delta: NDArray[np.float64],
-        min_score: float,
-    ) -> None:
-        """Accept a far closure when earlier nodes confirm it: each is moved by the same
-        correction ``delta`` and searched in ``sm`` (and its neighbours) within the small
-        ``consensus`` window; every one that matches there at ``min_score`` (the threshold
-        the closure itself passed) is added too. Without ``consensus_checks`` confirmations
-        the closure is dropped."""
-        cfg = self.config
-        poses = self.graph.poses
-        step = max(1, cfg.consensus_nodes // max(cfg.consensus_checks, 1))
-        confirmed: list[tuple[int, Submap, NDArray, float]] = []
-        for n in range(1, cfg.consensus_checks + 1):
-            j = k - n * step
-            if j < 0:
-                break
-            moved = compose(delta, poses[j])
-            for cand in (sm, *self._neighbours(sm)):
-                guess = between(poses[cand.anchor], moved)
-                found = self._match_submap(
-                    j, cand, moved, cfg.consensus[0], cfg.consensus[1], min_score
-                )
-                if found is None:
-                    continue
-                d = between(guess, found[0])
-                if math.hypot(d[0], d[1]) <= cfg.consensus[0] and abs(d[2]) <= cfg.consensus[1]:
-                    confirmed.append((j, cand, found[0], found[1]))
-                    break
-        if len(confirmed) < cfg.consensus_checks:
-            self.rejected += 1
-            return
-        # confirmed: the next optimization takes these closures quadratically, so that a
-        # large drift is corrected (a robust kernel would discount them by their size). A
-        # correction within a plausible drift (trust_drift) keeps them quadratic for good;
-        # a larger one is guarded by the robust cost again from the optimization after it on
-        implied = compose(poses[sm.anchor], pose)
-        shift = math.hypot(implied[0] - poses[k][0], implied[1] - poses[k][1])
-        rate = getattr(cfg, "trust_drift", 0.0)  # sessions saved before the setting: 0
-        trusted = rate > 0 and shift <= self._trust_bound(k, sm)
-        # an untrusted cluster does not shorten the submap graph's travel: if it is a wrong
-        # (aliased) match, a shortcut through it would make every later window and trust
-        # bound too small
-        added = [self._accept(k, sm, pose, score, True, link=trusted)]
-        for j, cand, pj, sj in confirmed:
-            added.append(self._accept(j, cand, pj, sj, True, link=trusted))
-        self.graph.set_robust(added, False)
-        if trusted:  # getattr / setdefault: sessions saved before trust_drift lack both
-            self.trusted = getattr(self, "trusted", 0) + len(added)
-            self.__dict__.setdefault("_trusted_edges", set()).update(added)
-        self._unguarded.extend(added)
-        self._pending_correction = True
-
-    def _trust_bound(self, k: int, sm: Submap) -> float:
-        """The largest correction (metres) of node ``k``'s estimate that a drift plausibly
-        explains since submap ``sm``: ``closure_window[0] + trust_drift * travel`` on the far
-        graph (sessions saved before ``trust_drift``: ``closure_window[0]``)."""
-        cfg = self.config
-        travel = float(self._submap_travel(k, far=True)[sm.index])
-        return cfg.closure_window[0] + getattr(cfg, "trust_drift", 0.0) * travel
-
-    def _neighbours(self, sm: Submap) -> list[Submap]:
-        """The finished submaps just before and after ``sm``."""
-        out = []
-        for i in (sm.index - 1, sm.index + 1):
-            if 0 <= i < len(self.submaps) and self.submaps[i].finished:
-                out.append(self.submaps[i])
-        return out
-
-    def _accept(
-        self, k: int, sm: Submap, pose: NDArray, score: float, far: bool, link: bool = True
-    ) -> int:
-        """Add the closure edge (robust) and, with ``link``, link the submaps it ties together
-        (the travel that sizes later search windows and the trust bound then runs through
-        it); returns the edge index."""
-        cfg = self.config
-        edge = self.graph.add_edge(sm.anchor, k, pose, self._closure_info, robust=True)
-        self._closure_edges.append(edge)
-        self.closures.append(
-            LoopClosure(
-                k, sm.index, sm.anchor, (float(pose[0]), float(pose[1]), float(pose[2])), score, far
-            )
-        )
-        for other in self.submaps[-2:] if link else ():
-            if k in other.nodes:
-                self._link(
-                    sm.index,
-                    other.index,
-                    self._travel[k] - self._travel[other.anchor],
-                    math.hypot(pose[0], pose[1]),
-                )
-        # optimize now only when the closure moves the estimate by a good part of the
-        # near window; smaller corrections wait for the next periodic optimization
-        implied = compose(self.graph.pose(sm.anchor), pose)
-        xk = self.graph.pose(k)
-        moved = math.hypot(implied[0] - xk[0], implied[1] - xk[1])
-        turned = abs(float(wrap_angle(implied[2] - xk[2])))
-        if moved > 0.5 * cfg.closure_window[0] or turned > 0.5 * cfg.closure_window[1]:
-            self._pending_correction = True
-        return edge
-
     def _full_points(self, k: int) -> NDArray[np.float64]:
-        m = self.config.matcher
+        """Node ``k``'s scan endpoints with the local matcher's usable range, sensor frame."""
+        m = self.config.local.matcher
         s = self.node_scan[k]
         return scan_points(
             self._ranges[s].astype(np.float64), self._angles[s], self.max_range, m.usable_range,
             m.beam_skip,
         )  # fmt: skip
+
+    # ------------------------------------------------------------------ closures (counts)
+    @property
+    def closures(self) -> list[LoopClosure]:
+        """Accepted loop closures, in acceptance order."""
+        return self.loops.closures
+
+    @property
+    def searched(self) -> int:
+        """Branch-and-bound searches run (near, far and consensus checks)."""
+        return self.loops.searched
+
+    @property
+    def search_seconds(self) -> float:
+        """Time spent searching and verifying closures, seconds."""
+        return self.loops.search_seconds
 
     # ------------------------------------------------------------------ back end
     def optimize(self, max_iterations: int | None = None) -> Any:
@@ -996,18 +695,13 @@ class SubmapSlam:
         if self.graph.num_edges == 0:
             return None
         t0 = time.perf_counter()
-        result = self.graph.optimize(max_iterations if not self._unguarded else 20)
-        if self._unguarded:
-            kept: set[int] = getattr(self, "_trusted_edges", set())
-            guard = [e for e in self._unguarded if e not in kept]
-            if guard:
-                self.graph.set_robust(guard, True)
-            self._unguarded = []
+        result = self.graph.optimize(max_iterations if not self.loops.unguarded else 20)
+        self.loops.reguard()
         self._weights = result.weights
         self.optimize_seconds += time.perf_counter() - t0
         self.optimizations += 1
         self._since_optimize = 0
-        self._pending_correction = False
+        self.loops.pending_correction = False
         return result
 
     def closure_weights(self) -> NDArray[np.float64]:
@@ -1015,14 +709,9 @@ class SubmapSlam:
         closure taken quadratically)."""
         w = np.ones(self.graph.num_edges)
         w[: len(self._weights)] = self._weights
-        return w[np.asarray(self._closure_edges, dtype=np.int64)]
+        return w[self.loops.edge_indices()]
 
     # ------------------------------------------------------------------ sessions
-    def __getstate__(self) -> dict[str, Any]:
-        state = self.__dict__.copy()
-        state["_cache"] = OrderedDict()  # match fields and max-grids: rebuilt on demand
-        return state
-
     @property
     def finished(self) -> bool:
         """Whether :meth:`finish` ended the run (no more scans; sessions are saved before)."""
@@ -1036,8 +725,8 @@ class SubmapSlam:
         if self._done:
             return
         if self.nodes > 1:
-            self.optimize(self.config.final_iterations)
-        self._cache.clear()
+            self.optimize(self.config.optimization.final_iterations)
+        self.loops.release()
         while self.active:
             self._retire_oldest()
         for sm in self.submaps:
@@ -1054,7 +743,7 @@ class SubmapSlam:
         trajectory has no jump at a node.
         """
         times = np.asarray(self.scan_times, dtype=np.float64)
-        if getattr(self.config, "match_every_scan", False):
+        if self.config.local.match_every_scan:
             chain = np.asarray(self.local, dtype=np.float64).reshape(-1, 3)
         else:  # the offsets are odometry increments: so is the chain from node to node
             odo = np.asarray(self.scan_odometry, dtype=np.float64).reshape(-1, 3)
@@ -1088,10 +777,10 @@ class SubmapSlam:
         endpoint, so it never grows (and copies) while scans are integrated.
         """
         cfg = self.config
-        usable = cfg.matcher.usable_range
-        clear = cfg.max_clear_range if max_clear_range is None else max_clear_range
+        usable = cfg.local.matcher.usable_range
+        clear = cfg.submaps.max_clear_range if max_clear_range is None else max_clear_range
         clear = min(clear, usable, self.max_range)
-        model = InverseSensorModel(cfg.p_hit, cfg.p_miss, max_clear_range=clear)
+        model = InverseSensorModel(cfg.submaps.p_hit, cfg.submaps.p_miss, max_clear_range=clear)
         _, poses = self.trajectory()
         lo = poses[:, :2].min(axis=0)
         hi = poses[:, :2].max(axis=0)
@@ -1113,8 +802,8 @@ class SubmapSlam:
                 hi = np.maximum(hi, [np.nanmax(ex), np.nanmax(ey)])
         from probmap.grid.spec import GridSpec
 
-        spec = GridSpec.around(cfg.resolution, lo[0], hi[0], lo[1], hi[1], margin=4)
-        grid = OccupancyGrid(cfg.resolution, model=model, spec=spec)
+        spec = GridSpec.around(cfg.submaps.resolution, lo[0], hi[0], lo[1], hi[1], margin=4)
+        grid = OccupancyGrid(cfg.submaps.resolution, model=model, spec=spec)
         for i, p in enumerate(poses):
             grid.integrate_scan(p, rows[i], self._angles[i], max_range=self.max_range)
         return grid  # laid out on the endpoints: cropping would only copy it
@@ -1128,8 +817,7 @@ class SubmapSlam:
     def memory_bytes(self) -> int:
         """Bytes held by submaps, cached grids and stored scans (approximate)."""
         n = sum(sm.nbytes for sm in self.submaps)
-        for fld, grids in self._cache.values():
-            n += fld.values.nbytes + int(getattr(grids, "nbytes", 0))
+        n += self.loops.cache_bytes()
         n += sum(r.nbytes for r in self._ranges)
         return n
 

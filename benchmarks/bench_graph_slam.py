@@ -178,7 +178,7 @@ def closure_precision(run: Any, mount: np.ndarray, rel: Any) -> dict[str, float]
 def worker_graph(key: str, data: Path, end_time: float | None) -> dict[str, Any]:
     from probmap.geometry.se2 import between
     from probmap.metrics.relations import read_relations
-    from probmap.pipelines.laser_slam import load_laser_log, run_graph_slam
+    from probmap.pipelines.laser_slam import load_laser_log, run_submap_slam
 
     _, log_rel, rel_rel = LOGS[key]
     path = data / log_rel
@@ -199,8 +199,8 @@ def worker_graph(key: str, data: Path, end_time: float | None) -> dict[str, Any]
         if m:
             note = f"{m.group(1)} scan(s) past the tf buffer dropped"
     read_s = time.perf_counter() - t0
-    run_graph_slam(_head(batch, 150))  # warm the compiled kernels outside the timed run
-    run = run_graph_slam(batch)
+    run_submap_slam(_head(batch, 150))  # warm the compiled kernels outside the timed run
+    run = run_submap_slam(batch)
     rel = _within(read_relations(data / rel_rel), np.asarray(run.times))
     laser = np.asarray(batch.laser_poses, float)
     robot = np.asarray(batch.robot_poses, float)
@@ -234,10 +234,10 @@ def worker_graph(key: str, data: Path, end_time: float | None) -> dict[str, Any]
 def worker_warm(data: Path, end_time: float | None) -> dict[str, Any]:
     """Compile (or load) every kernel graph SLAM and the RBPF use, on the first ``end_time``
     seconds of the hospital log (the 180/181-beam log exercises both scan widths)."""
-    from probmap.pipelines.laser_slam import load_laser_log, run_graph_slam
+    from probmap.pipelines.laser_slam import load_laser_log, run_submap_slam
 
     batch = load_laser_log(data / LOGS["clinic"][1], end_time=end_time)
-    run_graph_slam(batch)
+    run_submap_slam(batch)
     return {"peak_mib": _peak_mib()}
 
 

@@ -1,7 +1,7 @@
 """How graph SLAM's one default configuration holds up when the data is not what it was built on
 (issue 18: "build for data you have not seen").
 
-Each row runs ``run_graph_slam`` with the default ``SubmapSlamConfig`` on a perturbed copy of a
+Each row runs ``run_submap_slam`` with the default ``SubmapSlamConfig`` on a perturbed copy of a
 real log and scores it with the log's relations (Kuemmerle et al. 2009), the same metric as
 ``bench_graph_slam.py``. The perturbations stand for the ways another robot's log differs:
 
@@ -131,13 +131,13 @@ def perturb(batch: Any, case: str, seed: int = 0) -> Any:
 def worker(data: Path, log: str, case: str, settings: list[str]) -> dict[str, Any]:
     from graph_slam_diagnose import configure
     from probmap.metrics.relations import read_relations, relation_errors
-    from probmap.pipelines.laser_slam import load_laser_log, run_graph_slam
+    from probmap.pipelines.laser_slam import load_laser_log, run_submap_slam
 
     log_rel, rel_rel = LOGS[log]
     batch = perturb(load_laser_log(data / log_rel), case)
     config = configure(settings)
     t0 = time.perf_counter()
-    run = run_graph_slam(batch, config)
+    run = run_submap_slam(batch, config)
     wall = time.perf_counter() - t0
     rel = read_relations(data / rel_rel)
     e = relation_errors(np.asarray(run.times), np.asarray(run.poses), rel)

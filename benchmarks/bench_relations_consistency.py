@@ -145,7 +145,7 @@ def main() -> None:
     ap.add_argument("--margin", type=float, default=0.01)
     args = ap.parse_args()
     from probmap.metrics.relations import read_relations, read_trajectory
-    from probmap.pipelines.laser_slam import load_laser_log, run_graph_slam
+    from probmap.pipelines.laser_slam import load_laser_log, run_submap_slam
 
     data = Path(os.environ.get("PROBMAP_DATA", "../shared/data"))
     given = dict(t.split("=", 1) for t in args.trajectory)
@@ -159,7 +159,7 @@ def main() -> None:
             source = given[key]
         else:
             t0 = time.perf_counter()
-            run = run_graph_slam(batch)
+            run = run_submap_slam(batch)
             times, robot = run.times, run.poses
             source = f"graph SLAM, defaults ({time.perf_counter() - t0:.0f} s)"
         results[key] = (source, check(batch, np.asarray(times), np.asarray(robot), rel, args))

@@ -1,6 +1,6 @@
 """Where graph SLAM's relation error comes from, on one log (issue 18's hospital seam).
 
-Runs ``run_graph_slam`` (the default ``SubmapSlamConfig`` unless ``--set`` changes a field) and
+Runs ``run_submap_slam`` (the default ``SubmapSlamConfig`` unless ``--set`` changes a field) and
 splits the relation error (Kuemmerle et al. 2009) of the estimate and of raw odometry into
 
 - *local* relations, whose two times lie less than ``--local-seconds`` apart (the shape of the
@@ -104,7 +104,7 @@ def main() -> None:
     ap.add_argument("--local-seconds", type=float, default=60.0)
     args = ap.parse_args()
     from probmap.metrics.relations import read_relations
-    from probmap.pipelines.laser_slam import load_laser_log, run_graph_slam
+    from probmap.pipelines.laser_slam import load_laser_log, run_submap_slam
 
     data = Path(os.environ.get("PROBMAP_DATA", "../shared/data"))
     log, relf = LOGS[args.log]
@@ -112,7 +112,7 @@ def main() -> None:
     rel = read_relations(data / relf)
     cfg = configure(args.set)
     t0 = time.perf_counter()
-    run = run_graph_slam(batch, cfg)
+    run = run_submap_slam(batch, cfg)
     secs = time.perf_counter() - t0
     rows = {
         "graph SLAM": split(run.times, run.poses, rel, args.local_seconds),

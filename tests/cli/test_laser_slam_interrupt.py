@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 
 from probmap.cli import register
 from probmap.cli.app import app
-from probmap.pipelines.laser_slam import load_laser_log, run_graph_slam
+from probmap.pipelines.laser_slam import load_laser_log, run_submap_slam
 from probmap.pipelines.sessions import load_session
 
 register(app)
@@ -24,7 +24,7 @@ def test_stopped_run_equals_the_run_over_the_scans_it_got_to(tmp_path, sim_log):
         asked[0] += 1
         return asked[0] > 60  # asked before scans 2, 3, ...: stops before scan 62
 
-    run = run_graph_slam(batch, stop=stop)
+    run = run_submap_slam(batch, stop=stop)
     k = len(run.times)
     assert run.interrupted and k == 62 and run.scans_total == len(batch.times)
     assert run.poses.shape == (k, 3) and run.grid.observed.any()
@@ -36,7 +36,7 @@ def test_stopped_run_equals_the_run_over_the_scans_it_got_to(tmp_path, sim_log):
         angles=batch.angles if np.ndim(batch.angles) == 1 else batch.angles[:k],
         beams=batch.beams[:k],
     )  # fmt: skip
-    whole = run_graph_slam(first)
+    whole = run_submap_slam(first)
     assert not whole.interrupted
     np.testing.assert_array_equal(run.sensor_poses, whole.sensor_poses)
     np.testing.assert_array_equal(run.grid.log_odds, whole.grid.log_odds)
@@ -82,7 +82,7 @@ def test_without_save_partial_ctrl_c_writes_nothing(tmp_path, sim_log, monkeypat
 
 
 def test_resumed_pipeline_run_equals_the_whole_run(tmp_path, sim_log):
-    """run_graph_slam on the first half with save_session, then on the second half with
+    """run_submap_slam on the first half with save_session, then on the second half with
     resume: the same trajectory and map as one run, covering every scan."""
     from dataclasses import replace
 
@@ -98,10 +98,10 @@ def test_resumed_pipeline_run_equals_the_whole_run(tmp_path, sim_log):
             beams=batch.beams[lo:hi],
         )  # fmt: skip
 
-    whole = run_graph_slam(batch)
-    first = run_graph_slam(part(0, h), save_session=tmp_path / "s.session")
+    whole = run_submap_slam(batch)
+    first = run_submap_slam(part(0, h), save_session=tmp_path / "s.session")
     assert len(first.times) == h
-    second = run_graph_slam(part(h, n), resume=load_session(tmp_path / "s.session"))
+    second = run_submap_slam(part(h, n), resume=load_session(tmp_path / "s.session"))
     assert len(second.times) == n and second.scans_total == n and not second.interrupted
     np.testing.assert_array_equal(second.times, whole.times)
     np.testing.assert_array_equal(second.poses, whole.poses)

@@ -63,13 +63,13 @@ def last_value(path, entity: str, component: str):
 
 def test_localize_in_a_session_with_a_recording(tmp_path):
     pytest.importorskip("rerun")
-    from probmap.pipelines.laser_slam import load_laser_log, run_graph_slam
+    from probmap.pipelines.laser_slam import load_laser_log, run_submap_slam
     from probmap.viz.live import read_recording
 
     log = write_log(tmp_path / "tour.log")
     session = tmp_path / "tour.session"  # what slam grid --save-session writes
     # the session covers the first 90 of the log's 120 scans; the localization all of them
-    run_graph_slam(load_laser_log(log, end_time=17.9), save_session=session)
+    run_submap_slam(load_laser_log(log, end_time=17.9), save_session=session)
     out, rrd = tmp_path / "loc", tmp_path / "rec" / "loc.rrd"
     res = run("localize", log, "--map", session, "-o", out, "-n", "300", "--viz-save", rrd)
     assert res.exit_code == 0, res.output

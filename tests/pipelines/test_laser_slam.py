@@ -17,7 +17,7 @@ import pytest
 from probmap.datasets.protocol import DatasetError
 from probmap.geometry.se2 import between, compose, wrap_angle
 from probmap.metrics.relations import Relations, read_relations, relation_errors
-from probmap.pipelines.laser_slam import load_laser_log, run_graph_slam, slam_log, write_trajectory
+from probmap.pipelines.laser_slam import load_laser_log, run_submap_slam, slam_log, write_trajectory
 from probmap.slam.laser.rbpf import RbpfConfig
 
 INTEL = "intel-research-lab/intel.clf.bz2"
@@ -65,7 +65,7 @@ def intel():
 
     batch = load_laser_log(need(INTEL), end_time=SEGMENT)
     rel = _within(read_relations(need(INTEL_REL)), np.asarray(batch.times))
-    return batch, rel, run_graph_slam(batch)
+    return batch, rel, run_submap_slam(batch)
 
 
 @pytest.fixture(scope="module")
@@ -138,7 +138,7 @@ def test_intel_bag_runs_graph_slam_and_beats_odometry(intel, intel_bag):
     (BENCHMARKS.md)."""
     _, rel, _ = intel
     bag = intel_bag
-    run = run_graph_slam(bag)
+    run = run_submap_slam(bag)
     slam_t, slam_r = _errors(run.times, run.poses, rel)
     odo_t, _ = _errors(bag.times, bag.robot_poses, rel)
     assert slam_t < 0.2 and odo_t > 0.5 and slam_t < odo_t / 7
@@ -178,7 +178,7 @@ def test_hospital_mixed_beams_and_mounted_laser(shared_data):
     mount = between(np.asarray(batch.robot_poses, float), np.asarray(batch.laser_poses, float))
     np.testing.assert_allclose(mount, np.tile([0.22, 0.0, 0.0], (len(beams), 1)), atol=1e-5)
 
-    run = run_graph_slam(batch)
+    run = run_submap_slam(batch)
     assert np.isfinite(run.poses).all() and run.nodes > 100 and run.submaps > 5
     # the robot trajectory is the laser trajectory moved back by the mount
     back = compose(run.poses, [0.22, 0.0, 0.0])

@@ -22,13 +22,13 @@ def intel_session(tmp_path_factory):
     """A session of the first 70 s of the raw Intel log (about 360 scans, 1 s of SLAM), and
     those scans (a raw log's poses are the odometry; Intel's laser sits at the robot's centre)."""
     from conftest import _need as need
-    from probmap.pipelines.laser_slam import load_laser_log, run_graph_slam
+    from probmap.pipelines.laser_slam import load_laser_log, run_submap_slam
 
     path = need("intel-research-lab/intel.clf.bz2")
     session = tmp_path_factory.mktemp("session") / "intel.session"
     scans = load_laser_log(path, end_time=70.0)
     assert np.array_equal(scans.robot_poses, scans.laser_poses)
-    run = run_graph_slam(scans, save_session=session)
+    run = run_submap_slam(scans, save_session=session)
     return session, run, scans
 
 

@@ -12,7 +12,7 @@ import pytest
 pytest.importorskip("rerun")
 
 from probmap.datasets.carmen import load_scans  # noqa: E402
-from probmap.pipelines.laser_slam import load_laser_log, run_graph_slam  # noqa: E402
+from probmap.pipelines.laser_slam import load_laser_log, run_submap_slam  # noqa: E402
 from probmap.viz.live import GraphSlamObserver, LiveView, _ellipse, read_recording  # noqa: E402
 
 
@@ -105,8 +105,8 @@ def test_graph_slam_recording_shows_the_run(tmp_path, sim_log):
     rrd = tmp_path / "slam.rrd"
     with LiveView("probmap test", save=rrd) as view:
         observer = GraphSlamObserver(view, every=3)
-        run = run_graph_slam(batch, observer=observer)
-    plain = run_graph_slam(batch)  # watching does not change the result
+        run = run_submap_slam(batch, observer=observer)
+    plain = run_submap_slam(batch)  # watching does not change the result
     np.testing.assert_array_equal(run.sensor_poses, plain.sensor_poses)
     counts = read_recording(rrd)
     finished = [sm.index for sm in run.slam.submaps if sm.finished]

@@ -116,153 +116,130 @@ def grid_command(
             "seed": seed,
             "degeneracy_guard": guard,
         }
-        if method == "graph":
-            _graph(
-                log, prefix, end_time, bag_options, config, skip_bad_lines=skip_bad_lines,
-                viz=viz, viz_save=viz_save, save_partial=save_partial, tum=tum,
-                save_session=save_session, resume=resume, watch=watch,
-            )  # fmt: skip
-        else:
-            if viz or viz_save is not None:
-                raise ValueError("--viz and --viz-save watch the graph method (--method graph)")
-            if save_session is not None or resume is not None:
-                raise ValueError("--save-session and --resume are for the graph method")
-            _rbpf(
-                log, prefix, rbpf_options, end_time, config, skip_bad_lines=skip_bad_lines,
-                bag_options=bag_options,
-                tum=tum, watch=watch,
-            )  # fmt: skip
+        if method == "rbpf" and (viz or viz_save is not None):
+            raise ValueError("--viz and --viz-save watch the graph method (--method graph)")
+        if method == "rbpf" and (save_session is not None or resume is not None):
+            raise ValueError("--save-session and --resume are for the graph method")
+        _slam_grid(
+            log, prefix, method, rbpf_options, end_time, bag_options, config,
+            skip_bad_lines=skip_bad_lines, viz=viz, viz_save=viz_save,
+            save_partial=save_partial, tum=tum, save_session=save_session, resume=resume,
+            watch=watch,
+        )  # fmt: skip
 
 
-def _graph(
+def _slam_grid(
     log: Path,
-    output: Path,
+    prefix: Path,
+    method: str,
+    rbpf_options: dict[str, Any],
     end_time: float | None,
     bag_options: dict,
     config: Path | None,
     *,
-    skip_bad_lines: bool = False,
-    viz: bool = False,
-    viz_save: Path | None = None,
-    save_partial: bool = True,
-    tum: bool = False,
-    save_session: Path | None = None,
-    resume: Path | None = None,
-    watch: Any = None,
+    skip_bad_lines: bool,
+    viz: bool,
+    viz_save: Path | None,
+    save_partial: bool,
+    tum: bool,
+    save_session: Path | None,
+    resume: Path | None,
+    watch: Any,
 ) -> None:
-    import os
-    import resource
-    import shutil
-    import tempfile
+    """Resolve the configuration, set up the progress bar, live view and Ctrl-C handling,
+    call :func:`probmap.pipelines.laser_slam.slam_grid` and print its summary."""
     import warnings
+    from contextlib import nullcontext
 
-    from probmap._atomic import atomic_outputs
-    from probmap.cli.common import Stopwatch, progress_bar
-    from probmap.config import write_config
-    from probmap.pipelines import check_output_prefix
-    from probmap.pipelines.laser_slam import (
-        SESSION_NAME,
-        load_laser_log,
-        run_graph_slam,
-        write_graph_slam,
-    )
-    from probmap.slam.laser.submap_slam import SubmapSlamConfig
-
-    # a folder names its default file, as -o does (issue 20's output rule)
-    if save_session is not None and save_session.is_dir():
-        save_session = save_session / SESSION_NAME
-    if resume is not None and resume.is_dir():
-        resume = resume / SESSION_NAME
-    session = None
-    if resume is not None:
-        from probmap.pipelines.sessions import load_session
-
-        if config is not None:
-            raise ValueError("--resume continues with the session's own configuration; no --config")
-        session = load_session(resume)
-        cfg = session.config
-    else:
-        cfg = resolve_config(SubmapSlamConfig, config)
-    prefix = check_output_prefix(output)
-    if save_session is not None:
-        from probmap.pipelines import check_output_folder
-
-        check_output_folder(save_session.parent if str(save_session.parent) else Path("."))
-    from probmap.cli.common import note_first_compile
+    from probmap.cli.common import note_first_compile, progress_bar
     from probmap.errors import BadLinesWarning
+    from probmap.pipelines.laser_slam import SESSION_NAME, slam_grid
 
-    note_first_compile(
-        "probmap.slam.laser._match_kernels",
-        "probmap.slam.laser._bnb_kernels",
-        "probmap.slam.posegraph._kernels",
-    )
+    session = None
+    if method == "graph":
+        from probmap.slam.laser.submap_slam import SubmapSlamConfig
+
+        # a folder names its default file, as -o does (issue 20's output rule)
+        if save_session is not None and save_session.is_dir():
+            save_session = save_session / SESSION_NAME
+        if resume is not None and resume.is_dir():
+            resume = resume / SESSION_NAME
+        if resume is not None:
+            from probmap.pipelines.sessions import load_session
+
+            if config is not None:
+                raise ValueError(
+                    "--resume continues with the session's own configuration; no --config"
+                )
+            session = load_session(resume)
+            cfg: Any = None
+        else:
+            cfg = resolve_config(SubmapSlamConfig, config)
+        if save_session is not None:
+            from probmap.pipelines import check_output_folder
+
+            check_output_folder(save_session.parent if str(save_session.parent) else Path("."))
+        note_first_compile(
+            "probmap.slam.laser._match_kernels",
+            "probmap.slam.laser._bnb_kernels",
+            "probmap.slam.posegraph._kernels",
+        )
+    else:
+        from probmap.slam.laser.rbpf import RbpfConfig
+
+        cfg = resolve_config(RbpfConfig, config, rbpf_options)
     observer = None
     view = open_view(f"probmap slam grid {log.name}", viz, viz_save)
     if view is not None:
         from probmap.viz.live import GraphSlamObserver
 
         observer = GraphSlamObserver(view)
-
-    watch = watch if watch is not None else Stopwatch()
-    with warnings.catch_warnings():
+    title = "graph SLAM" if method == "graph" else "grid SLAM"
+    with (
+        progress_bar(f"{title} {log.name}", unit="scans") as bar,
+        warnings.catch_warnings(record=method == "rbpf") as caught,
+    ):
+        if method == "rbpf":
+            warnings.simplefilter("always")
         # the summary reports skipped lines; no Python warning text on the terminal
         warnings.simplefilter("ignore", BadLinesWarning)
-        with watch("read"):
-            batch = load_laser_log(
-                log, end_time=end_time, bag_options=bag_options, skip_bad_lines=skip_bad_lines
-            )
-    with watch("compute"), progress_bar(f"graph SLAM {log.name}", unit="scans") as bar:
-        task = bar.add_task(log.name, total=len(batch.times))
+        task = bar.add_task(log.name, total=0)
 
         def tick(done: int, total: int) -> None:
             bar.update(task, completed=done, total=total)
 
-        # the session is saved before the map is built, into a temporary file; it joins the
-        # other outputs (all or none) below
-        part = None
-        if save_session is not None:
-            fd, name = tempfile.mkstemp(suffix=".session")
-            os.close(fd)
-            part = Path(name)
+        stopping = stop_on_ctrl_c(save_partial, unit="scan") if method == "graph" else nullcontext()
         try:
-            with stop_on_ctrl_c(save_partial, unit="scan") as stop:
-                run = run_graph_slam(
-                    batch, None if session is not None else cfg, progress=tick,
-                    observer=observer, stop=stop, resume=session, save_session=part,
+            with stopping as stop:
+                out = slam_grid(
+                    log, prefix, cfg, end_time=end_time, bag_options=bag_options,
+                    skip_bad_lines=skip_bad_lines, resume=session, save_session=save_session,
+                    tum=tum, command=command_line(), title=log.name, progress=tick,
+                    observer=observer, stop=stop, phase=watch,
                 )  # fmt: skip
         except BaseException:
             if observer is not None:
                 observer.view.close(keep=False)
-            if part is not None:
-                part.unlink(missing_ok=True)
             raise
         if observer is not None:
             observer.view.close()
-    try:
-        with watch("write"), atomic_outputs():  # every file or none
-            files = write_graph_slam(prefix, run)
-            files.append(write_config(f"{prefix}.config.yaml", cfg, command=command_line()))
-            if save_session is not None and part is not None:
-                from probmap._atomic import atomic_write
+    for w in caught or ():
+        typer.echo(f"warning: {w.message}", err=True)
+    if method == "graph":
+        _graph_summary(out, watch, resume, viz_save)
+    else:
+        _rbpf_summary(out, watch, cfg.particles)
 
-                with open(part, "rb") as src, atomic_write(save_session, "wb") as dst:
-                    shutil.copyfileobj(src, dst)
-                files.append(save_session)
-            if tum:
-                from probmap.datasets.tum import write_tum
 
-                files.append(write_tum(f"{prefix}.tum", run.times, run.poses))
-    finally:
-        if part is not None:
-            part.unlink(missing_ok=True)
+def _graph_summary(out: Any, watch: Any, resume: Path | None, viz_save: Path | None) -> None:
+    run = out.run
     spec = run.grid.spec
     weights = run.closure_weights
-    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
     rows = [
         ("scans", f"{len(run.times):,}"),
-        *input_rows(batch.readings, batch.skipped_lines),
+        *input_rows(out.readings, out.skipped_lines),
         *(
-            [("resumed", f"{resume}: {run.scans_total - len(batch.times):,} scans before this log")]
+            [("resumed", f"{resume}: {run.scans_total - out.scans_read:,} scans before this log")]
             if resume is not None
             else []
         ),
@@ -276,9 +253,9 @@ def _graph(
         ("map", f"{spec.width} x {spec.height} cells at {spec.resolution:g} m"),
         ("optimization", f"{run.optimize_seconds:.1f} s"),
         _time_row(watch, run.duration, run.seconds),
-        ("peak memory", f"{rss:.0f} MiB"),
+        ("peak memory", f"{out.peak_rss_mib:.0f} MiB"),
     ]
-    rows += [("wrote", str(f)) for f in files]
+    rows += [("wrote", str(f)) for f in out.files]
     if viz_save is not None:
         rows.append(("recorded", f"{viz_save} (rerun {viz_save})"))
     if run.interrupted:
@@ -302,94 +279,20 @@ def _time_row(watch: Any, duration: float, seconds: float) -> tuple[str, str]:
     return name, f"{value} (the log has no timestamps: no real-time factor)"
 
 
-def _rbpf(
-    log: Path,
-    output: Path,
-    options: dict,
-    end_time: float | None,
-    config: Path | None,
-    *,
-    skip_bad_lines: bool = False,
-    bag_options: dict | None = None,
-    tum: bool = False,
-    watch: Any = None,
-) -> None:
-    import time
-    import warnings
-
-    from probmap._atomic import atomic_outputs
-    from probmap.cli.common import Stopwatch, progress_bar
-    from probmap.config import write_config
-    from probmap.grid.io import save_map
-    from probmap.pipelines import check_output_prefix
-    from probmap.pipelines.laser_slam import slam_log, write_trajectory
-    from probmap.slam.laser.rbpf import RbpfConfig
-
-    watch = watch if watch is not None else Stopwatch()
-    cfg = resolve_config(RbpfConfig, config, options)
-    prefix = check_output_prefix(output)
-    t0 = time.perf_counter()
-    with (
-        progress_bar(f"grid SLAM {log.name}", unit="scans") as bar,
-        warnings.catch_warnings(record=True) as caught,
-    ):
-        warnings.simplefilter("always")
-        task = bar.add_task(log.name, total=0)
-        reports: list = []
-        read_end: list[float] = []
-
-        def tick(done: int, total: int) -> None:
-            bar.update(task, completed=done, total=total)
-
-        def read(report: Any) -> None:  # called once the log is read, before the SLAM
-            read_end.append(time.perf_counter())
-            reports.append(report)
-
-        result = slam_log(
-            log,
-            cfg,
-            end_time=end_time,
-            progress=tick,
-            skip_bad_lines=skip_bad_lines,
-            readings=read,
-            bag_options=bag_options,
-        )
-    t1 = time.perf_counter()
-    t_read = read_end[0] if read_end else t1 - result.seconds
-    watch.phases["read"] = watch.phases.get("read", 0.0) + t_read - t0
-    watch.phases["compute"] = watch.phases.get("compute", 0.0) + t1 - t_read
-    from probmap.errors import BadLinesWarning
-
-    for w in caught:
-        if not issubclass(w.category, BadLinesWarning):  # counted in the summary
-            typer.echo(f"warning: {w.message}", err=True)
-    with watch("write"), atomic_outputs():  # every file or none; a missing folder is created
-        files = save_map(prefix, result.grid)
-        traj = write_trajectory(f"{prefix}.trajectory.csv", result.times, result.poses)
-        written = write_config(f"{prefix}.config.yaml", cfg, command=command_line())
-        from probmap.viz.maps import save_map_figure
-
-        extra: list[Path] = [
-            save_map_figure(
-                f"{prefix}.plot.png", result.grid, trajectory=result.poses, title=log.name
-            )
-        ]
-        if tum:
-            from probmap.datasets.tum import write_tum
-
-            extra.append(write_tum(f"{prefix}.tum", result.times, result.poses))
+def _rbpf_summary(out: Any, watch: Any, particles: int) -> None:
+    result = out.run
     duration = float(result.times[-1] - result.times[0])
     spec = result.grid.spec
     rows = [
         ("scans", f"{len(result.times):,} ({result.processed:,} processed)"),
-        *input_rows(reports[0] if reports else None),
-        ("particles", f"{cfg.particles} ({result.resamples} resamplings)"),
+        *input_rows(out.readings),
+        ("particles", f"{particles} ({result.resamples} resamplings)"),
         ("failed matches", f"{result.failed_matches:,}"),
         ("map", f"{spec.width} x {spec.height} cells at {spec.resolution:g} m"),
         ("map tiles", f"{result.map_bytes / 2**20:.1f} MiB (peak)"),
         _time_row(watch, duration, result.seconds),
     ]
-    rows += [("wrote", str(f)) for f in [*files, traj, written, *extra]]
+    rows += [("wrote", str(f)) for f in out.files]
     print_summary("grid SLAM (rbpf)", rows)
 
 

@@ -1,8 +1,13 @@
-"""Grid SLAM from a raw laser log or a ROS bag, end to end: read, run graph SLAM (or the RBPF),
-write the map files, the trajectory, the pose graph and a picture.
+"""Laser SLAM from a raw laser log or a ROS bag, end to end: read the scans, run submap graph
+SLAM (:mod:`probmap.slam.laser.submap_slam`) or the RBPF (:mod:`probmap.slam.laser.rbpf`), write
+the map files, the trajectory, the pose graph, a picture, the configuration and a session.
 
-The core (:mod:`probmap.slam.laser.submap_slam`) never reads or writes files; this module does, and the
-CLI (``probmap slam grid``) only parses options and prints what it returns.
+Both methods meet this module at one seam: a :class:`~probmap.datasets.records.ScanBatch` (from
+:func:`load_laser_log`) and their configuration (:class:`~probmap.slam.laser.submap_slam.
+SubmapSlamConfig` or :class:`~probmap.slam.laser.rbpf.RbpfConfig`); :func:`run_laser_slam` runs
+the one the configuration names, :func:`slam_grid` does the whole command. The algorithms never
+read or write files; this module does, and the CLI (``probmap slam grid``) only parses options,
+calls :func:`slam_grid` and prints what it returns.
 """
 
 from __future__ import annotations
@@ -10,9 +15,10 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal, overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -21,18 +27,28 @@ from probmap._atomic import atomic_outputs, atomic_write
 from probmap.grid.occupancy import OccupancyGrid
 
 if TYPE_CHECKING:
+    from probmap.datasets.records import ScanBatch
+    from probmap.datasets.validate import ReadingReport
     from probmap.slam.laser.rbpf import RbpfConfig, RbpfResult
+    from probmap.slam.laser.submap_slam import SubmapSlam, SubmapSlamConfig
 
 __all__ = [
     "SESSION_NAME",
+    "LaserSlamOutput",
     "SubmapSlamRun",
     "load_laser_log",
-    "run_graph_slam",
-    "slam_graph_log",
+    "run_laser_slam",
+    "run_rbpf_slam",
+    "run_submap_slam",
+    "slam_grid",
     "slam_log",
-    "write_graph_slam",
+    "write_rbpf_slam",
+    "write_submap_slam",
     "write_trajectory",
 ]
+
+#: A laser SLAM method, as ``probmap slam grid --method`` names it.
+Method = Literal["graph", "rbpf"]
 
 #: The session file's name inside a folder given where a session path is asked for
 #: (``slam grid --save-session/--resume FOLDER``, ``localize --map FOLDER``), as ``-o FOLDER``
@@ -71,8 +87,8 @@ class SubmapSlamRun:
         Log duration (seconds), for the real-time factor.
     memory_bytes : int
         Largest memory held by submaps, cached closure grids and stored scans.
-    slam : object
-        The :class:`~probmap.slam.laser.submap_slam.SubmapSlam` (its pose graph is written as g2o).
+    slam : SubmapSlam
+        The run (its pose graph is written as g2o).
     scans_total : int
         Scans in the input; more than ``len(times)`` when the run was stopped early
         (``stop``): everything above then describes the scans it got to.
@@ -93,7 +109,7 @@ class SubmapSlamRun:
     seconds: float
     duration: float
     memory_bytes: int
-    slam: Any
+    slam: SubmapSlam
     scans_total: int = -1
 
     @property
@@ -115,27 +131,32 @@ class SubmapSlamRun:
 def load_laser_log(
     path: str | os.PathLike[str],
     *,
+    method: Method = "graph",
     end_time: float | None = None,
     bag_options: dict[str, Any] | None = None,
     skip_bad_lines: bool = False,
-) -> Any:
-    """The scans graph SLAM runs on: :func:`probmap.datasets.open_scans` (a raw CARMEN log, a
-    ROS 1/2 bag or a registry name; float32 ranges) and the checks graph SLAM needs.
+) -> ScanBatch:
+    """The scans a laser SLAM method runs on: :func:`probmap.datasets.open_scans` (a raw CARMEN
+    log, a ROS 1/2 bag or a registry name; float32 ranges) and the checks the method needs.
 
-    ``laser_poses`` are the laser's odometry poses (the laser pose fields of a raw CARMEN log;
-    a bag's scans posed through tf in the odometry frame, topics and frames guessed as
-    ``probmap map`` does) and ``robot_poses`` the robot's. ``end_time`` keeps the first
-    ``end_time`` seconds.
+    ``robot_poses`` are the robot's odometry poses. ``laser_poses`` are the laser's: for the
+    graph method the laser pose fields of a raw CARMEN log (a bag's scans posed through tf in
+    the odometry frame, topics and frames guessed as ``probmap map`` does), for the RBPF the
+    robot's odometry composed with the log's laser offset (the filter composes the first
+    scan's mounting offset itself). ``end_time`` keeps the first ``end_time`` seconds.
 
     Raises
     ------
     DatasetError
         Unreadable or malformed input (naming the file and line), or no usable reading.
     ValueError
-        A log without odometry (every pose the same) or with fewer than two scans.
+        For the graph method: a log without odometry (every pose the same) or with fewer than
+        two scans (the RBPF matches scans alone then, with a warning).
     """
-    batch = _open_laser_scans(path, "corrected", end_time, bag_options, skip_bad_lines)
-    _require_odometry(path, batch)
+    poses = "corrected" if method == "graph" else "odometry"
+    batch = _open_laser_scans(path, poses, end_time, bag_options, skip_bad_lines)
+    if method == "graph":
+        _require_odometry(path, batch)
     return batch
 
 
@@ -145,7 +166,7 @@ def _open_laser_scans(
     end_time: float | None,
     bag_options: dict[str, Any] | None,
     skip_bad_lines: bool,
-) -> Any:
+) -> ScanBatch:
     """:func:`probmap.datasets.open_scans` as both grid SLAMs read a log: float32 ranges, the
     scans posed as ``poses`` says (``"corrected"`` or ``"odometry"``)."""
     from probmap.datasets.scans import open_scans
@@ -160,7 +181,7 @@ def _open_laser_scans(
     )
 
 
-def _require_odometry(path: object, batch: Any) -> None:
+def _require_odometry(path: object, batch: ScanBatch) -> None:
     """Refuse what no grid SLAM can run on: fewer than two scans, or no odometry."""
     if len(batch.times) < 2:
         raise ValueError(f"{path}: grid SLAM needs at least 2 scans, found {len(batch.times)}")
@@ -174,14 +195,14 @@ def _require_odometry(path: object, batch: Any) -> None:
         )
 
 
-def run_graph_slam(
-    batch: Any,
-    config: Any = None,
+def run_submap_slam(
+    batch: ScanBatch,
+    config: SubmapSlamConfig | None = None,
     *,
     progress: Callable[[int, int], None] | None = None,
-    observer: Any = None,
+    observer: Callable[..., Any] | None = None,
     stop: Callable[[], bool] | None = None,
-    resume: Any = None,
+    resume: SubmapSlam | None = None,
     save_session: str | os.PathLike[str] | None = None,
 ) -> SubmapSlamRun:
     """Run :class:`~probmap.slam.laser.submap_slam.SubmapSlam` over a scan batch (see
@@ -283,54 +304,111 @@ def run_graph_slam(
     return run
 
 
-def slam_graph_log(
-    path: str | os.PathLike[str],
-    config: Any = None,
-    *,
-    end_time: float | None = None,
-    progress: Callable[[int, int], None] | None = None,
-    bag_options: dict[str, Any] | None = None,
-) -> SubmapSlamRun:
-    """:func:`load_laser_log` then :func:`run_graph_slam`."""
-    batch = load_laser_log(path, end_time=end_time, bag_options=bag_options)
-    return run_graph_slam(batch, config, progress=progress)
-
-
-def slam_log(
-    path: str | os.PathLike[str],
+def run_rbpf_slam(
+    batch: ScanBatch,
     config: RbpfConfig | None = None,
     *,
-    end_time: float | None = None,
     progress: Callable[[int, int], None] | None = None,
-    skip_bad_lines: bool = False,
-    readings: Callable[[Any], None] | None = None,
-    bag_options: dict[str, Any] | None = None,
 ) -> RbpfResult:
-    """Read a raw CARMEN log, a ROS 1/2 bag or a registry name
-    (:func:`probmap.datasets.open_scans`) and run :func:`~probmap.slam.laser.rbpf.run_rbpf`
-    on its front-laser scans.
-
-    ``end_time`` keeps the scans of the first ``end_time`` seconds only; ``skip_bad_lines``
-    skips and counts malformed or implausible lines instead of failing; ``bag_options`` a
-    bag's topics and frames (guessed when not given). ``readings``, when given, is called with
-    the :class:`~probmap.datasets.validate.ReadingReport` of the scans used.
-    """
+    """Run :func:`~probmap.slam.laser.rbpf.run_rbpf` over a scan batch (see
+    :func:`load_laser_log` with ``method="rbpf"``): the robot's odometry, and the first scan's
+    mounting offset for every scan."""
     from probmap.geometry.se2 import between
     from probmap.slam.laser.rbpf import run_rbpf
 
-    batch = _open_laser_scans(path, "odometry", end_time, bag_options, skip_bad_lines)
     times = np.asarray(batch.times, dtype=np.float64)
     angles = np.asarray(batch.angles, dtype=np.float64)
     robot = np.asarray(batch.robot_poses, dtype=np.float64)
     laser = np.asarray(batch.laser_poses, dtype=np.float64)
     mount = between(robot[0], laser[0])
-    if readings is not None:
-        readings(batch.readings)
     return run_rbpf(
         times, np.asarray(batch.ranges), angles, robot, float(batch.max_range), config,
         mount=mount, progress=progress,
         beams=np.asarray(batch.beams) if angles.ndim == 2 else None,
     )  # fmt: skip
+
+
+def method_of(config: SubmapSlamConfig | RbpfConfig | None) -> Method:
+    """``"rbpf"`` for an :class:`~probmap.slam.laser.rbpf.RbpfConfig`, else ``"graph"``."""
+    from probmap.slam.laser.rbpf import RbpfConfig
+
+    return "rbpf" if isinstance(config, RbpfConfig) else "graph"
+
+
+@overload
+def run_laser_slam(
+    batch: ScanBatch,
+    config: SubmapSlamConfig | None = None,
+    *,
+    progress: Callable[[int, int], None] | None = None,
+) -> SubmapSlamRun: ...
+@overload
+def run_laser_slam(
+    batch: ScanBatch,
+    config: RbpfConfig,
+    *,
+    progress: Callable[[int, int], None] | None = None,
+) -> RbpfResult: ...
+def run_laser_slam(
+    batch: ScanBatch,
+    config: SubmapSlamConfig | RbpfConfig | None = None,
+    *,
+    progress: Callable[[int, int], None] | None = None,
+) -> SubmapSlamRun | RbpfResult:
+    """The laser SLAM method ``config`` belongs to, over ``batch``: submap graph SLAM
+    (:func:`run_submap_slam`; the default) or the RBPF (:func:`run_rbpf_slam`)."""
+    from probmap.slam.laser.rbpf import RbpfConfig
+
+    if isinstance(config, RbpfConfig):
+        return run_rbpf_slam(batch, config, progress=progress)
+    return run_submap_slam(batch, config, progress=progress)
+
+
+@overload
+def slam_log(
+    path: str | os.PathLike[str],
+    config: SubmapSlamConfig | None = None,
+    *,
+    end_time: float | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    skip_bad_lines: bool = False,
+    bag_options: dict[str, Any] | None = None,
+) -> SubmapSlamRun: ...
+@overload
+def slam_log(
+    path: str | os.PathLike[str],
+    config: RbpfConfig,
+    *,
+    end_time: float | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    skip_bad_lines: bool = False,
+    bag_options: dict[str, Any] | None = None,
+) -> RbpfResult: ...
+def slam_log(
+    path: str | os.PathLike[str],
+    config: SubmapSlamConfig | RbpfConfig | None = None,
+    *,
+    end_time: float | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    skip_bad_lines: bool = False,
+    bag_options: dict[str, Any] | None = None,
+) -> SubmapSlamRun | RbpfResult:
+    """Read a raw CARMEN log, a ROS 1/2 bag or a registry name (:func:`load_laser_log`) and
+    run the laser SLAM method ``config`` belongs to (:func:`run_laser_slam`; submap graph SLAM
+    by default).
+
+    ``end_time`` keeps the scans of the first ``end_time`` seconds only; ``skip_bad_lines``
+    skips and counts malformed or implausible lines instead of failing; ``bag_options`` a
+    bag's topics and frames (guessed when not given).
+    """
+    batch = load_laser_log(
+        path,
+        method=method_of(config),
+        end_time=end_time,
+        bag_options=bag_options,
+        skip_bad_lines=skip_bad_lines,
+    )
+    return run_laser_slam(batch, config, progress=progress)  # type: ignore[arg-type]
 
 
 def write_trajectory(path: str | os.PathLike[str], times: ArrayLike, poses: ArrayLike) -> Path:
@@ -344,7 +422,7 @@ def write_trajectory(path: str | os.PathLike[str], times: ArrayLike, poses: Arra
     return Path(path)
 
 
-def write_graph_slam(prefix: str | os.PathLike[str], run: SubmapSlamRun) -> list[Path]:
+def write_submap_slam(prefix: str | os.PathLike[str], run: SubmapSlamRun) -> list[Path]:
     """Write ``PREFIX.yaml/.pgm/.npz/.png`` (the map), ``PREFIX.trajectory.csv`` (robot pose
     at every scan time), ``PREFIX.g2o`` (the optimized pose graph, laser poses) and
     ``PREFIX.plot.png`` (map, trajectory and accepted closures, axes in metres),
@@ -363,3 +441,179 @@ def write_graph_slam(prefix: str | os.PathLike[str], run: SubmapSlamRun) -> list
         )
         files.append(save_graph_slam_figure(f"{prefix}.plot.png", run, title=prefix.name))
     return files
+
+
+def write_rbpf_slam(
+    prefix: str | os.PathLike[str], result: RbpfResult, *, title: str | None = None
+) -> list[Path]:
+    """Write the RBPF's ``PREFIX.yaml/.pgm/.npz/.png`` (the map of the best particle),
+    ``PREFIX.trajectory.csv`` and ``PREFIX.plot.png`` (map and trajectory, axes in metres),
+    all-or-nothing. Returns the paths written."""
+    from probmap.grid.io import save_map
+    from probmap.viz.maps import save_map_figure
+
+    prefix = Path(prefix)
+    with atomic_outputs():
+        files = list(save_map(prefix, result.grid))
+        files.append(write_trajectory(f"{prefix}.trajectory.csv", result.times, result.poses))
+        files.append(
+            save_map_figure(f"{prefix}.plot.png", result.grid, trajectory=result.poses, title=title)
+        )
+    return files
+
+
+@dataclass(frozen=True, eq=False)
+class LaserSlamOutput:
+    """What :func:`slam_grid` did.
+
+    Attributes
+    ----------
+    run : SubmapSlamRun or RbpfResult
+        The run (its type says which method ran).
+    files : list of Path
+        Every file written, in the order the summary lists them.
+    readings : ReadingReport or None
+        How the log's readings were classified.
+    skipped_lines : int
+        Malformed lines skipped (``skip_bad_lines``).
+    scans_read : int
+        Scans of this log (a resumed session's earlier scans not counted).
+    peak_rss_mib : float
+        The process's peak resident memory, MiB.
+    """
+
+    run: SubmapSlamRun | RbpfResult
+    files: list[Path]
+    readings: ReadingReport | None
+    skipped_lines: int
+    scans_read: int
+    peak_rss_mib: float
+
+
+def _peak_rss_mib() -> float:
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not on Windows
+        return float("nan")
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+
+
+def slam_grid(
+    log: str | os.PathLike[str],
+    prefix: str | os.PathLike[str],
+    config: SubmapSlamConfig | RbpfConfig | None = None,
+    *,
+    end_time: float | None = None,
+    bag_options: dict[str, Any] | None = None,
+    skip_bad_lines: bool = False,
+    resume: SubmapSlam | None = None,
+    save_session: str | os.PathLike[str] | None = None,
+    tum: bool = False,
+    command: str | None = None,
+    title: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    observer: Callable[..., Any] | None = None,
+    stop: Callable[[], bool] | None = None,
+    phase: Callable[[str], AbstractContextManager[Any]] | None = None,
+) -> LaserSlamOutput:
+    """``probmap slam grid``: read ``log``, run the method ``config`` belongs to (submap graph
+    SLAM by default, or continue ``resume``), and write every output under ``prefix``, all or
+    none: the map, ``PREFIX.trajectory.csv``, ``PREFIX.plot.png`` and ``PREFIX.config.yaml``
+    (the configuration with ``command`` and the probmap version); for the graph method also
+    ``PREFIX.g2o`` and, with ``save_session``, the session file (its state before the final
+    optimization, so that ``resume`` continues it); with ``tum`` the trajectory as
+    ``PREFIX.tum``.
+
+    ``progress``, ``observer`` and ``stop`` are passed to the run (``observer`` and ``stop``:
+    the graph method only; see :func:`run_submap_slam`). ``phase(name)``, when given, is entered
+    around each of the three phases ``"read"``, ``"compute"`` and ``"write"`` (the CLI's
+    stopwatch).
+
+    Raises
+    ------
+    ValueError
+        ``resume``, ``save_session``, ``observer`` or ``stop`` with an RBPF configuration, or a
+        resumed session with a configuration of its own.
+    """
+    from probmap.config import write_config
+
+    phase = phase or (lambda name: nullcontext())
+    method = method_of(config)
+    if method == "rbpf" and (resume is not None or save_session is not None):
+        raise ValueError("--save-session and --resume are for the graph method")
+    if method == "rbpf" and (observer is not None or stop is not None):
+        raise ValueError("a live view and a partial stop are for the graph method")
+    if resume is not None and config is not None and config != resume.config:
+        raise ValueError("--resume continues with the session's own configuration; no --config")
+    with phase("read"):
+        batch = load_laser_log(
+            log,
+            method=method,
+            end_time=end_time,
+            bag_options=bag_options,
+            skip_bad_lines=skip_bad_lines,
+        )
+    prefix = Path(prefix)
+    part: Path | None = None
+    try:
+        with phase("compute"):
+            if method == "rbpf":
+                run: SubmapSlamRun | RbpfResult = run_rbpf_slam(
+                    batch,
+                    config,  # type: ignore[arg-type]
+                    progress=progress,
+                )
+            else:
+                # the session is saved before the map is built, into a temporary file; it
+                # joins the other outputs (all or none) below
+                if save_session is not None:
+                    import tempfile
+
+                    fd, name = tempfile.mkstemp(suffix=".session")
+                    os.close(fd)
+                    part = Path(name)
+                graph_config = None if resume is not None else config
+                run = run_submap_slam(
+                    batch, graph_config, progress=progress,  # type: ignore[arg-type]
+                    observer=observer, stop=stop, resume=resume, save_session=part,
+                )  # fmt: skip
+        used = resume.config if resume is not None else run_config(run, config)
+        with phase("write"), atomic_outputs():  # every file or none
+            if isinstance(run, SubmapSlamRun):
+                files = write_submap_slam(prefix, run)
+                files.append(write_config(f"{prefix}.config.yaml", used, command=command))
+                if save_session is not None and part is not None:
+                    import shutil
+
+                    with open(part, "rb") as src, atomic_write(save_session, "wb") as dst:
+                        shutil.copyfileobj(src, dst)
+                    files.append(Path(save_session))
+            else:
+                files = write_rbpf_slam(prefix, run, title=title)
+                files.insert(-1, write_config(f"{prefix}.config.yaml", used, command=command))
+            if tum:
+                from probmap.datasets.tum import write_tum
+
+                files.append(write_tum(f"{prefix}.tum", run.times, run.poses))
+    finally:
+        if part is not None:
+            part.unlink(missing_ok=True)
+    return LaserSlamOutput(
+        run=run,
+        files=files,
+        readings=batch.readings,
+        skipped_lines=batch.skipped_lines,
+        scans_read=len(batch.times),
+        peak_rss_mib=_peak_rss_mib(),
+    )
+
+
+def run_config(
+    run: SubmapSlamRun | RbpfResult, config: SubmapSlamConfig | RbpfConfig | None
+) -> SubmapSlamConfig | RbpfConfig:
+    """The configuration a run used (``config``, or the method's defaults when None)."""
+    if isinstance(run, SubmapSlamRun):
+        return run.slam.config
+    from probmap.slam.laser.rbpf import RbpfConfig
+
+    return config if config is not None else RbpfConfig()

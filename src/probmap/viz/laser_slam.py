@@ -23,7 +23,7 @@ def plot_graph_slam(ax: Any, run: Any, *, title: str | None = None, max_pixels: 
     ----------
     ax : matplotlib Axes
     run : SubmapSlamRun
-        From :func:`probmap.pipelines.laser_slam.run_graph_slam`.
+        From :func:`probmap.pipelines.laser_slam.run_submap_slam`.
     title : str, optional
     max_pixels : int
         The map is drawn from every ``step``-th cell so that its longer side has at most this

@@ -19,7 +19,7 @@ world frame is the map's: x to the right, y up, metres. Entities:
 
 Every logged item carries the timeline ``scan`` (the scan index) so that the viewer can scrub
 through the run. :class:`GraphSlamObserver` is the observer that
-:func:`probmap.pipelines.laser_slam.run_graph_slam` calls after each scan;
+:func:`probmap.pipelines.laser_slam.run_submap_slam` calls after each scan;
 :class:`MappingObserver` and :class:`LandmarkSlamObserver` watch ``probmap map`` and landmark
 SLAM.
 """

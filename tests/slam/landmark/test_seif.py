@@ -20,6 +20,8 @@ from probmap.slam.landmark.seif import (
     SEIFSlam,
     SingularInformationError,
     build_seif,
+)
+from probmap.slam.landmark.seif_steps import (
     measurement_update_information,
     motion_update_information,
     robot_link_information,

@@ -22,18 +22,23 @@ _INF = np.inf
 
 @njit(cache=True, inline="always")
 def _walk_update(
-    lo, stamp, sid, gx0, gy0, gx1, gy1, include_last, delta, lmin, lmax
+    lo, stamp, sid, mark, gx0, gy0, gx1, gy1, include_last, delta, lmin, lmax, touched, tile
 ):  # pragma: no cover - compiled
-    """Walk the cells from grid point (gx0, gy0) to (gx1, gy1) (in cell units) and add ``delta``
-    to each cell not yet stamped with ``sid``; the last cell only if ``include_last``.
-    Returns the number of cells updated."""
+    """Walk the cells from grid point (gx0, gy0) to (gx1, gy1) (in cell units), the last one only
+    if ``include_last``, and add ``delta`` to each cell whose stamp is neither ``sid`` nor
+    ``mark`` (clamped to ``[lmin, lmax]``), stamping it ``mark``; cells outside ``lo`` are
+    skipped. With ``tile > 0`` also sets ``touched[iy // tile, ix // tile] = 1`` for every cell
+    updated (``touched`` is not read otherwise). Returns the number of cells updated."""
     h, w = lo.shape
     ix, iy, ex, ey, sx, sy, tmx, tmy, tdx, tdy, n = walk_start(gx0, gy0, gx1, gy1, include_last)
     count = 0
     for _ in range(n):
         if 0 <= ix < w and 0 <= iy < h:
-            if stamp[iy, ix] != sid:
-                stamp[iy, ix] = sid
+            st = stamp[iy, ix]
+            if st != sid and st != mark:
+                stamp[iy, ix] = mark
+                if tile > 0:
+                    touched[iy // tile, ix // tile] = 1
                 v = lo[iy, ix] + delta
                 if v < lmin:
                     v = lmin
@@ -47,7 +52,7 @@ def _walk_update(
 
 @njit(cache=True, inline="always")
 def classify_beam(
-    r, a, px, py, ox, oy, inv, max_range, clear_range, thickness, counts
+    r, a, px, py, ox, oy, inv, max_range, clear_range, thickness, inf_no_return, counts
 ):  # pragma: no cover - compiled
     """Classify one beam of range ``r`` (m) at world angle ``a`` (rad) from the sensor at
     ``(px, py)`` and give the grid points (cell units, origin ``(ox, oy)``, ``inv`` = 1 / res)
@@ -56,14 +61,17 @@ def classify_beam(
     Returns ``(kind, ex, ey, tx, ty)``: kind 0 is a dropped reading (not positive, not finite,
     or at max range with no clearing), 1 a hit at ``(ex, ey)`` whose obstacle reaches
     ``(tx, ty)`` (``thickness`` metres further; the hit point itself when ``thickness`` is 0),
-    2 a max-range reading cleared to ``(ex, ey)`` at ``clear_range``. Adds 1 to ``counts[0]``
-    (hits), ``counts[1]`` (max-range readings) or ``counts[2]`` (dropped readings). The one
-    beam rule of :func:`integrate_scans` (grids and update counts) and
-    :func:`probmap.grid._semantic_kernels.integrate_labelled_scans`.
+    2 a max-range reading cleared to ``(ex, ey)`` at ``clear_range``. With ``inf_no_return``
+    a reading of ``+inf`` is a max-range reading (the RBPF's rule) instead of a dropped one
+    (the grids' rule). Adds 1 to ``counts[0]`` (hits), ``counts[1]`` (max-range readings) or
+    ``counts[2]`` (dropped readings). The one beam rule of :func:`integrate_scans` (grids and
+    update counts), :func:`probmap.grid._semantic_kernels.integrate_labelled_scans` and
+    :func:`probmap.slam.laser._match_kernels.integrate_window` (the RBPF's map windows).
     """
     if not (r > 0.0) or not math.isfinite(r):
-        counts[2] += 1
-        return 0, 0.0, 0.0, 0.0, 0.0
+        if not (inf_no_return and r == _INF):
+            counts[2] += 1
+            return 0, 0.0, 0.0, 0.0, 0.0
     c = math.cos(a)
     sn = math.sin(a)
     if r >= max_range:
@@ -84,15 +92,17 @@ def classify_beam(
 
 
 @njit(cache=True, inline="always")
-def classify_scan(s, scan, counts, kind, end, tip):  # pragma: no cover - compiled
-    """Classify every beam of scan ``s`` with :func:`classify_beam`, in beam order.
+def classify_scan(s, scan, counts, kind, end, tip, inf_no_return):  # pragma: no cover - compiled
+    """Classify every beam of scan ``s`` with :func:`classify_beam` (and its ``inf_no_return``
+    rule), in beam order.
 
     ``scan`` is the tuple ``(ox, oy, res, poses, ranges, angles, angles_shared, max_range,
     clear_range, thickness)`` that the caller of a scan kernel builds once: the grid origin and
     cell size, the scans (poses (S, 3), ranges (S, B), angles (1, B) when ``angles_shared``,
     else (S, B)) and the sensor model's ranges (m). Both scan kernels, :func:`integrate_scans`
     and :func:`probmap.grid._semantic_kernels.integrate_labelled_scans`, take it as it is and
-    hand it here: they differ only in what they do with the hits.
+    hand it here: they differ only in what they do with the hits (the RBPF's
+    :func:`probmap.slam.laser._match_kernels.integrate_window` builds one for its one scan).
 
     Fills ``kind[b]`` (0 dropped, 1 hit, 2 max-range), ``end[b]`` (the hit or cleared point) and
     ``tip[b]`` (where the obstacle ends) in cell units, counts the readings in ``counts[0:3]``,
@@ -107,7 +117,7 @@ def classify_scan(s, scan, counts, kind, end, tip):  # pragma: no cover - compil
     for b in range(ranges.shape[1]):
         k, ex, ey, tx, ty = classify_beam(
             ranges[s, b], th + angles[arow, b], px, py, ox, oy, inv, max_range, clear_range,
-            thickness, counts,
+            thickness, inf_no_return, counts,
         )  # fmt: skip
         kind[b] = k
         end[b, 0] = ex
@@ -115,6 +125,42 @@ def classify_scan(s, scan, counts, kind, end, tip):  # pragma: no cover - compil
         tip[b, 0] = tx
         tip[b, 1] = ty
     return (px - ox) * inv, (py - oy) * inv
+
+
+@njit(cache=True, inline="always")
+def apply_scan(
+    lo_hit, lo_free, stamp, sid, free_mark, gx0, gy0, kind, end, tip, d_hit, d_free, lmin, lmax,
+    touched, tile,
+):  # pragma: no cover - compiled  # fmt: skip
+    """Update the cells of one scan classified by :func:`classify_scan`, each cell at most once.
+
+    Hits are applied first, then free space, so that a hit cell is never also freed (the hit
+    wins): pass 1 adds ``d_hit`` to ``lo_hit`` along every hit's obstacle (``end`` to ``tip``,
+    both cells included) and stamps the cells ``sid``; pass 2 adds ``d_free`` to ``lo_free``
+    along every kept beam from the sensor's grid point ``(gx0, gy0)`` up to, not including, the
+    cell of its ``end``, and stamps the cells ``free_mark``. Only cells stamped neither ``sid``
+    nor ``free_mark`` are updated; values are clamped to ``[lmin, lmax]`` (see
+    :func:`_walk_update`, which also marks ``touched`` tiles when ``tile > 0``).
+
+    The grids pass ``free_mark = sid``, the scan's id (the stamp keeps the last scan that touched
+    each cell); the RBPF's windows, zeroed stamps with ``sid = 1`` and ``free_mark = 2`` (hit
+    and freed cells told apart). Returns the number of cells updated.
+    """
+    count = 0
+    for b in range(kind.shape[0]):
+        if kind[b] == 1:
+            count += _walk_update(
+                lo_hit, stamp, sid, sid, end[b, 0], end[b, 1], tip[b, 0], tip[b, 1], True, d_hit,
+                lmin, lmax, touched, tile,
+            )  # fmt: skip
+    for b in range(kind.shape[0]):
+        if kind[b] == 0:
+            continue
+        count += _walk_update(
+            lo_free, stamp, sid, free_mark, gx0, gy0, end[b, 0], end[b, 1], False, d_free, lmin,
+            lmax, touched, tile,
+        )  # fmt: skip
+    return count
 
 
 # Codes returned by integrate_one_scan; anything but SCAN_OK leaves the grid untouched.
@@ -206,30 +252,22 @@ def integrate_scans(
     processes: :func:`probmap.grid.increments.integrate_increments`).
 
     ``counts`` (int64[4]) accumulates: hits, max-range readings, dropped readings, cell updates.
-    Hits are applied first, then free space, so that within one scan a hit cell is never also
-    freed and every cell changes at most once (the stamp records the last scan that touched it).
+    Each scan goes through :func:`apply_scan`: hits first, then free space, so that within one
+    scan a hit cell is never also freed and every cell changes at most once (the stamp records
+    the last scan that touched it).
     """
     n_scans, n_beams = scan[4].shape  # the ranges (S, B)
     end = np.empty((n_beams, 2))
     tip = np.empty((n_beams, 2))
     kind = np.empty(n_beams, np.int8)
+    no_tiles = np.zeros((1, 1), np.uint8)  # apply_scan's tile marks: not kept here (tile 0)
     for s in range(n_scans):
         sid = sid0 + s
-        gx0, gy0 = classify_scan(s, scan, counts, kind, end, tip)
-        # pass 1: hits (endpoint cell and obstacle thickness)
-        for b in range(n_beams):
-            if kind[b] == 1:
-                counts[3] += _walk_update(
-                    lo_hit, stamp, sid, end[b, 0], end[b, 1], tip[b, 0], tip[b, 1], True, d_hit,
-                    lmin, lmax,
-                )  # fmt: skip
-        # pass 2: free space along every beam up to (not including) its last cell
-        for b in range(n_beams):
-            if kind[b] == 0:
-                continue
-            counts[3] += _walk_update(
-                lo_free, stamp, sid, gx0, gy0, end[b, 0], end[b, 1], False, d_free, lmin, lmax
-            )
+        gx0, gy0 = classify_scan(s, scan, counts, kind, end, tip, False)
+        counts[3] += apply_scan(
+            lo_hit, lo_free, stamp, sid, sid, gx0, gy0, kind, end, tip, d_hit, d_free, lmin, lmax,
+            no_tiles, 0,
+        )  # fmt: skip
 
 
 @njit(cache=True)

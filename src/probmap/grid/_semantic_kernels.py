@@ -97,7 +97,7 @@ def integrate_labelled_scans(
     n_updates = 0  # a local counter: a store to counts[] per cell would stay in the loop
     for s in range(n_scans):
         sid = sid0 + s
-        gx0, gy0 = classify_scan(s, scan, counts, kind, end, tip)
+        gx0, gy0 = classify_scan(s, scan, counts, kind, end, tip, False)
         n_cells = 0
         # pass 1: gather the endpoint evidence per cell
         for b in range(n_beams):

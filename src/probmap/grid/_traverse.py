@@ -5,8 +5,8 @@ integration (:mod:`probmap.grid._kernels`, :mod:`probmap.grid._semantic_kernels`
 (:func:`probmap.grid.raycast.cast_rays` and the beam model's exact and tabulated casters in
 :mod:`probmap.models._beam_kernels`), the MAP mapper's beam windows
 (:mod:`probmap.mapping._map_kernels`) and the RBPF's map windows
-(:mod:`probmap.slam.laser._match_kernels`) all call the functions below, so they visit the same cells
-for the same ray.
+(:mod:`probmap.slam.laser._match_kernels`, through the scan kernels of :mod:`probmap.grid._kernels`)
+all call the functions below, so they visit the same cells for the same ray.
 
 The walk is the exact traversal of Amanatides and Woo (1987), in cell units (cell ``[iy, ix]``
 spans ``[ix, ix + 1) x [iy, iy + 1)``): starting in the cell of the first point it steps to the

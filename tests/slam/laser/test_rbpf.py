@@ -201,6 +201,48 @@ def test_integrate_window_marks_the_cells_of_occupancy_grid():
         np.testing.assert_array_equal(stamp == 2, ref < 0, err_msg=f"misses, trial {trial}")
 
 
+def test_integrate_window_equals_occupancy_grid_bit_for_bit():
+    """integrate_window runs the occupancy grid's scan kernels: the same scans give the same
+    float32 log odds, bit for bit (two scans, so the second one meets clamped cells); a +inf
+    reading is a no-return reading for the RBPF (the grid drops it)."""
+    from probmap.grid.occupancy import InverseSensorModel, OccupancyGrid
+    from probmap.grid.spec import GridSpec
+
+    rng = np.random.default_rng(11)
+    res, ox, oy, shape = 0.05, -3.0, -2.5, (100, 120)
+    angles = np.linspace(-np.pi, np.pi, 241)[:-1]
+    model = InverseSensorModel(p_hit=0.9, p_miss=0.2, max_clear_range=1.5)
+    grid = OccupancyGrid(res, model=model, spec=GridSpec(res, (ox, oy), shape), fixed=True)
+    lo = np.zeros(shape, np.float32)
+    scans = []
+    for _ in range(2):
+        pose = np.array([rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), rng.uniform(-3, 3)])
+        ranges = rng.uniform(0.05, 1.8, angles.size)
+        ranges[rng.integers(0, angles.size, 15)] = 8.0
+        ranges[rng.integers(0, angles.size, 5)] = np.nan
+        scans.append((pose, ranges))
+        grid.integrate_scan(pose, ranges, angles, max_range=8.0)
+        stamp = np.zeros(shape, np.uint8)
+        K.integrate_window(
+            lo, stamp, ox, oy, res, pose[0], pose[1], pose[2], ranges, angles, 8.0, 1.5,
+            model.l_hit, model.l_miss, grid.l_min, grid.l_max, 10, np.zeros((10, 12), np.uint8),
+        )  # fmt: skip
+    np.testing.assert_array_equal(lo, grid.log_odds)
+    assert lo.tobytes() == np.asarray(grid.log_odds).tobytes()
+    pose, ranges = scans[0]
+    out = []
+    for inf_as in (np.inf, 8.0):
+        r = ranges.copy()
+        r[::9] = inf_as
+        w = np.zeros(shape, np.float32)
+        K.integrate_window(
+            w, np.zeros(shape, np.uint8), ox, oy, res, pose[0], pose[1], pose[2], r, angles, 8.0,
+            1.5, 0.8, -0.4, -2.0, 3.5, 10, np.zeros((10, 12), np.uint8),
+        )  # fmt: skip
+        out.append(w)
+    np.testing.assert_array_equal(out[0], out[1])
+
+
 def test_interpolate_trajectory_composes_odometry_increments():
     odo = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.5], [2.5, 0.5, 1.0]], dtype=float)
     scans = np.array([0, 2])

@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
-from probmap.grid._traverse import walk_next, walk_start
+from probmap.grid._kernels import apply_scan, classify_scan
 
 
 @njit(cache=True)
@@ -378,51 +378,36 @@ def integrate_window(
     """Integrate one scan into a dense log-odds window (Table 9.1), each cell once.
 
     Endpoints (``r < max_range``) get ``l_hit`` first, then cells crossed by any beam and not
-    hit get ``l_miss`` (hit wins). Max-range beams clear up to ``clear_range``. ``stamp`` (same
-    shape, zero on entry) marks the cells updated (1 = hit, 2 = miss); ``touched[iy // tile,
-    ix // tile]`` is set to 1 for every updated cell (zero it on entry). Cells outside the
-    window are ignored.
+    hit get ``l_miss`` (hit wins); values are clamped to ``[l_min, l_max]``. Max-range readings,
+    ``+inf`` included, clear up to ``clear_range`` (taken as it is: not capped at ``max_range``;
+    0 clears nothing); NaN and non-positive readings are dropped. ``stamp`` (same shape, zero on
+    entry) marks the cells updated (1 = hit, 2 = miss); ``touched[iy // tile, ix // tile]`` is set
+    to 1 for every updated cell (zero it on entry). Cells outside the window are ignored.
 
-    The cells crossed are those of :class:`~probmap.grid.occupancy.OccupancyGrid` for the same
-    beam: the exact segment walk of :mod:`probmap.grid._traverse` from the sensor's cell up to,
-    not including, the endpoint's cell (no obstacle thickness: only the endpoint's cell is hit).
+    The occupancy grid's kernels do the work: :func:`probmap.grid._kernels.classify_scan` (with
+    ``+inf`` as a no-return reading) and :func:`probmap.grid._kernels.apply_scan` (with no
+    obstacle thickness: only the endpoint's cell is hit), so the cells and the updates are those
+    of :class:`~probmap.grid.occupancy.OccupancyGrid` for the same beam.
     """
-    h, w = lo.shape
-    inv = 1.0 / res
-    gx0 = (x - ox) * inv
-    gy0 = (y - oy) * inv
     nb = ranges.shape[0]
+    P = np.empty((1, 3))
+    P[0, 0] = x
+    P[0, 1] = y
+    P[0, 2] = th
+    R = np.empty((1, nb))
+    A = np.empty((1, nb))
     for b in range(nb):
-        r = ranges[b]
-        if not (r > 0.0) or r >= max_range:
-            continue
-        a = th + angles[b]
-        ix = math.floor((x + r * math.cos(a) - ox) * inv)
-        iy = math.floor((y + r * math.sin(a) - oy) * inv)
-        if 0 <= ix < w and 0 <= iy < h and stamp[iy, ix] == 0:
-            stamp[iy, ix] = 1
-            touched[iy // tile, ix // tile] = 1
-            v = lo[iy, ix] + l_hit
-            lo[iy, ix] = min(max(v, l_min), l_max)
-    for b in range(nb):
-        r = ranges[b]
-        if not (r > 0.0) or math.isnan(r):
-            continue
-        if not r < max_range:
-            r = clear_range
-            if r <= 0.0:
-                continue
-        a = th + angles[b]
-        gx1 = (x + r * math.cos(a) - ox) * inv
-        gy1 = (y + r * math.sin(a) - oy) * inv
-        ix, iy, ex, ey, sx, sy, tmx, tmy, tdx, tdy, n = walk_start(gx0, gy0, gx1, gy1, False)
-        for _ in range(n):
-            if 0 <= ix < w and 0 <= iy < h and stamp[iy, ix] == 0:
-                stamp[iy, ix] = 2
-                touched[iy // tile, ix // tile] = 1
-                v = lo[iy, ix] + l_miss
-                lo[iy, ix] = min(max(v, l_min), l_max)
-            ix, iy, tmx, tmy = walk_next(ix, iy, ex, ey, sx, sy, tmx, tmy, tdx, tdy)
+        R[0, b] = ranges[b]
+        A[0, b] = angles[b]
+    scan = (ox, oy, res, P, R, A, True, max_range, clear_range, 0.0)
+    kind = np.empty(nb, np.int8)
+    end = np.empty((nb, 2))
+    tip = np.empty((nb, 2))
+    counts = np.zeros(4, np.int64)  # classify_scan's reading counts, not needed here
+    gx0, gy0 = classify_scan(0, scan, counts, kind, end, tip, True)
+    apply_scan(
+        lo, lo, stamp, 1, 2, gx0, gy0, kind, end, tip, l_hit, l_miss, l_min, l_max, touched, tile
+    )
 
 
 @njit(cache=True)

@@ -784,6 +784,9 @@ class SubmapSlam:
         _, poses = self.trajectory()
         lo = poses[:, :2].min(axis=0)
         hi = poses[:, :2].max(axis=0)
+        from probmap.grid._kernels import scan_bounds
+
+        box = np.empty(4)
         rows = []
         for i, p in enumerate(poses):
             r = self._ranges[i].astype(np.float64)
@@ -793,13 +796,15 @@ class SubmapSlam:
             rows.append(r)
             with np.errstate(invalid="ignore"):
                 hit = np.isfinite(r) & (r > 0) & (r < self.max_range)
+            # the layout reaches every endpoint and the clear range along every other beam
+            # (dropped readings too): the kernel's bounds of readings of those ranges
             reach = np.where(hit, r, clear)
-            a = self._angles[i] + p[2]
-            ex = p[0] + reach * np.cos(a)
-            ey = p[1] + reach * np.sin(a)
-            if ex.size:
-                lo = np.minimum(lo, [np.nanmin(ex), np.nanmin(ey)])
-                hi = np.maximum(hi, [np.nanmax(ex), np.nanmax(ey)])
+            scan_bounds(
+                p[None, :], reach[None, :], self._angles[i][None, :], True, self.max_range,
+                clear, model.thickness, box,
+            )  # fmt: skip
+            lo = np.minimum(lo, box[[0, 2]])
+            hi = np.maximum(hi, box[[1, 3]])
         from probmap.grid.spec import GridSpec
 
         spec = GridSpec.around(cfg.submaps.resolution, lo[0], hi[0], lo[1], hi[1], margin=4)

@@ -170,15 +170,16 @@ def test_every_linked_picture_exists():
 
 
 # ----------------------------------------------------------------------------- architecture
-def test_every_module_in_the_architecture_tree_exists():
-    """The package tree that docs/architecture.md draws names only files that exist."""
+def test_the_architecture_tree_names_every_module_and_only_those():
+    """The package tree that docs/architecture.md draws names exactly the package's files: none
+    that does not exist, and every module that does (so that it says where each thing lives)."""
     text = (README.parent / "docs" / "architecture.md").read_text(encoding="utf-8")
     m = re.search(r"```\n(src/probmap/.*?)```", text, flags=re.DOTALL)
     assert m, "no package tree in docs/architecture.md"
     src = README.parent / "src" / "probmap"
     package, named = "", []
     for line in m.group(1).splitlines():
-        head = re.match(r"\s+(\w+(?:/\w+)*)/\s", line)  # a subpackage: datasets/ros/
+        head = re.match(r"\s+(\w+(?:/\w+)*)/(?:\s|$)", line)  # a (sub)package: datasets/ros/
         if head:
             package = head.group(1)
         for name in re.findall(r"(?<![\w.])(\w+\.py|py\.typed)\b", line):
@@ -186,6 +187,8 @@ def test_every_module_in_the_architecture_tree_exists():
     assert len(named) > 100, named  # the tree was read
     missing = [str(p.relative_to(src)) for p in named if not p.is_file()]
     assert not missing, f"docs/architecture.md names modules that do not exist: {missing}"
+    unnamed = sorted(str(p.relative_to(src)) for p in src.rglob("*.py") if p not in set(named))
+    assert not unnamed, f"docs/architecture.md does not say where these live: {unnamed}"
 
 
 # ----------------------------------------------------------------------------- imports

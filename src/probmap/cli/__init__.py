@@ -25,9 +25,6 @@ def register(app: typer.Typer) -> None:
     from probmap.cli import landmark_slam
 
     landmark_slam.register(app)
-    from probmap.cli import seif
-
-    seif.register(app)
     from probmap.cli import laser_slam
 
     laser_slam.register(app)

@@ -23,6 +23,7 @@ from probmap.cli.watch import (
     open_view,
     save_partial_option,
     stop_on_ctrl_c,
+    view_discarded_on_error,
     viz_option,
     viz_save_option,
 )
@@ -209,18 +210,13 @@ def _slam_grid(
             bar.update(task, completed=done, total=total)
 
         stopping = stop_on_ctrl_c(save_partial, unit="scan") if method == "graph" else nullcontext()
-        try:
-            with stopping as stop:
-                out = slam_grid(
-                    log, prefix, cfg, end_time=end_time, bag_options=bag_options,
-                    skip_bad_lines=skip_bad_lines, resume=session, save_session=save_session,
-                    tum=tum, command=command_line(), title=log.name, progress=tick,
-                    observer=observer, stop=stop, phase=watch,
-                )  # fmt: skip
-        except BaseException:
-            if observer is not None:
-                observer.view.close(keep=False)
-            raise
+        with view_discarded_on_error(view), stopping as stop:
+            out = slam_grid(
+                log, prefix, cfg, end_time=end_time, bag_options=bag_options,
+                skip_bad_lines=skip_bad_lines, resume=session, save_session=save_session,
+                tum=tum, command=command_line(), title=log.name, progress=tick,
+                observer=observer, stop=stop, phase=watch,
+            )  # fmt: skip
         if observer is not None:
             observer.view.close()
     for w in caught or ():

@@ -61,8 +61,9 @@ def test_graph_config_takes_effect_and_is_recorded(sim_log, tmp_path):
     res = run("slam", "grid", sim_log, "-o", tmp_path / "s", "--config", cfg_file)
     assert res.exit_code == 0, res.output
     assert _summary_int(res.output, "submaps") > default_submaps
-    assert len(re.findall(r"^\s*wrote\s", res.output, flags=re.MULTILINE)) == 8  # 7 + config
+    assert len(re.findall(r"^\s*wrote\s", res.output, flags=re.MULTILINE)) == 9  # 8 + config
     suffixes = (".yaml", ".pgm", ".npz", ".png", ".trajectory.csv", ".g2o", ".plot.png")
+    suffixes += (".report.json",)
     names = sorted(p.name for p in tmp_path.glob("s.*"))
     assert names == sorted(f"s{x}" for x in (*suffixes, ".config.yaml"))
     written = tmp_path / "s.config.yaml"

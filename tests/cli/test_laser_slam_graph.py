@@ -5,6 +5,7 @@ one line and exit code 1."""
 from __future__ import annotations
 
 import bz2
+import json
 import re
 
 import numpy as np
@@ -51,6 +52,7 @@ def test_slam_grid_graph_on_intel_writes_every_file(shared_data, tmp_path):
     res = run("slam", "grid", log, "-o", prefix, "--end-time", "200")
     assert res.exit_code == 0, res.output
     suffixes = (".yaml", ".pgm", ".npz", ".png", ".trajectory.csv", ".g2o", ".plot.png")
+    suffixes += (".report.json",)  # what the closure search did, the consistency figure
     suffixes += (".config.yaml",)  # the resolved configuration, with the probmap version
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(f"intel{s}" for s in suffixes)
     assert len(re.findall(r"^\s*wrote\s", res.output, flags=re.MULTILINE)) == len(suffixes)
@@ -62,8 +64,21 @@ def test_slam_grid_graph_on_intel_writes_every_file(shared_data, tmp_path):
     accepted, searched = (int(g.replace(",", "")) for g in m.groups())
     assert 900 < scans < 1100 and 100 < nodes < scans and submaps >= nodes // 20
     assert 0 < accepted <= searched
-    for word in ("map", "optimization", "real time", "peak memory"):
+    for word in ("map", "optimization", "real time", "peak memory", "closures rejected"):
         assert word in res.output
+    # the report agrees with the summary, and its figures are in their ranges
+    report = json.loads((tmp_path / "intel.report.json").read_text())
+    closures = report["closures"]
+    assert closures["searched"] == searched
+    assert closures["accepted"]["near"] + closures["accepted"]["far"] == accepted
+    assert 0 <= closures["down_weighted"] <= accepted
+    res_m = closures["residual_m"]
+    assert 0 <= res_m["median"] <= res_m["p90"] <= res_m["p99"] <= res_m["max"]
+    doubt = report["consistency"]
+    assert 0.0 <= doubt["share"] < 1.0 and len(doubt["visits"]) >= 3  # 10 m each
+    assert all(0 <= v["contradicted"] <= v["occupied"] for v in doubt["visits"])
+    shown = re.search(r"consistency\s+([\d.]+)% of the walls", res.output)
+    assert shown and abs(float(shown.group(1)) - 100 * doubt["share"]) < 0.006
     # the pose graph reads back: one vertex per node, the chain and every closure as edges
     g = read_g2o(tmp_path / "intel.g2o")
     assert sorted(g.poses) == list(range(nodes))

@@ -188,7 +188,7 @@ COMMANDS = [
     Command(
         "slam grid",
         lambda i, o, f: ["slam", "grid", str(i["log"]), "-o", o],
-        (*MAP, ".trajectory.csv", ".g2o", ".plot.png", ".config.yaml"),
+        (*MAP, ".trajectory.csv", ".g2o", ".plot.png", ".report.json", ".config.yaml"),
         default="slam",
     ),
     Command(

@@ -198,10 +198,9 @@ def _slam_grid(
     title = "graph SLAM" if method == "graph" else "grid SLAM"
     with (
         progress_bar(f"{title} {log.name}", unit="scans") as bar,
-        warnings.catch_warnings(record=method == "rbpf") as caught,
+        warnings.catch_warnings(record=True) as caught,
     ):
-        if method == "rbpf":
-            warnings.simplefilter("always")
+        warnings.simplefilter("always")  # each shown once, as one line, after the run
         # the summary reports skipped lines; no Python warning text on the terminal
         warnings.simplefilter("ignore", BadLinesWarning)
         task = bar.add_task(log.name, total=0)
@@ -219,7 +218,7 @@ def _slam_grid(
             )  # fmt: skip
         if observer is not None:
             observer.view.close()
-    for w in caught or ():
+    for w in caught:
         typer.echo(f"warning: {w.message}", err=True)
     if method == "graph":
         _graph_summary(out, watch, resume, viz_save)
@@ -246,6 +245,7 @@ def _graph_summary(out: Any, watch: Any, resume: Path | None, viz_save: Path | N
             f"{len(weights):,} accepted of {run.searched:,} searched "
             f"({int((weights >= 0.5).sum()):,} kept by the robust cost)",
         ),
+        *_check_rows(out.report),
         ("map", f"{spec.width} x {spec.height} cells at {spec.resolution:g} m"),
         ("optimization", f"{run.optimize_seconds:.1f} s"),
         _time_row(watch, run.duration, run.seconds),
@@ -264,6 +264,22 @@ def _graph_summary(out: Any, watch: Any, resume: Path | None, viz_save: Path | N
             file=sys.stderr,
         )
         raise typer.Exit(130)
+
+
+def _check_rows(report: dict[str, Any] | None) -> list[tuple[str, str]]:
+    """The summary rows of the closure report and the self-consistency check."""
+    if report is None:
+        return []
+    rejected = report["closures"]["rejected"]
+    share = report["consistency"]["share"]
+    return [
+        (
+            "closures rejected",
+            f"{rejected['not_confirmed_by_earlier_nodes']:,} not confirmed, "
+            f"{rejected['correction_beyond_drift_bound']:,} beyond the drift bound",
+        ),
+        ("consistency", f"{share:.2%} of the walls seen were open space to other visits"),
+    ]
 
 
 def _time_row(watch: Any, duration: float, seconds: float) -> tuple[str, str]:

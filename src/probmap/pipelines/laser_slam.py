@@ -422,11 +422,18 @@ def write_trajectory(path: str | os.PathLike[str], times: ArrayLike, poses: Arra
     return Path(path)
 
 
-def write_submap_slam(prefix: str | os.PathLike[str], run: SubmapSlamRun) -> list[Path]:
+def write_submap_slam(
+    prefix: str | os.PathLike[str],
+    run: SubmapSlamRun,
+    *,
+    report: dict[str, Any] | None = None,
+) -> list[Path]:
     """Write ``PREFIX.yaml/.pgm/.npz/.png`` (the map), ``PREFIX.trajectory.csv`` (robot pose
     at every scan time), ``PREFIX.g2o`` (the optimized pose graph, laser poses) and
-    ``PREFIX.plot.png`` (map, trajectory and accepted closures, axes in metres),
-    all-or-nothing (a missing folder is created). Returns the paths written."""
+    ``PREFIX.plot.png`` (map, trajectory and accepted closures, axes in metres), and with
+    ``report`` (:func:`closure_report`, :func:`consistency_report`) ``PREFIX.report.json``;
+    all-or-nothing (a missing folder is created).
+    Returns the paths written."""
     from probmap.datasets.g2o import write_pose_graph_g2o
     from probmap.grid.io import save_map
     from probmap.viz.laser_slam import save_graph_slam_figure
@@ -440,6 +447,13 @@ def write_submap_slam(prefix: str | os.PathLike[str], run: SubmapSlamRun) -> lis
             write_pose_graph_g2o(f"{prefix}.g2o", g.poses, g.edges, g.measurements, g.information)
         )
         files.append(save_graph_slam_figure(f"{prefix}.plot.png", run, title=prefix.name))
+        if report is not None:
+            import json
+
+            with atomic_write(f"{prefix}.report.json", "w") as f:
+                json.dump(report, f, indent=1)
+                f.write("\n")
+            files.append(Path(f"{prefix}.report.json"))
     return files
 
 
@@ -480,6 +494,10 @@ class LaserSlamOutput:
         Scans of this log (a resumed session's earlier scans not counted).
     peak_rss_mib : float
         The process's peak resident memory, MiB.
+    report : dict or None
+        Graph method: ``{"closures": closure_report(...), "consistency":
+        consistency_report(...)}``
+        (also written as ``PREFIX.report.json``).
     """
 
     run: SubmapSlamRun | RbpfResult
@@ -488,6 +506,7 @@ class LaserSlamOutput:
     skipped_lines: int
     scans_read: int
     peak_rss_mib: float
+    report: dict[str, Any] | None = None
 
 
 def _peak_rss_mib() -> float:
@@ -520,14 +539,16 @@ def slam_grid(
     SLAM by default, or continue ``resume``), and write every output under ``prefix``, all or
     none: the map, ``PREFIX.trajectory.csv``, ``PREFIX.plot.png`` and ``PREFIX.config.yaml``
     (the configuration with ``command`` and the probmap version); for the graph method also
-    ``PREFIX.g2o`` and, with ``save_session``, the session file (its state before the final
+    ``PREFIX.g2o``, ``PREFIX.report.json`` (what the closure search did and the
+    self-consistency figure) and, with
+    ``save_session``, the session file (its state before the final
     optimization, so that ``resume`` continues it); with ``tum`` the trajectory as
     ``PREFIX.tum``.
 
     ``progress``, ``observer`` and ``stop`` are passed to the run (``observer`` and ``stop``:
     the graph method only; see :func:`run_submap_slam`). ``phase(name)``, when given, is entered
-    around each of the three phases ``"read"``, ``"compute"`` and ``"write"`` (the CLI's
-    stopwatch).
+    around each phase: ``"read"``, ``"compute"``, ``"check"`` (graph method) and ``"write"``
+    (the CLI's stopwatch).
 
     Raises
     ------
@@ -578,9 +599,20 @@ def slam_grid(
                     observer=observer, stop=stop, resume=resume, save_session=part,
                 )  # fmt: skip
         used = resume.config if resume is not None else run_config(run, config)
+        report = None
+        if isinstance(run, SubmapSlamRun):
+            with phase("check"):
+                # this log's scans of the run (a resumed session's earlier ones are not read)
+                earlier = run.scans_total - len(batch.times)
+                report = {
+                    "closures": closure_report(run.slam),
+                    "consistency": consistency_report(
+                        run.times[earlier:], run.sensor_poses[earlier:], batch
+                    ),
+                }
         with phase("write"), atomic_outputs():  # every file or none
             if isinstance(run, SubmapSlamRun):
-                files = write_submap_slam(prefix, run)
+                files = write_submap_slam(prefix, run, report=report)
                 files.append(write_config(f"{prefix}.config.yaml", used, command=command))
                 if save_session is not None and part is not None:
                     import shutil
@@ -605,6 +637,7 @@ def slam_grid(
         skipped_lines=batch.skipped_lines,
         scans_read=len(batch.times),
         peak_rss_mib=_peak_rss_mib(),
+        report=report,
     )
 
 
@@ -617,3 +650,75 @@ def run_config(
     from probmap.slam.laser.rbpf import RbpfConfig
 
     return config if config is not None else RbpfConfig()
+
+
+# ----------------------------------------------------------------------------- reports
+def _quantiles(x: NDArray[np.float64]) -> dict[str, float]:
+    if not len(x):
+        return {}
+    q = np.quantile(x, [0.5, 0.9, 0.99])
+    return {"median": float(q[0]), "p90": float(q[1]), "p99": float(q[2]), "max": float(x.max())}
+
+
+def closure_report(slam: SubmapSlam) -> dict[str, Any]:
+    """What the loop-closure search did and how the accepted closures sit in the optimized
+    graph: counts (searched, accepted near and far, rejected and why, trusted, down-weighted by
+    the robust cost) and the distribution of the closure edges' residuals (metres, radians)."""
+    from probmap.slam.posegraph.optimize import edge_residuals
+
+    loops = slam.loops
+    far = sum(c.far for c in loops.closures)
+    edges = loops.edge_indices()
+    g = slam.graph
+    if len(edges):
+        res = edge_residuals(g.poses, g.edges[edges], g.measurements[edges])
+    else:
+        res = np.zeros((0, 3))
+    weights = slam.closure_weights()
+    return {
+        "searched": loops.searched,
+        "accepted": {"near": len(loops.closures) - far, "far": far},
+        "far_searches": loops.far_searched,
+        "far_matches": loops.far_found,
+        "rejected": {
+            "not_confirmed_by_earlier_nodes": loops.rejected,
+            "correction_beyond_drift_bound": loops.drift_rejected,
+        },
+        "trusted": loops.trusted,
+        "down_weighted": int((weights < 0.5).sum()),
+        "residual_m": _quantiles(np.hypot(res[:, 0], res[:, 1])),
+        "residual_rad": _quantiles(np.abs(res[:, 2])),
+    }
+
+
+def consistency_report(
+    times: ArrayLike, sensor_poses: ArrayLike, batch: ScanBatch
+) -> dict[str, Any]:
+    """The self-consistency of a run (:func:`probmap.metrics.consistency.map_consistency`) on
+    the batch's scans at ``sensor_poses`` (one per scan of the batch, map frame): the share of
+    the walls its visits saw that other visits saw as open space, in all and per visit (times
+    in seconds from the first scan). A figure, not yet a verdict: the threshold that tells a
+    fold from doors and people is still to be measured on more logs."""
+    from probmap.metrics.consistency import map_consistency
+
+    t = np.asarray(times, dtype=np.float64)
+    n = len(t)
+    c = map_consistency(
+        t, sensor_poses, np.asarray(batch.ranges)[:n],
+        np.asarray(batch.angles) if np.ndim(batch.angles) == 1 else np.asarray(batch.angles)[:n],
+        float(batch.max_range),
+    )  # fmt: skip
+    t0 = float(t[0]) if n else 0.0
+    return {
+        "share": c.share,
+        "visit_length_m": 10.0,
+        "visits": [
+            {
+                "start_s": v.start - t0,
+                "end_s": v.end - t0,
+                "occupied": v.occupied,
+                "contradicted": v.contradicted,
+            }
+            for v in c.visits
+        ],
+    }

@@ -268,7 +268,11 @@ def test_bad_configuration(field):
         MCLConfig(alpha_slow=0.5, alpha_fast=0.1)
     with pytest.raises(ValueError, match="free_space"):
         MonteCarloLocalization(
-            field, OdometryMotionModel(), np.random.default_rng(0), MCLConfig(augmented=True)
+            field,
+            OdometryMotionModel(),
+            np.random.default_rng(0),
+            MCLConfig(augmented=True),
+            particles=np.zeros((10, 3)),
         )
     with pytest.raises(ValueError, match="no free cell"):
         FreeSpaceSampler(field.spec, np.zeros(field.spec.shape, dtype=bool))

@@ -180,30 +180,3 @@ def test_filter_is_valid_when_built(world, field, free):
         MonteCarloLocalization.from_pose(
             field, motion, np.random.default_rng(0), np.zeros(2), np.eye(3)
         )
-
-
-def test_deprecated_initialize_gives_the_same_filter(world, field, free):
-    motion = OdometryMotionModel(0.1, 0.1, 0.1, 0.1)
-    cfg = MCLConfig(n_particles=300, augmented=True)
-    with pytest.warns(DeprecationWarning, match="without particles"):
-        old = MonteCarloLocalization(field, motion, np.random.default_rng(3), cfg, free)
-    with pytest.warns(DeprecationWarning, match="from_pose"):
-        old.initialize_pose(world.poses[0], COV0)
-    new = MonteCarloLocalization.from_pose(
-        field, motion, np.random.default_rng(3), world.poses[0], COV0, cfg, free
-    )
-    for k in range(1, 20):
-        for m in (old, new):
-            m.update_scan(world.odometry[k - 1], world.odometry[k], world.ranges[k], world.angles)
-        assert np.array_equal(old.particles, new.particles)
-        assert np.array_equal(old.log_weights, new.log_weights)
-    with pytest.warns(DeprecationWarning):
-        old = MonteCarloLocalization(field, motion, np.random.default_rng(3), cfg, free)
-    with pytest.warns(DeprecationWarning, match="uniform"):
-        old.initialize_global()
-    new = MonteCarloLocalization.uniform(field, motion, np.random.default_rng(3), free, cfg)
-    assert np.array_equal(old.particles, new.particles)
-    with pytest.warns(DeprecationWarning):
-        plain = MonteCarloLocalization(field, motion, np.random.default_rng(3))
-    with pytest.raises(ValueError, match="free_space"), pytest.warns(DeprecationWarning):
-        plain.initialize_global()

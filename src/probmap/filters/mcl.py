@@ -23,9 +23,7 @@ stateful :class:`MonteCarloLocalization`, which holds the particle set and calls
 
 A filter is valid as soon as it is built: give the initial particle set
 (``MonteCarloLocalization(..., particles=p)``) or use :meth:`MonteCarloLocalization.from_pose`
-(tracking) or :meth:`MonteCarloLocalization.uniform` (global localization). The old pattern,
-construction without particles followed by ``initialize_pose`` / ``initialize_global``, still
-works and gives the same particles, with a ``DeprecationWarning``.
+(tracking) or :meth:`MonteCarloLocalization.uniform` (global localization).
 """
 
 from __future__ import annotations
@@ -545,8 +543,7 @@ class MonteCarloLocalization:
         Needed for global localization, augmented MCL and recovery from all-zero weights.
     particles : array_like, shape (N, 3), keyword-only
         The initial particle set ``(x, y, theta)``, map frame (m, rad), with uniform weights;
-        see also :meth:`from_pose` and :meth:`uniform`. Leaving it out is deprecated: the
-        particles then sit at the origin until ``initialize_pose`` / ``initialize_global``.
+        see also :meth:`from_pose` and :meth:`uniform`.
 
     Examples
     --------
@@ -568,7 +565,7 @@ class MonteCarloLocalization:
         config: MCLConfig | None = None,
         free_space: FreeSpaceSampler | None = None,
         *,
-        particles: ArrayLike | None = None,
+        particles: ArrayLike,
     ) -> None:
         self.config = config or MCLConfig()
         if self.config.augmented and free_space is None:
@@ -579,20 +576,11 @@ class MonteCarloLocalization:
         self.free_space = free_space
         self.w_slow = 0.0
         self.w_fast = 0.0
-        if particles is None:
-            warnings.warn(
-                "MonteCarloLocalization without particles is deprecated: pass particles=, or "
-                "use MonteCarloLocalization.from_pose(...) / .uniform(...)",
-                DeprecationWarning,
-                stacklevel=2,
-            )
-            p = np.zeros((self.config.n_particles, 3))
-        else:
-            p = np.array(particles, dtype=np.float64)  # a copy: the filter moves it in place
-            if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] == 0:
-                raise ValueError(f"particles must have shape (N, 3) with N > 0, got {p.shape}")
-            if not np.all(np.isfinite(p)):
-                raise ValueError("particles must be finite")
+        p = np.array(particles, dtype=np.float64)  # a copy: the filter moves it in place
+        if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] == 0:
+            raise ValueError(f"particles must have shape (N, 3) with N > 0, got {p.shape}")
+        if not np.all(np.isfinite(p)):
+            raise ValueError("particles must be finite")
         self._reset(p)
 
     # -- construction -------------------------------------------------------------------------
@@ -629,33 +617,6 @@ class MonteCarloLocalization:
         cfg = config or MCLConfig()
         p = free_space.sample(cfg.n_particles, rng)
         return cls(sensor, motion, rng, cfg, free_space, particles=p)
-
-    # -- deprecated initialisation ------------------------------------------------------------
-    def initialize_pose(self, mean: ArrayLike, covariance: ArrayLike) -> None:
-        """Tracking: particles from a Gaussian around a known start pose.
-
-        .. deprecated:: use :meth:`from_pose` (same draws from the same generator).
-        """
-        warnings.warn(
-            "initialize_pose is deprecated: use MonteCarloLocalization.from_pose(...)",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        self._reset(sample_pose_gaussian(mean, covariance, self.config.n_particles, self.rng))
-
-    def initialize_global(self) -> None:
-        """Global localization: particles uniform over free space.
-
-        .. deprecated:: use :meth:`uniform` (same draws from the same generator).
-        """
-        warnings.warn(
-            "initialize_global is deprecated: use MonteCarloLocalization.uniform(...)",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        if self.free_space is None:
-            raise ValueError("global localization needs a free_space sampler")
-        self._reset(self.free_space.sample(self.config.n_particles, self.rng))
 
     def _reset(self, particles: NDArray[np.float64]) -> None:
         self.particles = np.ascontiguousarray(particles, dtype=np.float64)

@@ -1,6 +1,7 @@
-"""Graph SLAM on real laser logs (issue 18): the raw Intel log, the Freiburg hospital log and the
-Intel ROS bag, with default settings, each run in its own process; the RBPF on Intel and raw
-odometry as peers in the same run.
+"""Graph SLAM on real laser logs (issues 18, 36): the raw Intel log, the Freiburg hospital log,
+the Intel ROS bag and Freiburg 079 (whose look-alike offices fool closures), with default
+settings, each run in its own process; the RBPF on Intel and raw odometry as peers in the same
+run.
 
 Usage::
 
@@ -9,8 +10,9 @@ Usage::
 
 Per log: scans, pose-graph nodes, submaps; loop closures searched (node x submap searches),
 accepted, kept (robust weight >= 0.5 after the final optimization); closure precision;
-relation error (Kuemmerle et al. 2009, every relation whose two timestamps the run covers) of
-the robot poses (and, for the hospital, whose laser sits 0.22 m ahead of the robot, of the laser
+relation error (Kuemmerle et al. 2009, every relation whose two timestamps the run covers; and
+"loop", the relations whose scans lie more than 10 s apart, where only closures hold) of the
+robot poses (and, for the hospital, whose laser sits 0.22 m ahead of the robot, of the laser
 poses); wall time of SLAM (reading the log is shown apart), real-time factor (log duration over
 SLAM wall time) and the process's peak RSS (``getrusage(RUSAGE_SELF)``: the parsed log, numba,
 the submaps and the final map; one process per row).
@@ -62,7 +64,14 @@ LOGS = {
         "intel-research-lab/intel.orig.bag",
         "intel-research-lab/intel.relations",
     ),
+    "fr079": (
+        "Freiburg 079",
+        "freiburg-079/fr079.clf.bz2",
+        "freiburg-079/fr079.relations",
+    ),
 }
+KEYS = ("intel", "bag", "clinic", "fr079")
+LOOP_S = 10.0  # a relation between scans further apart than this is a loop relation
 BRIDGE_S = 2.0  # longest stretch of the run's own trajectory used to reach a relation
 AGREE = (0.2, math.radians(2.0))
 
@@ -77,6 +86,14 @@ def _within(rel: Any, times: np.ndarray) -> Any:
 
     lo, hi = float(times.min()) - 1e-3, float(times.max()) + 1e-3
     keep = (rel.t1 >= lo) & (rel.t1 <= hi) & (rel.t2 >= lo) & (rel.t2 <= hi)
+    return Relations(rel.t1[keep], rel.t2[keep], rel.delta[keep])
+
+
+def _loops(rel: Any) -> Any:
+    """The relations between scans more than ``LOOP_S`` apart."""
+    from probmap.metrics.relations import Relations
+
+    keep = np.abs(rel.t2 - rel.t1) > LOOP_S
     return Relations(rel.t1[keep], rel.t2[keep], rel.delta[keep])
 
 
@@ -220,6 +237,7 @@ def worker_graph(key: str, data: Path, end_time: float | None) -> dict[str, Any]
         "duration": run.duration,
         "relations": len(rel),
         "robot": _errors(run.times, run.poses, rel),
+        "loop": _errors(run.times, run.poses, _loops(rel)),
         "laser": _errors(run.times, run.sensor_poses, rel),
         "odo_robot": _errors(batch.times, robot, rel),
         "odo_laser": _errors(batch.times, laser, rel),
@@ -290,13 +308,14 @@ def _err(e: dict[str, float]) -> tuple[str, str]:
 COLUMNS = (
     "log", "method", "scans", "nodes", "submaps", "closures searched / accepted / kept",
     "precision (agree / verified)", "consistent", "relations", "trans. error m (mean ± std)",
-    "rot. error deg (mean ± std)", "read s", "SLAM s", "x real time", "peak MiB",
+    "rot. error deg (mean ± std)", "loop error m", "read s", "SLAM s", "x real time",
+    "peak MiB",
 )  # fmt: skip
 
 
 def rows_of(results: dict[str, dict[str, Any]]) -> list[tuple[str, ...]]:
     rows: list[tuple[str, ...]] = []
-    for key in ("intel", "bag", "clinic"):
+    for key in KEYS:
         if key not in results:
             continue
         r = results[key]
@@ -314,17 +333,20 @@ def rows_of(results: dict[str, dict[str, Any]]) -> list[tuple[str, ...]]:
         if r["mount"] > 1e-6:
             frames.append(("laser", "odo_laser", ", laser poses"))
         for mine, _, suffix in frames:
+            loop = (
+                f"{r['loop']['trans_abs_mean_m']:.4f}" if mine == "robot" and "loop" in r else "-"
+            )
             rows.append((name, f"graph SLAM{suffix}", f"{r['scans']:,}", f"{r['nodes']:,}",
                          f"{r['submaps']:,}", closures, prec, cons, f"{r['relations']:,}",
-                         *_err(r[mine]), *timing))  # fmt: skip
+                         *_err(r[mine]), loop, *timing))  # fmt: skip
         for _, odo, suffix in frames:
             odometry = "raw odometry" + (" (/odom)" if key == "bag" else "") + suffix
             rows.append((name, odometry, f"{r['scans']:,}", "-", "-", "-", "-", "-",
-                         f"{r['relations']:,}", *_err(r[odo]), "-", "-", "-", "-"))  # fmt: skip
+                         f"{r['relations']:,}", *_err(r[odo]), "-", "-", "-", "-", "-"))  # fmt: skip
         if key == "intel" and "rbpf" in results:
             b = results["rbpf"]
             rows.append((name, "RBPF, 30 particles", f"{b['scans']:,}", "-", "-", "-", "-", "-",
-                         f"{b['relations']:,}", *_err(b["robot"]), "-", f"{b['slam_s']:.1f}",
+                         f"{b['relations']:,}", *_err(b["robot"]), "-", "-", f"{b['slam_s']:.1f}",
                          f"{b['duration'] / b['slam_s']:.1f}", f"{b['peak_mib']:.0f}"))  # fmt: skip
     return rows
 
@@ -370,7 +392,7 @@ def main() -> None:
     # whether the cache happened to be warm
     print("warming the kernel cache ...", file=sys.stderr, flush=True)
     _spawn("warm", args.data, 300.0)
-    jobs = ["intel", "bag", "clinic"] + ([] if args.skip_rbpf else ["rbpf"])
+    jobs = [*KEYS] + ([] if args.skip_rbpf else ["rbpf"])
     for job in jobs:
         print(f"running {job} ...", file=sys.stderr, flush=True)
         results[job] = _spawn(job, args.data, args.end_time)
@@ -382,7 +404,7 @@ def main() -> None:
     for row in rows:
         table.add_row(*row)
     Console(width=260).print(table)
-    for key in ("intel", "bag", "clinic"):
+    for key in KEYS:
         r = results[key]
         print(f"{LOGS[key][0]}: optimization {r['optimize_s']:.1f} s, closure search "
               f"{r['search_s']:.1f} s of {r['slam_s']:.1f} s")  # fmt: skip

@@ -683,6 +683,7 @@ def closure_report(slam: SubmapSlam) -> dict[str, Any]:
         "rejected": {
             "not_confirmed_by_earlier_nodes": loops.rejected,
             "correction_beyond_drift_bound": loops.drift_rejected,
+            "ambiguous_place": loops.ambiguous,
         },
         "trusted": loops.trusted,
         "down_weighted": int((weights < 0.5).sum()),

@@ -397,22 +397,31 @@ def _far_closures(world, config):
     return slam, out
 
 
+def _closures(cfg: SubmapSlamConfig, **changes: object) -> SubmapSlamConfig:
+    return dataclasses.replace(cfg, closures=dataclasses.replace(cfg.closures, **changes))
+
+
 def test_trusted_far_closures_are_the_right_ones(floorplan):
     """With exact odometry every estimate is right, so a confirmed far closure that would move
     one by metres is an aliased match (consensus confirms those too: the earlier nodes see the
-    same repeating rooms). The trust bound keeps exactly the right ones quadratic and leaves
-    the wrong ones to the robust cost, and only the right ones link their submaps in the travel
-    graph (a wrong link would be a shortcut that shrinks every later window and trust bound);
-    ``trust_drift = 0`` trusts none."""
-    slam, far = _far_closures(floorplan, SubmapSlamConfig())
+    same repeating rooms). With the ambiguity test off, so that such matches get through, the
+    trust bound keeps exactly the right ones quadratic and leaves the wrong ones to the robust
+    cost, and only the right ones link their submaps in the travel graph (a wrong link would be
+    a shortcut that shrinks every later window and trust bound); ``trust_drift = 0`` trusts
+    none. With the defaults the ambiguity test drops the aliased matches before all that."""
+    no_test = _closures(SubmapSlamConfig(), ambiguity=0.0)
+    slam, far = _far_closures(floorplan, no_test)
     right = [(robust, linked) for err, robust, linked in far if err < 0.05]
     wrong = [(robust, linked) for err, robust, linked in far if err > 1.0]
     assert right and wrong and len(right) + len(wrong) == len(far)
     assert all(not robust and linked for robust, linked in right)
     assert all(robust and not linked for robust, linked in wrong)
     assert slam.loops.trusted == len(right)
-    slam0, far0 = _far_closures(floorplan, config(trust_drift=0.0))
+    slam0, far0 = _far_closures(floorplan, _closures(no_test, trust_drift=0.0))
     assert slam0.loops.trusted == 0 and far0 and all(robust for _, robust, _ in far0)
+    default, far_default = _far_closures(floorplan, SubmapSlamConfig())
+    assert far_default and all(err < 0.05 for err, _, _ in far_default)
+    assert default.loops.ambiguous > 0
 
 
 def test_far_travel_is_not_shortened_by_closures_to_the_submap_just_behind(world):

@@ -136,6 +136,13 @@ class ClosureConfig:
         Finished submaps searched per node: the nearest ones whose extent the window reaches.
     points : int
         Endpoints used by the closure search (the scan is subsampled evenly to this many).
+    ambiguity : float
+        A far match is *ambiguous*, and dropped, when the window holds another pose at least
+        ``ambiguity_distance`` away that scores at least this fraction of its score (a
+        repetitive place: look-alike offices, a corridor seen along its length). 0 turns the
+        test off.
+    ambiguity_distance : float
+        Metres between two poses for them to be distinct places.
     """
 
     sd: tuple[float, float] = (0.05, 0.01)
@@ -156,9 +163,14 @@ class ClosureConfig:
     every: int = 1
     candidates: int = 3
     points: int = 90
+    ambiguity: float = 0.9
+    ambiguity_distance: float = 0.5
 
     def __post_init__(self) -> None:
         require_positive_finite("near_window", self.near_window)
+        require_positive_finite("ambiguity_distance", self.ambiguity_distance)
+        if not 0.0 <= self.ambiguity <= 1.0:
+            raise ValueError(f"ambiguity must lie in [0, 1], got {self.ambiguity}")
         require_nonnegative_finite("trust_drift", self.trust_drift)
         for name in ("min_score", "wide_min_score", "drift_min_score"):
             v = getattr(self, name)
@@ -252,6 +264,7 @@ class LoopClosing:
         self.rejected = 0  # far matches that earlier nodes did not confirm
         self.drift_rejected = 0  # low-scoring far matches beyond the trust bound
         self.trusted = 0  # confirmed far closures kept quadratic (trust_drift)
+        self.ambiguous = 0  # far matches dropped: another place scored nearly as well
         self._trusted_edges: set[int] = set()  # their edge indices
         self._unguarded: list[int] = []  # confirmed closures awaiting their first optimization
         self._closure_edges: list[int] = []  # edge index of each accepted closure
@@ -433,7 +446,9 @@ class LoopClosing:
             min_score = cfg.min_score
             if is_far:
                 min_score = min(cfg.wide_min_score, cfg.drift_min_score)
-            found = self._match_submap(k, sm, xk, float(lin[i]), float(ang[i]), min_score)
+            found = self._match_submap(
+                k, sm, xk, float(lin[i]), float(ang[i]), min_score, unique=is_far
+            )
             self.far_searched += is_far
             if found is None:
                 continue
@@ -457,10 +472,18 @@ class LoopClosing:
         self.search_seconds += time.perf_counter() - t0
 
     def _match_submap(
-        self, k: int, sm: Submap, xk: NDArray, lin: float, ang: float, min_score: float
+        self,
+        k: int,
+        sm: Submap,
+        xk: NDArray,
+        lin: float,
+        ang: float,
+        min_score: float,
+        unique: bool = False,
     ) -> tuple[NDArray[np.float64], float] | None:
         """Branch and bound of node ``k`` in submap ``sm`` around the current estimate, then
-        Gauss-Newton on the full scan; the pose in the submap frame and the search score."""
+        Gauss-Newton on the full scan; the pose in the submap frame and the search score.
+        ``unique``: None also when the match is ambiguous (:meth:`_ambiguous`)."""
         from probmap.slam.laser.loop_closure import branch_and_bound_search
 
         if self._node_points[k].shape[0] < 10:  # a blind scan (a consensus check may pick one)
@@ -478,6 +501,9 @@ class LoopClosing:
         )
         if found is None:
             return None
+        if unique and self._ambiguous(grids, self._node_points[k], guess, found, lin, ang):
+            self.ambiguous += 1
+            return None
         full = self._full_points(k)
         m = self.matcher
         pose, _, _ = refine(fld, full, found.pose, m.iterations, (m.linear_step, m.angular_step))
@@ -485,6 +511,34 @@ class LoopClosing:
         if score / max(full.shape[0], 1) < self.min_match_score:
             return None
         return pose, float(found.score)
+
+    def _ambiguous(
+        self, grids: Any, points: NDArray, guess: NDArray, found: Any, lin: float, ang: float
+    ) -> bool:
+        """Whether another pose, at least ``ambiguity_distance`` from the best one, scores at
+        least ``ambiguity`` times its score. Four more searches, each as wide as the first,
+        cover the window outside the square of that half-width around the best pose: left
+        and right of it over the window's height, below and above it over its own width."""
+        from probmap.slam.laser.loop_closure import branch_and_bound_search
+
+        cfg = self.config
+        if cfg.ambiguity <= 0.0 or lin <= cfg.ambiguity_distance:
+            return False
+        d = cfg.ambiguity_distance
+        bx, by = float(found.pose[0]), float(found.pose[1])
+        gx, gy, gt = (float(v) for v in guess)
+        half = lin  # each sub-window is as wide as the window
+        centres = (
+            (bx - d - half, gy), (bx + d + half, gy), (bx, by - d - half), (bx, by + d + half),
+        )  # fmt: skip
+        for cx, cy in centres:
+            other = branch_and_bound_search(
+                grids, points, (cx, cy, gt), linear_window=half, angular_window=ang,
+                min_score=cfg.ambiguity * found.score,
+            )  # fmt: skip
+            if other is not None:
+                return True
+        return False
 
     def _confirm(
         self,

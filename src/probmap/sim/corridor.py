@@ -13,15 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from probmap.grid.raycast import cast_rays
 from probmap.grid.spec import GridSpec
-from probmap.sim.laser import (
-    SimulatedLaserWorld,
-    drift_odometry,
-    interpolate_route,
-    noisy_ranges,
-    poses_along,
-)
+from probmap.sim.laser import SimulatedLaserWorld, drive_route, interpolate_route, walled_box
 
 __all__ = ["corridor_plan", "simulate_corridor_loop"]
 
@@ -33,14 +26,7 @@ def corridor_plan(
     ``length`` x ``height`` metre rectangle, and its GridSpec (origin (0, 0))."""
     if not (length > 2 * width + 1 and height > 2 * width + 1 and width > 0):
         raise ValueError(f"need length, height > 2 width + 1 m, got {length}, {height}, {width}")
-    shape = (round(height / resolution), round(length / resolution))
-    spec = GridSpec(resolution, (0.0, 0.0), shape)
-    occ = np.zeros(spec.shape, dtype=bool)
-    t = max(1, round(0.15 / resolution))  # wall thickness in cells
-    occ[:t, :] = True
-    occ[-t:, :] = True
-    occ[:, :t] = True
-    occ[:, -t:] = True
+    occ, spec, _ = walled_box(length, height, resolution)
     i0, i1 = round(width / resolution), round((length - width) / resolution)
     j0, j1 = round(width / resolution), round((height - width) / resolution)
     occ[j0:j1, i0:i1] = True
@@ -90,11 +76,8 @@ def simulate_corridor_loop(
     lap = interpolate_route(way, step)
     extra = int(len(lap) * (laps - 1.0))
     xy = np.concatenate([lap, lap[1 : 1 + extra]]) if extra > 0 else lap
-    poses = poses_along(xy, rng, 0.03)
     angles = np.linspace(-np.pi / 2, np.pi / 2, n_beams)
-    ranges = noisy_ranges(
-        cast_rays(truth, spec, poses, angles, max_range), max_range, rng, range_noise
-    )
-    odo = drift_odometry(poses, rng, pose_noise)
-    times = np.arange(len(poses), dtype=np.float64) * 0.1
-    return SimulatedLaserWorld(truth, spec, poses, odo, ranges, angles, float(max_range), times)
+    return drive_route(
+        truth, spec, xy, rng, angles, max_range=max_range, range_noise=range_noise,
+        pose_noise=pose_noise, heading_noise=0.03,
+    )  # fmt: skip

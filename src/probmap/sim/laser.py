@@ -26,6 +26,8 @@ from numpy.typing import ArrayLike, NDArray
 from probmap.grid.spec import GridSpec
 
 __all__ = [
+    "drive_route",
+    "walled_box",
     "SimulatedLaserWorld",
     "drift_odometry",
     "interpolate_route",
@@ -199,3 +201,47 @@ def drift_odometry(
         c, s = math.cos(odo[k - 1, 2]), math.sin(odo[k - 1, 2])
         odo[k] = odo[k - 1] + np.array([c * fwd - s * lat, s * fwd + c * lat, dth])
     return odo
+
+
+def walled_box(
+    length: float, height: float, resolution: float
+) -> tuple[NDArray[np.bool_], GridSpec, int]:
+    """An empty ``length`` x ``height`` metre rectangle with walls 0.15 m thick along its
+    border: the occupancy (H, W), its GridSpec (origin (0, 0)) and the wall thickness in cells,
+    for the floor plans to draw their inner walls in."""
+    shape = (round(height / resolution), round(length / resolution))
+    spec = GridSpec(resolution, (0.0, 0.0), shape)
+    occ = np.zeros(spec.shape, dtype=bool)
+    t = max(1, round(0.15 / resolution))  # wall thickness in cells
+    occ[:t, :] = True
+    occ[-t:, :] = True
+    occ[:, :t] = True
+    occ[:, -t:] = True
+    return occ, spec, t
+
+
+def drive_route(
+    truth: NDArray[np.bool_],
+    spec: GridSpec,
+    xy: ArrayLike,
+    rng: np.random.Generator,
+    angles: NDArray[np.float64],
+    *,
+    max_range: float,
+    range_noise: float,
+    pose_noise: tuple[float, float],
+    heading_noise: float,
+    period: float = 0.1,
+) -> SimulatedLaserWorld:
+    """A robot on the route ``xy`` (M, 2) in ``truth``: poses along it (heading noise
+    ``heading_noise`` rad), noisy scans, drifting odometry and a scan every ``period``
+    seconds, drawn from ``rng`` in that order."""
+    from probmap.grid.raycast import cast_rays
+
+    poses = poses_along(np.asarray(xy, dtype=np.float64), rng, heading_noise)
+    ranges = noisy_ranges(
+        cast_rays(truth, spec, poses, angles, max_range), max_range, rng, range_noise
+    )
+    odo = drift_odometry(poses, rng, pose_noise)
+    times = np.arange(len(poses), dtype=np.float64) * period
+    return SimulatedLaserWorld(truth, spec, poses, odo, ranges, angles, float(max_range), times)

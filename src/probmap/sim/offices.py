@@ -13,15 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from probmap.grid.raycast import cast_rays
 from probmap.grid.spec import GridSpec
-from probmap.sim.laser import (
-    SimulatedLaserWorld,
-    drift_odometry,
-    interpolate_route,
-    noisy_ranges,
-    poses_along,
-)
+from probmap.sim.laser import SimulatedLaserWorld, drive_route, interpolate_route, walled_box
 
 __all__ = ["office_floor_plan", "simulate_office_floor"]
 
@@ -40,16 +33,7 @@ def office_floor_plan(
     (0, 0), the corridor along +x at ``depth < y < depth + corridor``)."""
     if not (offices >= 2 and office > door > 0 and depth > 0 and corridor > 0):
         raise ValueError("need offices >= 2 and office > door > 0, depth, corridor > 0")
-    length = offices * office
-    height = 2 * depth + corridor
-    shape = (round(height / resolution), round(length / resolution))
-    spec = GridSpec(resolution, (0.0, 0.0), shape)
-    occ = np.zeros(spec.shape, dtype=bool)
-    t = max(1, round(0.15 / resolution))  # wall thickness in cells
-    occ[:t, :] = True
-    occ[-t:, :] = True
-    occ[:, :t] = True
-    occ[:, -t:] = True
+    occ, spec, t = walled_box(offices * office, 2 * depth + corridor, resolution)
     y0, y1 = round(depth / resolution), round((depth + corridor) / resolution)
     occ[y0 : y0 + t, :] = True  # the corridor's two walls
     occ[y1 - t : y1, :] = True
@@ -102,12 +86,8 @@ def simulate_office_floor(
     y = depth + corridor / 2
     far = offices * office - 1.0
     way = np.array([[1.0, y], [far, y], [far - 0.01, y + 0.3], [1.0, y + 0.3]])
-    xy = interpolate_route(way, step)
-    poses = poses_along(xy, rng, 0.02)
     angles = np.linspace(-fov / 2, fov / 2, n_beams)
-    ranges = noisy_ranges(
-        cast_rays(truth, spec, poses, angles, max_range), max_range, rng, range_noise
-    )
-    odo = drift_odometry(poses, rng, pose_noise)
-    times = np.arange(len(poses), dtype=np.float64) * 0.1
-    return SimulatedLaserWorld(truth, spec, poses, odo, ranges, angles, float(max_range), times)
+    return drive_route(
+        truth, spec, interpolate_route(way, step), rng, angles, max_range=max_range,
+        range_noise=range_noise, pose_noise=pose_noise, heading_noise=0.02,
+    )  # fmt: skip

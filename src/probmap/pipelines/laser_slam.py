@@ -653,6 +653,10 @@ def run_config(
 
 
 # ----------------------------------------------------------------------------- reports
+#: Travel per visit of the self-consistency figure, metres (:func:`consistency_report`).
+VISIT_LENGTH = 10.0
+
+
 def _quantiles(x: NDArray[np.float64]) -> dict[str, float]:
     if not len(x):
         return {}
@@ -662,8 +666,9 @@ def _quantiles(x: NDArray[np.float64]) -> dict[str, float]:
 
 def closure_report(slam: SubmapSlam) -> dict[str, Any]:
     """What the loop-closure search did and how the accepted closures sit in the optimized
-    graph: counts (searched, accepted near and far, rejected and why, trusted, down-weighted by
-    the robust cost) and the distribution of the closure edges' residuals (metres, radians)."""
+    graph: counts (searched, accepted near and far, a far closure's confirmations counted as
+    far too; rejected and why, trusted, down-weighted by the robust cost) and the distribution
+    of the closure edges' residuals (metres, radians)."""
     from probmap.slam.posegraph.optimize import edge_residuals
 
     loops = slam.loops
@@ -707,12 +712,12 @@ def consistency_report(
     c = map_consistency(
         t, sensor_poses, np.asarray(batch.ranges)[:n],
         np.asarray(batch.angles) if np.ndim(batch.angles) == 1 else np.asarray(batch.angles)[:n],
-        float(batch.max_range),
+        float(batch.max_range), visit_length=VISIT_LENGTH,
     )  # fmt: skip
     t0 = float(t[0]) if n else 0.0
     return {
         "share": c.share,
-        "visit_length_m": 10.0,
+        "visit_length_m": VISIT_LENGTH,
         "visits": [
             {
                 "start_s": v.start - t0,

@@ -74,6 +74,8 @@ def test_slam_grid_graph_on_intel_writes_every_file(shared_data, tmp_path):
     assert 0 <= closures["down_weighted"] <= accepted
     res_m = closures["residual_m"]
     assert 0 <= res_m["median"] <= res_m["p90"] <= res_m["p99"] <= res_m["max"]
+    assert report["local"]["odometry_overridden_s"] == []  # Intel's odometry never glitches
+    assert "local SLAM" in res.output and "overrode the odometry 0 times" in res.output
     doubt = report["consistency"]
     assert 0.0 <= doubt["share"] < 1.0 and len(doubt["visits"]) >= 3  # 10 m each
     assert all(0 <= v["contradicted"] <= v["occupied"] for v in doubt["visits"])

@@ -272,7 +272,13 @@ def _check_rows(report: dict[str, Any] | None) -> list[tuple[str, str]]:
         return []
     rejected = report["closures"]["rejected"]
     share = report["consistency"]["share"]
+    overridden = report["local"]["odometry_overridden_s"]
+    local = f"overrode the odometry {len(overridden):,} times"
+    if overridden:
+        shown = ", ".join(f"{t:.0f}" for t in overridden[:6])
+        local += f" (t = {shown}{', ...' if len(overridden) > 6 else ''} s)"
     return [
+        ("local SLAM", local),
         (
             "closures rejected",
             f"{rejected['not_confirmed_by_earlier_nodes']:,} not confirmed, "

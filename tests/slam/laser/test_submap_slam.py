@@ -473,6 +473,8 @@ def test_odometry_glitch_is_recovered_by_the_wide_search(world):
 
     slam, across, worst = run(SubmapSlamConfig())
     assert slam.recovered >= 1 and across < 0.05 and worst < 0.15
+    # the node whose match overrode the odometry is recorded, where the glitch starts
+    assert slam.gated_scans and 150 <= slam.gated_scans[0] <= 160
     off, across_off, _ = run(config(recover_score=0.0))
     assert off.recovered == 0 and across_off > 0.3
 

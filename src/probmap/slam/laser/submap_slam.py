@@ -390,6 +390,7 @@ class SubmapSlam:
         self.failed_matches = 0
         self.recovered = 0  # wide re-searches after a poor local match
         self.odometry_gated = 0  # odometry increments left out (the match searched wide)
+        self.gated_scans: list[int] = []  # the scans whose node left its odometry out
         self._odometry_trusted = True
         self.optimizations = 0
         self.optimize_seconds = 0.0
@@ -524,6 +525,7 @@ class SubmapSlam:
                     self.graph.add_edge(k - 1, k, u, edge_information((sxy, sth)))
                 else:
                     self.odometry_gated += 1
+                    self.gated_scans.append(scan)
         self._last_node_odometry = odo.copy()
         if k:
             step = float(np.hypot(*between(self.local[k - 1], local)[:2]))

@@ -475,7 +475,11 @@ def test_odometry_glitch_is_recovered_by_the_wide_search(world):
     assert slam.recovered >= 1 and across < 0.05 and worst < 0.15
     # the node whose match overrode the odometry is recorded, where the glitch starts
     assert slam.gated_scans and 150 <= slam.gated_scans[0] <= 160
-    off, across_off, _ = run(config(recover_score=0.0))
+    no_wide = config(recover_score=0.0)
+    no_wide = dataclasses.replace(
+        no_wide, local=dataclasses.replace(no_wide.local, recover_drop=0.0)
+    )
+    off, across_off, _ = run(no_wide)
     assert off.recovered == 0 and across_off > 0.3
 
 
@@ -684,3 +688,61 @@ def test_a_session_saved_before_scan_offsets_resumes(world, tmp_path):
     base = np.asarray(resumed.node_scan)[k]
     np.testing.assert_allclose(first, between(odo[base], odo[: n // 2]), atol=1e-12)
     np.testing.assert_array_equal(resumed.scan_offset[n // 2 :], ref.scan_offset[n // 2 :])
+
+
+def test_odometry_that_logs_reversing_as_forward_driving_is_refuted(world):
+    """Freiburg 079's fault: for 20 scans the robot backs up 2 m along the corridor while the
+    odometry reports the same motion forward. The matches there score well under the
+    recent level (``recover_drop``), so the wide search finds the scans where they are, and the
+    scan refutes the odometry (``check_odometry``): the increments are left out of the graph
+    and the pose after the reversal is where it is. Without the two tests the matches stick
+    to the window's edge and the odometry edges pull the trajectory forward."""
+    occ, spec, truth, odo, _, angles, max_range, _ = world
+    g, m = 120, 20
+    back = truth[g - 1 - np.arange(1, m + 1)].copy()  # backing up: the headings stay
+    path = np.concatenate([truth[:g], back, truth[g - 1 - m : g - 1 - m + 60]])
+    rng = np.random.default_rng(3)
+    ranges = cast_rays(occ, spec, path, angles, max_range)
+    hit = ranges < max_range
+    ranges = np.where(hit, ranges + rng.normal(0.0, 0.01, ranges.shape), max_range)
+    u = between(path[:-1], path[1:])
+    u[g - 1 : g - 1 + m, 0] *= -1.0  # the wheels report forward driving
+    u[:, 0] *= 1.0 + rng.normal(0.0, 0.02, len(u))
+    reported = [path[0]]
+    for ui in u:
+        reported.append(compose(reported[-1], ui))
+
+    def run(cfg):
+        slam = SubmapSlam(cfg, max_range=max_range)
+        for i in range(len(path)):
+            slam.add_scan(0.1 * i, ranges[i], angles, reported[i])
+        slam.finish()
+        est = slam.trajectory()[1]
+        a, b = g - 2, g + m + 10  # before the reversal, and 10 scans after it
+        d = between(between(est[a], est[b]), between(path[a], path[b]))
+        return slam, math.hypot(d[0], d[1])
+
+    slam, err = run(SubmapSlamConfig())
+    assert err < 0.05
+    assert slam.odometry_gated >= 5 and all(g - 1 <= s <= g + m + 1 for s in slam.gated_scans)
+    default = SubmapSlamConfig()
+    trusting = dataclasses.replace(
+        default,
+        local=dataclasses.replace(default.local, check_odometry=False, recover_drop=0.0),
+    )
+    _, err_off = run(trusting)
+    assert err_off > 0.3
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"recover_drop": 1.5}, "recover_drop must lie in [0, 1], got 1.5"),
+        ({"check_odometry": "yes"}, "check_odometry must be true or false, got 'yes'"),
+    ],
+)
+def test_local_config_refuses_bad_odometry_checks(kwargs, message):
+    from probmap.slam.laser.submap_slam import LocalMatchingConfig
+
+    with pytest.raises(ValueError, match="^" + re.escape(message) + "$"):
+        LocalMatchingConfig(**kwargs)

@@ -75,6 +75,15 @@ class BagError(DatasetError):
     """A bag that cannot be read or used: names the file and the topic, frame or time."""
 
 
+class NoPoseSourceError(BagError):
+    """A bag with neither tf links nor odometry into the laser frame ``laser_frame``: its scans
+    can only be read in the laser's own frame (every pose the same), as lidar-only SLAM does."""
+
+    def __init__(self, message: str, *, path: object = None, laser_frame: str = "") -> None:
+        super().__init__(message, path=path)
+        self.laser_frame = laser_frame
+
+
 class MapFileError(DatasetError):
     """A malformed or inconsistent map file; the message names the file and field."""
 

@@ -198,11 +198,17 @@ def _flaser(t: float, pose: tuple[float, float, float]) -> str:
     return f"FLASER 180 {r} {p} {p} {t:.6f} host {t:.6f}"
 
 
-def test_log_without_odometry_is_refused(tmp_path):
+def test_log_without_odometry_is_read_and_its_scan_rate_checked(tmp_path):
+    from probmap.pipelines.laser_slam import has_odometry
+
     log = tmp_path / "still.clf"
     log.write_text("\n".join(_flaser(100.0 + i, (1.0, 2.0, 0.5)) for i in range(5)) + "\n")
-    with pytest.raises(ValueError, match="no odometry"):
-        load_laser_log(log)
+    batch = load_laser_log(log)  # graph SLAM runs on the scans alone then
+    assert not has_odometry(batch)
+    with pytest.raises(ValueError, match="^no odometry"):
+        run_submap_slam(batch, odometry=True)
+    with pytest.raises(ValueError, match="needs at least 2 scans a second"):
+        run_submap_slam(batch)
 
 
 def test_too_few_scans_and_bad_options_are_refused(tmp_path):
@@ -304,3 +310,71 @@ def test_intel_first_400_seconds_beats_odometry(shared_data):
     assert slam["relations"] > 200
     assert slam["trans_abs_mean_m"] < 0.06 < odo["trans_abs_mean_m"]
     assert slam["rot_abs_mean_deg"] < 2.0 < odo["rot_abs_mean_deg"]
+
+
+def _sim_batch(period: float, step: float, n: int = 120, still: bool = False):
+    """A ScanBatch along the longest straight stretch of a simulated floor plan's route,
+    ``step`` metres per scan (the route's 0.05 m steps, every ``step / 0.05``-th), one scan
+    every ``period`` seconds; ``still``: every laser pose the same (a bag without odometry)."""
+    from probmap.datasets.records import ScanBatch
+    from probmap.sim.floorplan import simulate_laser_world
+
+    w = simulate_laser_world(seed=1, size=(12.0, 8.0), step=0.05, range_noise=0.01)
+    turn = np.abs(wrap_angle(np.diff(w.poses[:, 2]))) > 0.3
+    cuts = np.flatnonzero(turn)
+    bounds = np.concatenate([[-1], cuts, [len(w.poses) - 1]])
+    k = int(np.argmax(np.diff(bounds)))
+    idx = np.arange(bounds[k] + 1, bounds[k + 1] + 1)[:: max(round(step / 0.05), 1)][:n]
+    truth = w.poses[idx]
+    poses = np.zeros_like(truth) if still else truth
+    m = len(idx)
+    batch = ScanBatch(
+        times=period * np.arange(m, dtype=np.float64),
+        ranges=np.asarray(w.ranges[idx], dtype=np.float32),
+        angles=np.asarray(w.angles, dtype=np.float64),
+        laser_poses=poses.copy(),
+        robot_poses=poses.copy(),
+        max_range=float(w.max_range),
+        beams=np.full(m, len(w.angles), dtype=np.int64),
+    )
+    return batch, truth
+
+
+def test_a_log_without_odometry_runs_lidar_only():
+    from probmap.pipelines.laser_slam import has_odometry
+
+    batch, truth = _sim_batch(0.1, 0.05, still=True)
+    assert not has_odometry(batch)
+    run = run_submap_slam(batch)  # the default: odometry when there is any
+    assert run.slam.lidar_only and not run.slam.untracked_scans
+    d = between(between(run.poses[0], run.poses[-1]), between(truth[0], truth[-1]))
+    assert np.hypot(d[0], d[1]) < 0.1
+    with pytest.raises(ValueError, match="^no odometry .*run without odometry"):
+        run_submap_slam(batch, odometry=True)
+
+
+def test_no_odometry_ignores_the_odometry_the_log_has():
+    batch, _ = _sim_batch(0.1, 0.05)
+    assert run_submap_slam(batch, odometry=False).slam.lidar_only
+    assert not run_submap_slam(batch).slam.lidar_only
+
+
+def test_a_lidar_only_log_at_1_hz_is_refused():
+    batch, _ = _sim_batch(1.0, 0.5)
+    with pytest.raises(ValueError, match=r"needs at least 2 scans a second.*1 a second"):
+        run_submap_slam(batch, odometry=False)
+    # with odometry the same log runs
+    assert not run_submap_slam(batch).slam.lidar_only
+
+
+def test_scans_that_never_overlap_are_refused_without_odometry():
+    """A bag with neither odometry nor usable overlap: every scan of other surroundings
+    (ranges drawn at random), 10 a second."""
+    import dataclasses
+
+    batch, _ = _sim_batch(0.1, 0.05, still=True)
+    rng = np.random.default_rng(0)
+    noise = rng.uniform(0.5, 7.5, batch.ranges.shape).astype(np.float32)
+    batch = dataclasses.replace(batch, ranges=noise)
+    with pytest.raises(ValueError, match="do not overlap enough"):
+        run_submap_slam(batch)

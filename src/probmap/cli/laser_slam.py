@@ -88,6 +88,12 @@ def grid_command(
         help="graph: also write the run's state to FILE (a folder: FOLDER/slam.session), to "
         "continue it later with --resume (a Python pickle: load only sessions you wrote).",
     ),
+    odometry: bool | None = typer.Option(
+        None,
+        "--odometry/--no-odometry",
+        help="graph: use the log's odometry, or ignore it and predict each scan's motion "
+        "from the last one (lidar-only SLAM) [default: odometry when the log has any].",
+    ),
     resume: Path | None = typer.Option(
         None,
         "--resume",
@@ -121,11 +127,13 @@ def grid_command(
             raise ValueError("--viz and --viz-save watch the graph method (--method graph)")
         if method == "rbpf" and (save_session is not None or resume is not None):
             raise ValueError("--save-session and --resume are for the graph method")
+        if method == "rbpf" and odometry is not None:
+            raise ValueError("--odometry and --no-odometry are for the graph method")
         _slam_grid(
             log, prefix, method, rbpf_options, end_time, bag_options, config,
             skip_bad_lines=skip_bad_lines, viz=viz, viz_save=viz_save,
             save_partial=save_partial, tum=tum, save_session=save_session, resume=resume,
-            watch=watch,
+            watch=watch, odometry=odometry,
         )  # fmt: skip
 
 
@@ -146,6 +154,7 @@ def _slam_grid(
     save_session: Path | None,
     resume: Path | None,
     watch: Any,
+    odometry: bool | None = None,
 ) -> None:
     """Resolve the configuration, set up the progress bar, live view and Ctrl-C handling,
     call :func:`probmap.pipelines.laser_slam.slam_grid` and print its summary."""
@@ -214,7 +223,7 @@ def _slam_grid(
                 log, prefix, cfg, end_time=end_time, bag_options=bag_options,
                 skip_bad_lines=skip_bad_lines, resume=session, save_session=save_session,
                 tum=tum, command=command_line(), title=log.name, progress=tick,
-                observer=observer, stop=stop, phase=watch,
+                observer=observer, stop=stop, phase=watch, odometry=odometry,
             )  # fmt: skip
         if observer is not None:
             observer.view.close()
@@ -273,10 +282,16 @@ def _check_rows(report: dict[str, Any] | None) -> list[tuple[str, str]]:
     rejected = report["closures"]["rejected"]
     share = report["consistency"]["share"]
     overridden = report["local"]["odometry_overridden_s"]
-    local = f"overrode the odometry {len(overridden):,} times"
-    if overridden:
-        shown = ", ".join(f"{t:.0f}" for t in overridden[:6])
-        local += f" (t = {shown}{', ...' if len(overridden) > 6 else ''} s)"
+    if report["local"].get("lidar_only"):
+        lost = report["local"]["untracked_s"]
+        local = f"no odometry: lidar only, {len(lost):,} scans matched nothing"
+        shown_t = lost
+    else:
+        local = f"overrode the odometry {len(overridden):,} times"
+        shown_t = overridden
+    if shown_t:
+        shown = ", ".join(f"{t:.0f}" for t in shown_t[:6])
+        local += f" (t = {shown}{', ...' if len(shown_t) > 6 else ''} s)"
     return [
         ("local SLAM", local),
         (

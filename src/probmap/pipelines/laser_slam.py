@@ -150,14 +150,27 @@ def load_laser_log(
     DatasetError
         Unreadable or malformed input (naming the file and line), or no usable reading.
     ValueError
-        For the graph method: a log without odometry (every pose the same) or with fewer than
-        two scans (the RBPF matches scans alone then, with a warning).
+        For the graph method: fewer than two scans, or poses that are not finite. A log
+        without odometry (every pose the same, :func:`has_odometry`) is read: graph SLAM
+        runs on the scans alone then, the RBPF too, with a warning.
     """
     poses = "corrected" if method == "graph" else "odometry"
     batch = _open_laser_scans(path, poses, end_time, bag_options, skip_bad_lines)
     if method == "graph":
-        _require_odometry(path, batch)
+        _require_scans(path, batch)
     return batch
+
+
+#: Longest median scan period (seconds) lidar-only SLAM accepts: its wide search covers a
+#: change of speed of 0.6 m per scan period, so at 2 scans a second a change of 1.2 m/s.
+LIDAR_ONLY_PERIOD = 0.5
+
+
+def has_odometry(batch: ScanBatch) -> bool:
+    """Whether the scans carry odometry: False when every scan has the same laser pose (a
+    bag without odometry or tf read in the laser's own frame, a log that writes zeros)."""
+    laser = np.asarray(batch.laser_poses)
+    return bool(len(laser) and not np.all(laser == laser[0]))
 
 
 def _open_laser_scans(
@@ -168,31 +181,37 @@ def _open_laser_scans(
     skip_bad_lines: bool,
 ) -> ScanBatch:
     """:func:`probmap.datasets.open_scans` as both grid SLAMs read a log: float32 ranges, the
-    scans posed as ``poses`` says (``"corrected"`` or ``"odometry"``)."""
+    scans posed as ``poses`` says (``"corrected"`` or ``"odometry"``). A bag with neither tf
+    nor odometry into the laser frame (a handheld or backpack recording) is read in the
+    laser's own frame, unless a fixed frame was named: SLAM then runs on the scans alone."""
     from probmap.datasets.scans import open_scans
+    from probmap.errors import NoPoseSourceError
 
-    return open_scans(
-        path,
-        poses=poses,
-        dtype=np.float32,
-        skip_bad_lines=skip_bad_lines,
-        bag_options=bag_options,
-        end_time=end_time,
-    )
+    def read(options: dict[str, Any] | None) -> ScanBatch:
+        return open_scans(
+            path,
+            poses=poses,
+            dtype=np.float32,
+            skip_bad_lines=skip_bad_lines,
+            bag_options=options,
+            end_time=end_time,
+        )
+
+    try:
+        return read(bag_options)
+    except NoPoseSourceError as exc:
+        if (bag_options or {}).get("fixed_frame"):
+            raise
+        return read({**(bag_options or {}), "fixed_frame": exc.laser_frame})
 
 
-def _require_odometry(path: object, batch: ScanBatch) -> None:
-    """Refuse what no grid SLAM can run on: fewer than two scans, or no odometry."""
+def _require_scans(path: object, batch: ScanBatch) -> None:
+    """Refuse what graph SLAM cannot run on: fewer than two scans, or poses not finite."""
     if len(batch.times) < 2:
         raise ValueError(f"{path}: grid SLAM needs at least 2 scans, found {len(batch.times)}")
     laser = np.asarray(batch.laser_poses)
     if not np.isfinite(laser).all():
         raise ValueError(f"{path}: the scans' odometry poses are not finite")
-    if np.all(laser == laser[0]):
-        raise ValueError(
-            f"{path}: no odometry (every scan has the same pose); grid SLAM needs "
-            "odometry to predict the motion between scans"
-        )
 
 
 def run_submap_slam(
@@ -204,9 +223,14 @@ def run_submap_slam(
     stop: Callable[[], bool] | None = None,
     resume: SubmapSlam | None = None,
     save_session: str | os.PathLike[str] | None = None,
+    odometry: bool | None = None,
 ) -> SubmapSlamRun:
     """Run :class:`~probmap.slam.laser.submap_slam.SubmapSlam` over a scan batch (see
     :func:`load_laser_log`) and build the final map.
+
+    ``odometry``: True uses the scans' odometry poses, False ignores them (lidar-only SLAM:
+    a constant-velocity prediction, see ``SubmapSlam.add_scan``), None (the default) uses
+    them when the batch has any (:func:`has_odometry`) and a resumed session took them.
 
     ``observer``, when given, is called after every scan as ``observer(index, slam, ranges,
     angles)`` (the live view: :class:`probmap.viz.live.GraphSlamObserver`); if it has a
@@ -246,6 +270,25 @@ def run_submap_slam(
     else:
         slam = SubmapSlam(cfg, max_range=float(batch.max_range))
     earlier = len(slam.scan_times)  # scans of the session before this batch
+    found = has_odometry(batch)
+    if odometry is None:
+        odometry = found if not earlier else not slam.lidar_only
+    if odometry and not found:
+        raise ValueError(
+            "no odometry (every scan has the same pose): run without odometry "
+            "(lidar-only SLAM) instead"
+        )
+    if not odometry and len(times) > 1:
+        period = float(np.median(np.diff(times)))
+        if period > LIDAR_ONLY_PERIOD:
+            raise ValueError(
+                f"lidar-only SLAM (no odometry) needs at least {1 / LIDAR_ONLY_PERIOD:g} scans "
+                f"a second, and these come {1 / max(period, 1e-9):.2g} a second (median "
+                f"period {period:.2f} s): nothing else predicts the motion between them"
+            )
+    if earlier and odometry == slam.lidar_only:
+        was = "without" if slam.lidar_only else "with"
+        raise ValueError(f"the resumed session ran {was} odometry: so must its continuation")
     n_total = n = len(times)
     peak = 0
     for i in range(n):
@@ -256,7 +299,7 @@ def run_submap_slam(
             a, r = angles, batch.ranges[i]
         else:
             a, r = angles[i, : beams[i]], batch.ranges[i, : beams[i]]
-        slam.add_scan(times[i], r, a, laser[i])
+        slam.add_scan(times[i], r, a, laser[i] if odometry else None)
         if observer is not None:
             observer(i, slam, r, a)
         if i % 200 == 199 or i == n - 1:
@@ -264,6 +307,13 @@ def run_submap_slam(
             release_freed_memory()  # finished submaps' grids and evicted max-grids
         if progress is not None and (i % 20 == 19 or i == n - 1):
             progress(i + 1, n)  # often enough for a steady rate (and ETA) in the bar
+    if slam.lidar_only and len(slam.untracked_scans) > 0.5 * max(len(slam.scan_times), 1):
+        raise ValueError(
+            f"no odometry, and the scans do not overlap enough to follow the motion: "
+            f"{len(slam.untracked_scans):,} of {len(slam.scan_times):,} scans matched nothing "
+            f"(lidar-only SLAM assumes scans that overlap and a motion that changes little "
+            f"from one scan to the next)"
+        )
     if n < n_total:  # stopped early: the scans it got to
         times, mount = times[:n], mount[:n]
     if earlier:  # a resumed session: the result covers all of its scans
@@ -534,6 +584,7 @@ def slam_grid(
     observer: Callable[..., Any] | None = None,
     stop: Callable[[], bool] | None = None,
     phase: Callable[[str], AbstractContextManager[Any]] | None = None,
+    odometry: bool | None = None,
 ) -> LaserSlamOutput:
     """``probmap slam grid``: read ``log``, run the method ``config`` belongs to (submap graph
     SLAM by default, or continue ``resume``), and write every output under ``prefix``, all or
@@ -548,7 +599,8 @@ def slam_grid(
     ``progress``, ``observer`` and ``stop`` are passed to the run (``observer`` and ``stop``:
     the graph method only; see :func:`run_submap_slam`). ``phase(name)``, when given, is entered
     around each phase: ``"read"``, ``"compute"``, ``"check"`` (graph method) and ``"write"``
-    (the CLI's stopwatch).
+    (the CLI's stopwatch). ``odometry``: see :func:`run_submap_slam` (the graph method; the
+    RBPF always uses what odometry there is).
 
     Raises
     ------
@@ -564,6 +616,8 @@ def slam_grid(
         raise ValueError("--save-session and --resume are for the graph method")
     if method == "rbpf" and (observer is not None or stop is not None):
         raise ValueError("a live view and a partial stop are for the graph method")
+    if method == "rbpf" and odometry is False:
+        raise ValueError("--no-odometry is for the graph method")
     if resume is not None and config is not None and config != resume.config:
         raise ValueError("--resume continues with the session's own configuration; no --config")
     with phase("read"):
@@ -597,6 +651,7 @@ def slam_grid(
                 run = run_submap_slam(
                     batch, graph_config, progress=progress,  # type: ignore[arg-type]
                     observer=observer, stop=stop, resume=resume, save_session=part,
+                    odometry=odometry,
                 )  # fmt: skip
         used = resume.config if resume is not None else run_config(run, config)
         report = None
@@ -675,7 +730,9 @@ def local_report(slam: SubmapSlam, times: ArrayLike) -> dict[str, Any]:
     t = np.asarray(times, dtype=np.float64)
     t0 = float(t[0]) if len(t) else 0.0
     return {
+        "lidar_only": slam.lidar_only,
         "odometry_overridden_s": [float(t[k]) - t0 for k in slam.gated_scans if k < len(t)],
+        "untracked_s": [float(t[k]) - t0 for k in slam.untracked_scans if k < len(t)],
         "failed_matches": slam.failed_matches,
         "wide_searches": slam.recovered,
     }

@@ -49,7 +49,7 @@ from probmap.datasets.ros._reader import (
 )
 from probmap.datasets.ros.tf import TF_TYPES, TfBuffer, _add_tf, yaw_from_quaternion
 from probmap.datasets.validate import PoseLimits, PoseTracker, ReadingReport, validate_ranges
-from probmap.errors import BadLinesWarning, BagError
+from probmap.errors import BadLinesWarning, BagError, NoPoseSourceError
 
 if TYPE_CHECKING:
     from typing_extensions import Unpack
@@ -395,11 +395,12 @@ class RosBag:
             if name in chain:
                 return name
         if len(chain) == 1:
-            raise BagError(
+            raise NoPoseSourceError(
                 f"the bag has no tf link and no nav_msgs/Odometry into the laser frame "
                 f"{laser!r}: cannot place the scans (fixed_frame={laser!r}, or probmap map "
                 f"--fixed-frame {laser}, reads them in the laser's own frame)",
                 path=self.path,
+                laser_frame=laser,
             )
         return chain[-1]
 

@@ -155,6 +155,13 @@ class LocalMatchingConfig:
         driving: on the hospital at 3,473 s, 91 returns matched 0.31 rad off at a mean score of
         0.42, and in its perturbed copies such turns broke the map (every 2nd scan 1.84 m,
         returns cut at 15 m 8.29 m; 0.17 and 1.41 m with 0.1 rad).
+    lidar_only_window : tuple of float
+        ``(metres, radians)``: half-widths of the wide search when there is no odometry
+        (lidar-only SLAM), around the constant-velocity prediction. Its heading half-width is
+        wider than ``recover_window``'s: nothing else predicts a turn. It bounds what the
+        prediction may miss between two scans: a change of speed of 6 m/s or of turn rate of
+        3.5 rad/s at 10 scans a second, 0.6 m/s and 0.35 rad/s at 1 scan a second (slow
+        scan rates need steady motion).
     local_sd : tuple of float
         Standard deviations ``(metres, radians)`` of the local-SLAM edges (node to previous node
         and node to submap anchor).
@@ -193,6 +200,7 @@ class LocalMatchingConfig:
     recover_score: float = 0.4
     recover_window: tuple[float, float] = (0.6, 0.1)
     recover_drop: float = 0.75
+    lidar_only_window: tuple[float, float] = (0.6, 0.35)
     local_sd: tuple[float, float] = (0.02, 0.005)
     anchor_sd_rate: float = 0.1
     odometry_sd: tuple[float, float] = (0.02, 0.005)
@@ -211,7 +219,7 @@ class LocalMatchingConfig:
                 raise ValueError(f"{name} must lie in [0, 1], got {v}")
         for name in ("local_sd", "odometry_sd_rate"):
             require_pair(name, getattr(self, name), positive=True)
-        for name in ("recover_window", "odometry_sd"):
+        for name in ("recover_window", "lidar_only_window", "odometry_sd"):
             require_pair(name, getattr(self, name), positive=False)
         if self.odometry_sd[0] > 0 and not self.odometry_sd[1] > 0:
             raise ValueError(f"odometry_sd needs a positive rotation part, got {self.odometry_sd}")
@@ -416,12 +424,16 @@ class SubmapSlam:
         self.odometry_refuted = 0  # odometry increments the scan refuted
         self.odometry_gated = 0  # odometry increments left out (the match searched wide)
         self.gated_scans: list[int] = []  # the scans whose node left its odometry out
+        self.lidar_only = False  # the scans come without odometry (set by the first scan)
+        self.untracked_scans: list[int] = []  # lidar-only: scans that matched nothing
         self._odometry_trusted = True
         # constant-velocity motion model from local SLAM's own poses: the last scan's pose
         # (local-SLAM frame), its time, and the twist per second of the step before it
         self._last_scan_pose: NDArray[np.float64] | None = None
         self._last_scan_time = 0.0
         self._velocity = np.zeros(3)
+        self._last_step = np.zeros(3)  # the last scan-to-scan step, local-SLAM frame
+        self._velocity_base: tuple[float, NDArray[np.float64]] | None = None
         self._score_level: float | None = None  # recent nodes' mean match score
         self.optimizations = 0
         self.optimize_seconds = 0.0
@@ -453,7 +465,7 @@ class SubmapSlam:
 
     # ------------------------------------------------------------------ steps
     def add_scan(
-        self, time_s: float, ranges: ArrayLike, angles: ArrayLike, odometry: ArrayLike
+        self, time_s: float, ranges: ArrayLike, angles: ArrayLike, odometry: ArrayLike | None
     ) -> bool:
         """Process one scan; returns whether it became a pose-graph node.
 
@@ -465,30 +477,45 @@ class SubmapSlam:
             Ranges, metres (NaN, zero and negative readings are ignored).
         angles : array_like, shape (B,)
             Beam angles in the sensor frame, radians (may differ from scan to scan).
-        odometry : array_like, shape (3,)
+        odometry : array_like, shape (3,), or None
             The sensor's odometry pose (robot odometry composed with the mounting offset).
+            None: there is no odometry (lidar-only SLAM). The scan is then matched against
+            the active submap around where local SLAM's last velocity puts it (constant
+            velocity since the previous scan), by Gauss-Newton and, when that scores poorly or
+            leaves the window, by the correlative search with the wide ``lidar_only_window``.
+            A run takes odometry with every scan or with none.
         """
         if self._done:
             raise RuntimeError("SubmapSlam.finish() was called: no more scans can be added")
         r = np.asarray(ranges, dtype=np.float64)
         a = np.asarray(angles, dtype=np.float64)
-        odo = np.asarray(odometry, dtype=np.float64)
+        lidar_only = odometry is None
+        if self.scan_times and lidar_only != self.lidar_only:
+            have = "without" if self.lidar_only else "with"
+            raise ValueError(
+                f"scan {len(self.scan_times)}: a run takes odometry with every scan or with "
+                f"none, and its scans so far came {have} odometry"
+            )
+        odo = np.zeros(3) if odometry is None else np.asarray(odometry, dtype=np.float64)
         if r.ndim != 1 or a.shape != r.shape:
             raise ValueError(f"ranges {r.shape} and angles {a.shape} must be 1-D of equal length")
         if odo.shape != (3,) or not np.isfinite(odo).all():
             raise ValueError(f"odometry must be 3 finite numbers, got {odo.tolist()}")
         if not np.isfinite(a).all():
             raise ValueError("angles must be finite")
+        self.lidar_only = lidar_only
         offsets = self._scan_offsets()  # (a session saved before they existed: built now)
         scan = len(self.scan_times)
-        self.scan_times.append(float(time_s))
-        self.scan_odometry.append(odo.copy())
-        self._ranges.append(r.astype(np.float32))
         last = self._angles[-1] if self._angles else None
         if last is not None and last.shape == a.shape and np.array_equal(last, a):
             a = last  # most logs share one beam geometry: keep one copy
         else:
             a = a.copy()
+        if lidar_only:  # the laser's own odometry: its pose in the local-SLAM frame
+            odo = self._laser_odometry(r, a, float(time_s), scan)
+        self.scan_times.append(float(time_s))
+        self.scan_odometry.append(odo.copy())
+        self._ranges.append(r.astype(np.float32))
         self._angles.append(a)
         cfg = self.config
         if self._last_node_odometry is not None:
@@ -498,7 +525,12 @@ class SubmapSlam:
                 and abs(float(wrap_angle(u[2]))) < cfg.local.min_rotation
             ):
                 self.scan_node.append(len(self.local) - 1)
-                offsets.append(self._offset_between_nodes(r, a, u))
+                if lidar_only:
+                    rel = between(self.local[-1], odo)
+                    rel[2] = float(wrap_angle(rel[2]))
+                    offsets.append(rel)
+                else:
+                    offsets.append(self._offset_between_nodes(r, a, u))
                 self._track(float(time_s), compose(self.local[-1], offsets[-1]))
                 return False
         self._add_node(scan, r, a, odo)
@@ -509,24 +541,67 @@ class SubmapSlam:
 
     def _constant_velocity(self, time_s: float) -> NDArray[np.float64] | None:
         """Where a scan at ``time_s`` would be if the sensor kept local SLAM's last velocity
-        (local-SLAM frame); None before two scans, after a gap of a second or more, or
-        without ``check_odometry``."""
+        (local-SLAM frame): the last scan's pose after a gap of a second or more or a
+        timestamp that goes back; None before the first scan."""
         last = self._last_scan_pose
-        dt = time_s - self._last_scan_time
-        if last is None or not self.config.local.check_odometry or not 0.0 <= dt < 1.0:
+        if last is None:
             return None
+        dt = time_s - self._last_scan_time
+        if not 0.0 <= dt < 1.0:
+            return last.copy()
         return compose(last, self._velocity * dt)
 
+    def _laser_odometry(
+        self, r: NDArray, a: NDArray, time_s: float, scan: int
+    ) -> NDArray[np.float64]:
+        """Lidar-only SLAM: the scan's pose in the local-SLAM frame, matched around the
+        constant-velocity prediction (the origin for the first scan). A scan that matches
+        nothing keeps the prediction and is recorded in ``untracked_scans``."""
+        predicted = self._constant_velocity(time_s)
+        if predicted is None or not self.local:
+            return np.zeros(3) if predicted is None else predicted
+        cfg = self.config
+        m = cfg.local.matcher
+        pts = scan_points(r, a, self.max_range, m.usable_range, m.beam_skip)
+        # stamps that jitter (the Intel bag's by up to 0.9 s) make the velocity times the
+        # time since the last scan a poor guess, where the last scan's step is a good one (the
+        # laser turns at a steady rate): Gauss-Newton from both, the better one kept when it
+        # scores at least recover_score and recover_drop of the recent level
+        assert self._last_scan_pose is not None
+        guesses = [predicted, compose(self._last_scan_pose, self._last_step)]
+        level = self._score_level if cfg.local.recover_drop > 0 else None
+        floor = cfg.local.recover_score
+        if level is not None:
+            floor = max(floor, cfg.local.recover_drop * level)
+        best: tuple[float, NDArray[np.float64]] | None = None
+        for guess in guesses:
+            got_gn = self._refine_scored(pts, guess)
+            if got_gn is not None and got_gn[1] >= floor and (best is None or got_gn[1] > best[0]):
+                best = (got_gn[1], got_gn[0])
+        if best is not None:
+            return best[1]
+        got = self._match(pts, predicted, wide_window=cfg.local.lidar_only_window)
+        self.recovered += got.searched_wide
+        if got.failed:
+            self.untracked_scans.append(scan)
+        return got.pose
+
     def _track(self, time_s: float, pose: NDArray[np.float64]) -> None:
-        """Update the constant-velocity model with a scan's local-SLAM pose."""
-        last = self._last_scan_pose
-        dt = time_s - self._last_scan_time
-        if last is not None and 0.0 < dt < 1.0:
-            step = between(last, pose)
-            step[2] = float(wrap_angle(step[2]))
-            self._velocity = step / dt
-        elif last is None or dt >= 1.0 or dt < 0.0:
+        """Update the constant-velocity model with a scan's local-SLAM pose. The velocity is
+        measured over at least 0.05 s: stamps that jitter (two scans a millisecond apart, as
+        in the Intel bag) would turn a millimetre of matching noise into metres per second."""
+        base = self._velocity_base
+        if base is None or not 0.0 <= time_s - base[0] < 1.0:
             self._velocity = np.zeros(3)
+            self._velocity_base = (time_s, np.asarray(pose, dtype=np.float64).copy())
+        elif time_s - base[0] >= 0.05:
+            step = between(base[1], pose)
+            step[2] = float(wrap_angle(step[2]))
+            self._velocity = step / (time_s - base[0])
+            self._velocity_base = (time_s, np.asarray(pose, dtype=np.float64).copy())
+        if self._last_scan_pose is not None:
+            self._last_step = between(self._last_scan_pose, pose)
+            self._last_step[2] = float(wrap_angle(self._last_step[2]))
         self._last_scan_pose = np.asarray(pose, dtype=np.float64).copy()
         self._last_scan_time = time_s
 
@@ -568,11 +643,16 @@ class SubmapSlam:
             sth = cfg.local.odometry_sd[1] + cfg.local.odometry_sd_rate[1] * abs(
                 float(wrap_angle(u[2]))
             )
-            local = self._match_local(pts, predicted, (3.0 * sxy, 3.0 * sth))
+            if self.lidar_only:
+                local = self._match_local(
+                    pts, predicted, wide_window=cfg.local.lidar_only_window, scan=scan
+                )
+            else:
+                local = self._match_local(pts, predicted, (3.0 * sxy, 3.0 * sth))
             rel = between(prev, local)
             self.graph.add_node(compose(self.graph.pose(k - 1), rel))
             self.graph.add_edge(k - 1, k, rel, self._local_info)
-            if cfg.local.odometry_sd[0] > 0:
+            if cfg.local.odometry_sd[0] > 0 and not self.lidar_only:
                 # the odometry increment as its own edge: where the scan matcher is fooled
                 # (a corridor, a crowd, a range scale that disagrees with the wheels) it pulls
                 # back. Left out when the match had to search beyond the window around the
@@ -583,7 +663,9 @@ class SubmapSlam:
                 else:
                     self.odometry_gated += 1
                     self.gated_scans.append(scan)
-        self._last_node_odometry = odo.copy()
+        if self.lidar_only:  # the node's own match is its laser odometry
+            self.scan_odometry[scan] = local.copy()
+        self._last_node_odometry = local.copy() if self.lidar_only else odo.copy()
         if k:
             step = float(np.hypot(*between(self.local[k - 1], local)[:2]))
             self._travel.append(self._travel[-1] + step)
@@ -640,13 +722,21 @@ class SubmapSlam:
         self.loops.add_candidate(done)
 
     def _match_local(
-        self, pts: NDArray, predicted: NDArray, ball: tuple[float, float] | None = None
+        self,
+        pts: NDArray,
+        predicted: NDArray,
+        ball: tuple[float, float] | None = None,
+        *,
+        wide_window: tuple[float, float] | None = None,
+        scan: int = -1,
     ) -> NDArray[np.float64]:
         """Scan-to-submap matching of a new node around the odometry prediction (local-SLAM
         frame); counts failed matches and wide searches, whether the odometry held (``ball``:
         its 3-sigma half-widths, metres and radians, see ``check_odometry``), and keeps the
         recent nodes' score level."""
-        got = self._match(pts, predicted, ball)
+        got = self._match(pts, predicted, ball, wide_window=wide_window)
+        if got.failed and self.lidar_only and scan not in self.untracked_scans[-1:]:
+            self.untracked_scans.append(scan)
         if got.searched:  # a match that never ran leaves the gate as the last node set it
             self._odometry_trusted = not (got.took_wide or got.refuted)
         if not got.failed:
@@ -657,6 +747,25 @@ class SubmapSlam:
         self.recovered += got.searched_wide
         self.failed_matches += got.failed
         return got.pose
+
+    def _refine_scored(
+        self, pts: NDArray, predicted: NDArray
+    ) -> tuple[NDArray[np.float64], float] | None:
+        """Gauss-Newton alone from ``predicted``: the pose (local-SLAM frame) and its mean
+        score when it stays inside the matcher's window, otherwise None."""
+        m = self.config.local.matcher
+        frame = self._match_frame(pts, predicted)
+        if frame is None:
+            return None
+        anchor, guess, fld = frame
+        pose, _, _ = refine(fld, pts, guess, m.iterations, (m.linear_step, m.angular_step))
+        score, _, _ = normal_equations(fld, pts, pose)
+        d = between(guess, pose)
+        if math.hypot(d[0], d[1]) > m.linear_window or abs(float(wrap_angle(d[2]))) > (
+            m.angular_window
+        ):
+            return None
+        return _in_local(anchor, pose), score / pts.shape[0]
 
     def _refine_only(self, pts: NDArray, predicted: NDArray) -> NDArray[np.float64] | None:
         """Gauss-Newton alone from ``predicted`` against the oldest active submap: the pose
@@ -692,7 +801,12 @@ class SubmapSlam:
         return anchor, between(anchor, predicted), sm.field()
 
     def _match(
-        self, pts: NDArray, predicted: NDArray, ball: tuple[float, float] | None = None
+        self,
+        pts: NDArray,
+        predicted: NDArray,
+        ball: tuple[float, float] | None = None,
+        *,
+        wide_window: tuple[float, float] | None = None,
     ) -> _Match:
         """Match ``pts`` against the oldest active submap around ``predicted`` (local-SLAM
         frame): the correlative search, and the wide one after a poor match (under
@@ -717,18 +831,23 @@ class SubmapSlam:
         ):
             # a poor match: the odometry may be off by more than the window (wheel slip, a
             # late timestamp); search a wide window once and keep it if it matches better
+            lin, ang = cfg.local.recover_window if wide_window is None else wide_window
             wide = replace(
                 m,
-                linear_window=cfg.local.recover_window[0],
+                linear_window=lin,
                 linear_step=2 * m.linear_step,
-                angular_window=cfg.local.recover_window[1],
+                angular_window=ang,
                 angular_step=2 * m.angular_step,
             )
             best2, _ = correlative_search(fld, pts, guess, wide)
             pose2, _, _ = refine(fld, pts, best2, m.iterations, (m.linear_step, m.angular_step))
             score2, _, _ = normal_equations(fld, pts, pose2)
             searched_wide = True
-            if score2 > score + 0.05 * pts.shape[0]:
+            d2 = between(guess, pose2)
+            inside = wide_window is None or (  # lidar-only: Gauss-Newton must not leave it
+                math.hypot(d2[0], d2[1]) <= lin and abs(float(wrap_angle(d2[2]))) <= ang
+            )
+            if score2 > score + 0.05 * pts.shape[0] and inside:
                 pose, score = pose2, score2
                 took_wide = True
         if score / pts.shape[0] < cfg.local.min_match_score:

@@ -86,14 +86,16 @@ def grid_command(
         None,
         "--save-session",
         help="graph: also write the run's state to FILE (a folder: FOLDER/slam.session), to "
-        "continue it later with --resume (a Python pickle: load only sessions you wrote).",
+        "continue it later with --resume (arrays and a JSON header: docs/sessions.md). After "
+        "Ctrl-C it holds the scans so far.",
     ),
     resume: Path | None = typer.Option(
         None,
         "--resume",
         help="graph: continue the session saved in FILE (a folder: FOLDER/slam.session) with "
-        "this log, in the same odometry frame (the rest of a log); the outputs cover the whole "
-        "session.",
+        "this log, in the same odometry frame: the log that continues it, or its own log "
+        "after an interrupted run (the scans it holds are skipped); the outputs cover the "
+        "whole session.",
     ),
 ) -> None:
     """Grid SLAM from a raw log or ROS bag: writes the map (PREFIX.yaml/.pgm/.npz/.png, as
@@ -157,6 +159,7 @@ def _slam_grid(
     from probmap.pipelines.laser_slam import SESSION_NAME, slam_grid
 
     session = None
+    session_info = None
     if method == "graph":
         from probmap.slam.laser.submap_slam import SubmapSlamConfig
 
@@ -166,12 +169,13 @@ def _slam_grid(
         if resume is not None and resume.is_dir():
             resume = resume / SESSION_NAME
         if resume is not None:
-            from probmap.pipelines.sessions import load_session
+            from probmap.pipelines.sessions import load_session, read_session_info
 
             if config is not None:
                 raise ValueError(
                     "--resume continues with the session's own configuration; no --config"
                 )
+            session_info = read_session_info(resume)
             session = load_session(resume)
             cfg: Any = None
         else:
@@ -212,7 +216,8 @@ def _slam_grid(
         with view_discarded_on_error(view), stopping as stop:
             out = slam_grid(
                 log, prefix, cfg, end_time=end_time, bag_options=bag_options,
-                skip_bad_lines=skip_bad_lines, resume=session, save_session=save_session,
+                skip_bad_lines=skip_bad_lines, resume=session, resume_info=session_info,
+                save_session=save_session,
                 tum=tum, command=command_line(), title=log.name, progress=tick,
                 observer=observer, stop=stop, phase=watch,
             )  # fmt: skip
@@ -235,6 +240,14 @@ def _graph_summary(out: Any, watch: Any, resume: Path | None, viz_save: Path | N
         *input_rows(out.readings, out.skipped_lines),
         *(
             [("resumed", f"{resume}: {run.scans_total - out.scans_read:,} scans before this log")]
+            if resume is not None and not out.scans_skipped
+            else [
+                (
+                    "resumed",
+                    f"{resume}: {run.scans_total - out.scans_read:,} scans, the first "
+                    f"{out.scans_skipped:,} of this log among them",
+                )
+            ]
             if resume is not None
             else []
         ),

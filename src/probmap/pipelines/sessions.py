@@ -585,6 +585,13 @@ def _plain_config(cfg: Any) -> Any:
     return _plain(cfg)
 
 
+def _member(name: str) -> zipfile.ZipInfo:
+    """A stored member with a fixed date: the same state gives the same bytes."""
+    info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+    info.compress_type = zipfile.ZIP_STORED
+    return info
+
+
 def save_session(
     slam: SubmapSlam,
     path: str | os.PathLike[str],
@@ -655,10 +662,10 @@ def save_session(
     }
     p = Path(path)
     with atomic_write(p, "wb") as f, zipfile.ZipFile(f, "w", zipfile.ZIP_STORED) as z:
-        z.writestr(_HEADER, json.dumps(header, indent=1, allow_nan=False))
-        z.writestr(_STATE, json.dumps(tree, separators=(",", ":"), allow_nan=False))
+        z.writestr(_member(_HEADER), json.dumps(header, indent=1, allow_nan=False))
+        z.writestr(_member(_STATE), json.dumps(tree, separators=(",", ":"), allow_nan=False))
         for key, a in enc.arrays.items():
-            with z.open(f"{_ARRAYS}{key}.npy", "w", force_zip64=True) as member:
+            with z.open(_member(f"{_ARRAYS}{key}.npy"), "w", force_zip64=True) as member:
                 np.lib.format.write_array(member, a, allow_pickle=False)
     return p
 
@@ -857,22 +864,29 @@ def check_continuation(
     if k and not (np.all(np.diff(times[: k + 1]) >= 0)):
         k = int(np.count_nonzero(times <= last))
     if k:
-        odo = np.asarray(slam.scan_odometry[-k:], dtype=np.float64) if k <= s else None
+        # the log's scans up to the session's last must be the session's own, from where the
+        # log starts in it: the same timestamps and odometry
+        held = np.asarray(slam.scan_times, dtype=np.float64)
+        at = int(np.searchsorted(held, times[0], side="left"))
+        span = slice(at, at + k)
         same = (
-            odo is not None
-            and np.array_equal(np.asarray(slam.scan_times[-k:]), times[:k])
-            and np.array_equal(odo, np.asarray(batch.laser_poses[:k], dtype=np.float64))
+            at + k <= s
+            and np.array_equal(held[span], times[:k])
+            and np.array_equal(
+                np.asarray(slam.scan_odometry[span], dtype=np.float64).reshape(-1, 3),
+                np.asarray(batch.laser_poses[:k], dtype=np.float64),
+            )
         )
-        if not same:
+        if same and k == times.size:
+            raise ValueError(
+                f"{where}the session holds every scan of {log_name} already (up to "
+                f"t = {last:.3f} s): nothing to resume"
+            )
+        if not same or at + k != s:
             raise ValueError(
                 f"{where}{log_name} starts at t = {times[0]:.3f} s, before the session's last "
                 f"scan at t = {last:.3f} s, with other scans: resume with the log that "
                 "continues the session"
-            )
-        if k == times.size:
-            raise ValueError(
-                f"{where}the session holds every scan of {log_name} already (up to "
-                f"t = {last:.3f} s): nothing to resume"
             )
         return k
     if info is not None and not info.complete:

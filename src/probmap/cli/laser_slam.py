@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +19,7 @@ from probmap.cli.common import (
 )
 from probmap.cli.landmark_slam import slam_app
 from probmap.cli.watch import (
+    interrupted_exit,
     open_view,
     save_partial_option,
     stop_on_ctrl_c,
@@ -271,12 +271,7 @@ def _graph_summary(out: Any, watch: Any, resume: Path | None, viz_save: Path | N
         rows.insert(1, ("interrupted", f"at scan {len(run.times):,} of {run.scans_total:,}"))
     print_summary("grid SLAM (graph)", rows)
     if run.interrupted:
-        print(
-            f"interrupted: wrote the map and trajectory of the first {len(run.times):,} of "
-            f"{run.scans_total:,} scans",
-            file=sys.stderr,
-        )
-        raise typer.Exit(130)
+        interrupted_exit(len(run.times), run.scans_total, "scans", wrote=True)
 
 
 def _check_rows(report: dict[str, Any] | None) -> list[tuple[str, str]]:

@@ -624,11 +624,7 @@ def slam_grid(
                 # the session is saved before the map is built, into a temporary file; it
                 # joins the other outputs (all or none) below
                 if save_session is not None:
-                    import tempfile
-
-                    fd, name = tempfile.mkstemp(suffix=".session")
-                    os.close(fd)
-                    part = Path(name)
+                    part = _session_part(Path(save_session))
                 graph_config = None if resume is not None else config
                 run = run_submap_slam(
                     batch, graph_config, progress=progress,  # type: ignore[arg-type]
@@ -678,6 +674,21 @@ def slam_grid(
         report=report,
         scans_skipped=skipped,
     )
+
+
+def _session_part(target: Path) -> Path:
+    """An empty temporary file for the session before it joins the outputs: beside
+    ``target`` when its folder exists (named so that a later run removes it if this one is
+    killed: :func:`probmap._atomic.sweep_leftovers`), else in the system's temporary folder."""
+    from probmap._atomic import temporary_beside
+
+    if target.parent.is_dir():
+        return temporary_beside(target)
+    import tempfile
+
+    fd, name = tempfile.mkstemp(suffix=".session")
+    os.close(fd)
+    return Path(name)
 
 
 def run_config(

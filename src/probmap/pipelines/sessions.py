@@ -32,6 +32,7 @@ import math
 import os
 import warnings
 import zipfile
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -192,7 +193,7 @@ def _value_classes() -> dict[str, type]:
 
 #: Attributes not saved: caches rebuilt on demand, with the value a loaded object starts with.
 _TRANSIENT: dict[str, dict[str, Callable[[], Any]]] = {
-    "LoopClosing": {"_cache": lambda: __import__("collections").OrderedDict()},
+    "LoopClosing": {"_cache": OrderedDict},
     "PoseGraph2D": {"_system": lambda: None, "_system_key": lambda: (-1, -1)},
     "OccupancyGrid": {"_fast": lambda: None},
 }

@@ -332,7 +332,7 @@ def test_a_gap_after_an_interrupted_session_is_warned(tour, tmp_path):
     assert run.interrupted
     info = read_session_info(path)
     assert not info.complete and info.log_used == len(run.times) and info.log_scans == 100
-    with pytest.warns(SessionGapWarning, match="the rest of that log .* is missing"):
+    with pytest.warns(SessionGapWarning, match="scans between are missing from the result"):
         _, k = resume_batch(load_session(path), _part(batch, 100, 200), info, log_name="b.log")
     assert k == 0
     with warnings.catch_warnings():
@@ -390,6 +390,15 @@ def test_ctrl_c_during_resume_into_the_same_session_loses_and_duplicates_nothing
     assert (tmp_path / "b2.trajectory.csv").read_text() == (
         tmp_path / "w.trajectory.csv"
     ).read_text()
+    # a later log after the interrupted session: the scans between them are missing, said so
+    c = tmp_path / "c.log"
+    c.write_text("\n".join(head + scans[h + 60 :]) + "\n")
+    gap = runner.invoke(app, ["slam", "grid", str(c), "-o", str(tmp_path / "c"),
+                              "--resume", str(s)])  # fmt: skip
+    assert gap.exit_code == 0, gap.output
+    warned = [x for x in gap.output.splitlines() if x.startswith("warning:")]
+    assert len(warned) == 1 and "84 scans before the end of its log b.log" in warned[0], warned
+    assert "c.log starts at t = 34.800 s: the scans between are missing" in warned[0]
 
 
 def test_an_interrupted_save_leaves_the_old_session_as_it_was(tour, tmp_path, monkeypatch):

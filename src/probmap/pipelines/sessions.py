@@ -891,13 +891,13 @@ def check_continuation(
             )
         return k
     if info is not None and not info.complete:
-        missing = ""
+        left = ""
         if info.log_scans is not None and info.log_used is not None:
-            missing = f" ({info.log_scans - info.log_used:,} scans)"
+            left = f", {info.log_scans - info.log_used:,} scans"
         warnings.warn(
-            f"{where}its run stopped at t = {last:.3f} s before the end of its log "
-            f"{info.log_name or ''}; {log_name} starts at t = {times[0]:.3f} s, so the rest of "
-            f"that log{missing} is missing from the result",
+            f"{where}its run stopped at t = {last:.3f} s{left} before the end of its log "
+            f"{info.log_name or ''}; {log_name} starts at t = {times[0]:.3f} s: the scans "
+            "between are missing from the result",
             SessionGapWarning,
             stacklevel=2,
         )

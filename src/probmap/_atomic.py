@@ -470,12 +470,17 @@ def atomic_files(
             written.append(t)
         for folder in {t.parent for t in targets}:
             _sync_folder(folder)
-    except BaseException:
+    except BaseException as exc:
         for tmp in temps:
             if outputs is None or Path(tmp) not in {i.tmp for i in outputs.staged.values()}:
                 with suppress(OSError):
                     os.unlink(tmp)
-        raise
+        # closing a file whose flush failed (a full disk) raises again, unnamed, over the
+        # named error: name it here too
+        named = _named(exc, targets)
+        if named is exc:
+            raise
+        raise named from None
 
 
 def atomic_save(

@@ -626,11 +626,19 @@ def slam_grid(
                 if save_session is not None:
                     part = _session_part(Path(save_session))
                 graph_config = None if resume is not None else config
-                run = run_submap_slam(
-                    batch, graph_config, progress=progress,  # type: ignore[arg-type]
-                    observer=observer, stop=stop, resume=resume, save_session=part,
-                    log=source, log_skipped=skipped,
-                )  # fmt: skip
+                try:
+                    run = run_submap_slam(
+                        batch, graph_config, progress=progress,  # type: ignore[arg-type]
+                        observer=observer, stop=stop, resume=resume, save_session=part,
+                        log=source, log_skipped=skipped,
+                    )  # fmt: skip
+                except OSError as exc:  # a full disk: name the session, not its temporary
+                    if part is None or part.name not in str(exc):
+                        raise
+                    reason = os.strerror(exc.errno) if exc.errno else str(exc)
+                    raise type(exc)(
+                        exc.errno, f"cannot write {save_session}: {reason}", str(save_session)
+                    ) from None
         used = resume.config if resume is not None else run_config(run, config)
         report = None
         if isinstance(run, SubmapSlamRun):

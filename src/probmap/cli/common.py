@@ -18,6 +18,21 @@ class CliError(Exception):
     """An error the CLI reports on one line."""
 
 
+_INTERRUPTS_SAID = [0]
+
+
+def say_interrupted(message: str) -> None:
+    """Print the one ``interrupted: ...`` line of an interrupted command on stderr (every
+    command words it alike: ``interrupted: nothing written`` or what was written)."""
+    _INTERRUPTS_SAID[0] += 1
+    typer.echo(message, err=True)
+
+
+def interrupts_said() -> int:
+    """How many ``interrupted: ...`` lines :func:`say_interrupted` printed in this process."""
+    return _INTERRUPTS_SAID[0]
+
+
 @contextmanager
 def cli_errors() -> Iterator[None]:
     """Turn expected library errors into a one-line message on stderr and exit code 1 (a
@@ -43,9 +58,9 @@ def cli_errors() -> Iterator[None]:
         done = _atomic.written[wrote:]
         if done:
             names = ", ".join(str(p) for p in done[:3]) + (", ..." if len(done) > 3 else "")
-            typer.echo(f"interrupted: wrote {len(done)} file(s) before it: {names}", err=True)
+            say_interrupted(f"interrupted: wrote {len(done)} file(s) before it: {names}")
         else:
-            typer.echo("interrupted: nothing written", err=True)
+            say_interrupted("interrupted: nothing written")
         raise typer.Exit(130) from None
     finally:
         gone = _atomic.removed_leftovers[swept:]

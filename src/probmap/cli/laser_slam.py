@@ -226,12 +226,15 @@ def _slam_grid(
     for w in caught:
         typer.echo(f"warning: {w.message}", err=True)
     if method == "graph":
-        _graph_summary(out, watch, resume, viz_save)
+        asked = stop is not None and stop()  # a Ctrl-C during the last scan ends no earlier
+        _graph_summary(out, watch, resume, viz_save, asked=asked)
     else:
         _rbpf_summary(out, watch, cfg.particles)
 
 
-def _graph_summary(out: Any, watch: Any, resume: Path | None, viz_save: Path | None) -> None:
+def _graph_summary(
+    out: Any, watch: Any, resume: Path | None, viz_save: Path | None, *, asked: bool = False
+) -> None:
     run = out.run
     spec = run.grid.spec
     weights = run.closure_weights
@@ -267,10 +270,10 @@ def _graph_summary(out: Any, watch: Any, resume: Path | None, viz_save: Path | N
     rows += [("wrote", str(f)) for f in out.files]
     if viz_save is not None:
         rows.append(("recorded", f"{viz_save} (rerun {viz_save})"))
-    if run.interrupted:
+    if run.interrupted or asked:
         rows.insert(1, ("interrupted", f"at scan {len(run.times):,} of {run.scans_total:,}"))
     print_summary("grid SLAM (graph)", rows)
-    if run.interrupted:
+    if run.interrupted or asked:
         interrupted_exit(len(run.times), run.scans_total, "scans", wrote=True)
 
 

@@ -130,9 +130,11 @@ def view_discarded_on_error(view: Any) -> Iterator[None]:
 
 def interrupted_exit(done: int, total: int, unit: str, wrote: bool) -> None:
     """After a Ctrl-C: one line on stderr saying what was written, then exit code 130."""
+    from probmap.cli.common import say_interrupted
+
     if wrote:
         msg = f"interrupted: wrote the results of the first {done:,} of {total:,} {unit}"
     else:
         msg = "interrupted: nothing written"
-    typer.echo(msg, err=True)
+    say_interrupted(msg)
     raise typer.Exit(130)

@@ -255,6 +255,8 @@ def pgm_bytes(grey: NDArray[np.uint8], comment: str = "probmap") -> bytes:
 def _pgm_header(g: NDArray[np.uint8], comment: str = "probmap") -> bytes:
     if g.ndim != 2:
         raise ValueError(f"a PGM image must be 2-D, got shape {g.shape}")
+    if g.size == 0:
+        raise ValueError(f"an empty map ({g.shape[1]} x {g.shape[0]} cells): no image to write")
     return f"P5\n# {comment}\n{g.shape[1]} {g.shape[0]}\n255\n".encode("ascii")
 
 

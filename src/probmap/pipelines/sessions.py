@@ -459,8 +459,14 @@ class _Decoder:
         names = {f.name for f in dataclasses.fields(cls) if f.init}
         if set(fields) != names:
             raise _Bad(f"{name} with fields {sorted(fields)}, this probmap has {sorted(names)}")
+        values = {k: self.decode(v) for k, v in fields.items()}
+        template = _value_template(cls)
+        if template is not None:
+            for k, v in values.items():
+                if not _same_shape(v, getattr(template, k)):
+                    raise _Bad(f"{name}.{k} is a {type(v).__name__}")
         try:
-            return cls(**{k: self.decode(v) for k, v in fields.items()})
+            return cls(**values)
         except (TypeError, ValueError) as exc:
             raise _Bad(f"{name}: {exc}") from None
 
@@ -481,6 +487,35 @@ class _Decoder:
 
 
 # ----------------------------------------------------------------------------- checks
+def _value_template(cls: type) -> Any:
+    """An instance of the value class ``cls`` whose fields have the types a saved one must
+    have (the configurations' defaults; None for a class its own checks cover)."""
+    from probmap.grid.spec import GridSpec
+    from probmap.slam.laser.closures import LoopClosure
+
+    if cls is GridSpec:
+        return GridSpec(1.0, (0.0, 0.0), (1, 1))
+    if cls is LoopClosure:
+        return LoopClosure(0, 0, 0, (0.0, 0.0, 0.0), 0.0, False)
+    try:
+        return cls()
+    except TypeError:  # fields without defaults (MatchField: its own checks)
+        return None
+
+
+def _same_shape(a: Any, b: Any) -> bool:
+    """:func:`_same_kind`, and a tuple of the template's length whose items match too."""
+    if b is None:
+        return True
+    if isinstance(b, tuple):
+        return (
+            isinstance(a, tuple)
+            and len(a) == len(b)
+            and all(_same_kind(x, y) and x is not None for x, y in zip(a, b, strict=True))
+        )
+    return a is not None and _same_kind(a, b)
+
+
 def _templates(slam: SubmapSlam) -> dict[str, Any]:
     """A fresh object of each saved class built with the session's settings: what a loaded
     object's attributes are compared with (names and types)."""
@@ -824,6 +859,10 @@ def load_session(path: str | os.PathLike[str]) -> SubmapSlam:
             raise ValueError(f"{p}: a malformed probmap session ({exc})") from None
         except (ValueError, UnicodeDecodeError, RecursionError, zipfile.BadZipFile) as exc:
             raise ValueError(f"{p}: a malformed probmap session ({exc})") from None
+        except (TypeError, AttributeError, IndexError, KeyError, OverflowError) as exc:
+            # what the checks above missed, met while checking the state: still one line
+            what = f"{type(exc).__name__}: {exc}"
+            raise ValueError(f"{p}: a malformed probmap session ({what})") from None
     return slam
 
 

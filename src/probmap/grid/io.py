@@ -448,8 +448,11 @@ def read_map_server(yaml_path: str | os.PathLike[str]) -> MapServerMap:
     text = ypath.read_text(encoding="utf-8", errors="replace")
     try:
         doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise MapFileError(f"not valid YAML ({exc})", path=ypath) from None
+    except yaml.YAMLError as exc:  # one line: its problem and where, not yaml's drawing
+        mark = getattr(exc, "problem_mark", None)
+        problem = getattr(exc, "problem", None) or type(exc).__name__
+        at = f" at line {mark.line + 1}" if mark is not None else ""
+        raise MapFileError(f"not valid YAML ({problem}{at})", path=ypath) from None
     if not isinstance(doc, dict):
         raise MapFileError("expected a YAML mapping of map_server fields", path=ypath)
 

@@ -423,3 +423,19 @@ def test_an_interrupted_save_leaves_the_old_session_as_it_was(tour, tmp_path, mo
         save_session(slam, path)
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.session"]  # no temporary left
+
+
+def test_localize_in_a_folder_names_the_session_it_read(tour, tmp_path):
+    """``localize FOLDER``: the folder's slam.session is data (nothing in it runs), and the
+    summary names the file that was read, not only the folder."""
+    log, batch, _ = tour
+    folder = tmp_path / "maps"
+    folder.mkdir()
+    run_submap_slam(batch, save_session=folder / "slam.session")
+    res = CliRunner().invoke(
+        app,
+        ["localize", str(folder), str(log), "-o", str(tmp_path / "loc"), "-n", "200"],
+        env={"COLUMNS": "400"},  # the whole path in the summary table
+    )
+    assert res.exit_code == 0, res.output
+    assert f"{folder / 'slam.session'} (session" in " ".join(res.output.split())

@@ -336,7 +336,8 @@ def localize_command(
 
         console = Console()
         summary_rows = [
-            ("map", f"{map_path} ({m.kind}, {m.spec.shape[1]} x {m.spec.shape[0]} cells)"),
+            # the file read (a folder's slam.session named), not only what was given
+            ("map", f"{m.source} ({m.kind}, {m.spec.shape[1]} x {m.spec.shape[0]} cells)"),
             *input_rows(batch.readings, batch.skipped_lines),
             ("laser offset", _describe_offset(mount)),
             ("updates", f"{run.times.size:,}"),

@@ -224,3 +224,30 @@ def test_every_standard_toro_graph_keeps_its_order():
 
     for name in ("w100.graph", "INTEL_P_toro.graph", "CSAIL_P_toro.graph"):
         assert read_pose_graph(need(f"pose-graphs/{name}")).edge2_order == "toro"
+
+
+def test_the_class_tier_verifies_when_asked():
+    """PoseGraph2D (the incremental back end) checks only with ``verify=True``; the
+    function tier always does. The poses are the same either way."""
+    from probmap.slam.posegraph.optimize import PoseGraph2D, optimize_pose_graph
+
+    truth, edges, z = _ring()
+    start = truth.copy()
+    start[7, 0] += 5.0e4
+
+    def graph():
+        g = PoseGraph2D()
+        for p in start:
+            g.add_node(p)
+        for (i, j), m in zip(edges, z, strict=True):
+            g.add_edge(i, j, m, np.diag([100.0, 100.0, 400.0]))
+        return g
+
+    fast, checked = graph(), graph()
+    a = fast.optimize(100)
+    b = checked.optimize(100, verify=True)
+    np.testing.assert_array_equal(a.poses, b.poses)
+    assert a.converged and not b.converged and "no minimum" in b.message
+    info = np.tile(np.diag([100.0, 100.0, 400.0]), (len(edges), 1, 1))
+    c = optimize_pose_graph(start, np.asarray(edges), np.asarray(z), info)
+    assert not c.converged and c.message == b.message

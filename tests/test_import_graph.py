@@ -338,3 +338,47 @@ def test_no_module_over_1000_lines_but_the_kernels():
         and (n := len(p.read_text(encoding="utf-8").splitlines())) > 1000
     }
     assert not long, long
+
+
+# ----------------------------------------------------------------- no pickle anywhere
+#: What loads or writes a pickle (issue 38: a session or any other file must never run code).
+_PICKLE_MODULES = {"pickle", "_pickle", "cPickle", "shelve", "dill", "cloudpickle", "joblib"}
+
+
+def pickle_uses(source: str) -> list[str]:
+    """Where a module imports a pickle module or asks numpy for pickles (empty when never)."""
+    bad: list[str] = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import | ast.ImportFrom):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            if isinstance(node, ast.ImportFrom) and node.module:
+                names.append(node.module)
+            bad += [f"imports {n} (line {node.lineno})" for n in names if n in _PICKLE_MODULES]
+        elif isinstance(node, ast.keyword) and node.arg == "allow_pickle":
+            if not (isinstance(node.value, ast.Constant) and node.value.value is False):
+                bad.append(f"allow_pickle={ast.unparse(node.value)} (line {node.value.lineno})")
+    return bad
+
+
+def test_no_pickle_anywhere_in_the_package():
+    files = sorted(SRC.rglob("*.py"))
+    bad = {
+        str(p.relative_to(SRC)): v
+        for p in files
+        if (v := pickle_uses(p.read_text(encoding="utf-8")))
+    }
+    assert not bad, "pickle in probmap: " + "; ".join(f"{k}: {v}" for k, v in bad.items())
+
+
+def test_pickle_rule_catches_every_form():
+    cases = {
+        "import pickle": 1,
+        "from pickle import loads": 1,
+        "import cloudpickle as cp": 1,
+        "np.load(p, allow_pickle=True)": 1,
+        "np.load(p, allow_pickle=flag)": 1,
+        "np.load(p, allow_pickle=False)": 0,
+        "json.loads(text)": 0,
+    }
+    for source, n in cases.items():
+        assert len(pickle_uses(source)) == n, source

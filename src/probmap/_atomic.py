@@ -16,15 +16,24 @@ This module is the package's one writer of output files:
   output folders are created when the first file is written into them; an error (or Ctrl-C)
   anywhere in the block removes every temporary file and every folder the block created, and
   leaves every target as it was.
+
+A process killed outright (SIGKILL, a power cut) cannot remove its temporaries. They are named
+``.NAME.PID-XXXXXXXX.tmp`` (a file, or a folder of :func:`atomic_path`) and
+``.NAME.PID-XXXXXXXX.bak`` beside the target ``NAME``, with the writer's process id, so that the
+next write of ``NAME`` removes those whose process is gone (:func:`sweep_leftovers`; the ones
+of older versions, without a process id, once they are a day old). :data:`removed_leftovers`
+lists what was removed, for the command line to say so.
 """
 
 from __future__ import annotations
 
 import errno
 import os
+import re
 import secrets
 import shutil
 import tempfile
+import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import ExitStack, contextmanager, suppress
 from contextvars import ContextVar
@@ -39,21 +48,108 @@ __all__ = [
     "atomic_path",
     "atomic_save",
     "atomic_write",
+    "removed_leftovers",
+    "sweep_leftovers",
+    "temporary_beside",
+    "written",
 ]
 
 _WRITE_MODES = ("w", "wt", "wb")
 
+#: Temporaries of killed runs removed by :func:`sweep_leftovers` in this process, in order.
+removed_leftovers: list[Path] = []
+#: Every file this module put in place in this process, in order (what an interrupted
+#: command wrote before it stopped).
+written: list[Path] = []
+_swept: set[Path] = set()  # targets whose folder was swept already (once per process)
+#: Age (s) after which a temporary of an older version (no process id in its name) is stale.
+LEGACY_STALE_S = 24 * 3600.0
+
+
+def _temp_name(target: Path, kind: str) -> str:
+    """``.NAME.PID-XXXXXXXX.KIND``: a temporary of ``target`` that names its process."""
+    return f".{target.name}.{os.getpid()}-{secrets.token_hex(4)}.{kind}"
+
+
+def _alive(pid: int) -> bool:
+    """Whether a process ``pid`` runs on this machine (ours, or another user's)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, OSError):
+        return True  # someone else's, or not ours to judge
+    return True
+
+
+def sweep_leftovers(path: str | os.PathLike[str]) -> list[Path]:
+    """Remove the temporaries that killed runs left beside ``path`` while writing it.
+
+    A temporary ``.NAME.PID-XXXXXXXX.tmp`` (file or folder) or ``.bak`` is removed when no
+    process ``PID`` runs any more; one of an older version (``.NAME.XXXXXXXX.tmp``, no process
+    id) when it is older than :data:`LEGACY_STALE_S`. A running writer's temporaries are never
+    touched. Each target is swept once per process. Returns what was removed (also appended to
+    :data:`removed_leftovers`); errors are ignored (a sweep never stops a write).
+    """
+    target = Path(path)
+    key = target.absolute()
+    if key in _swept:
+        return []
+    _swept.add(key)
+    folder = target.parent if str(target.parent) else Path(".")
+    name = re.escape(target.name)
+    tagged = re.compile(rf"^\.{name}\.(\d+)-[0-9a-z_]{{8}}\.(tmp|bak)$")
+    legacy = re.compile(rf"^\.{name}\.[0-9a-z_]{{8}}\.(tmp|bak)$")
+    removed: list[Path] = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return []
+    now = time.time()
+    for entry in entries:
+        m = tagged.match(entry.name)
+        try:
+            if m is not None:
+                stale = not _alive(int(m.group(1)))
+            elif legacy.match(entry.name) is not None:
+                stale = now - entry.stat(follow_symlinks=False).st_mtime > LEGACY_STALE_S
+            else:
+                continue
+            if not stale:
+                continue
+            if entry.is_dir(follow_symlinks=False):
+                shutil.rmtree(entry.path)
+            else:
+                os.unlink(entry.path)
+        except OSError:
+            continue
+        removed.append(Path(entry.path))
+    removed_leftovers.extend(removed)
+    return removed
+
+
+def temporary_beside(path: str | os.PathLike[str]) -> Path:
+    """Create an empty temporary file beside ``path``, named as this module's temporaries
+    (``.NAME.PID-XXXXXXXX.tmp``) so that a later write of ``path`` removes it if this process
+    is killed; the caller removes it otherwise."""
+    fd, name = _make_temp(Path(path))
+    os.close(fd)
+    return Path(name)
+
 
 def _make_temp(path: Path) -> tuple[int, str]:
-    """Create ``.NAME.XXXX.tmp`` beside ``path``.
+    """Create ``.NAME.PID-XXXXXXXX.tmp`` beside ``path`` (after :func:`sweep_leftovers`).
 
     Opened with mode 0o666 so that the process umask applies, as for a plain ``open(path, "w")``
     (``tempfile.mkstemp`` would give 0o600).
     """
     folder = path.parent
+    sweep_leftovers(path)
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
     for _ in range(100):
-        tmp = folder / f".{path.name}.{secrets.token_hex(4)}.tmp"
+        tmp = folder / _temp_name(path, "tmp")
         try:
             return os.open(tmp, flags, 0o666), str(tmp)
         except FileExistsError:  # pragma: no cover - 32 random bits collided
@@ -168,7 +264,7 @@ def _remove_created(outputs: OutputSet) -> None:
 def _backup(target: Path) -> Path | None:
     """A hard link to an existing ``target``, so that a failed commit can put it back."""
     for _ in range(10):
-        bak = target.parent / f".{target.name}.{secrets.token_hex(4)}.bak"
+        bak = target.parent / _temp_name(target, "bak")
         try:
             os.link(target, bak)
             return bak
@@ -216,6 +312,7 @@ def _commit(outputs: OutputSet) -> None:
         for it in items:
             if it.workdir is not None:
                 shutil.rmtree(it.workdir, ignore_errors=True)
+    written.extend(target for target, _, _ in done)
     for _, backup, _ in done:
         if backup is not None:
             with suppress(OSError):
@@ -370,14 +467,20 @@ def atomic_files(
             return
         for tmp, t in zip(temps, targets, strict=True):
             os.replace(tmp, t)
+            written.append(t)
         for folder in {t.parent for t in targets}:
             _sync_folder(folder)
-    except BaseException:
+    except BaseException as exc:
         for tmp in temps:
             if outputs is None or Path(tmp) not in {i.tmp for i in outputs.staged.values()}:
                 with suppress(OSError):
                     os.unlink(tmp)
-        raise
+        # closing a file whose flush failed (a full disk) raises again, unnamed, over the
+        # named error: name it here too
+        named = _named(exc, targets)
+        if named is exc:
+            raise
+        raise named from None
 
 
 def atomic_save(
@@ -444,9 +547,12 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     outputs = _ACTIVE.get()
     if outputs is not None and outputs.create_folders:
         _make_folder(target.parent if str(target.parent) else Path("."), outputs)
+    sweep_leftovers(target)
     try:
         workdir = Path(
-            tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+            tempfile.mkdtemp(
+                prefix=f".{target.name}.{os.getpid()}-", suffix=".tmp", dir=target.parent
+            )
         )
     except OSError as exc:
         raise _naming(exc, target) from None
@@ -468,6 +574,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
             staged = True
             return
         os.replace(tmp, target)
+        written.append(target)
         _sync_folder(target.parent)
     finally:
         if not staged:

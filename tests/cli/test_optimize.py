@@ -86,7 +86,7 @@ def test_lago_start(tmp_path):
     [
         ("VERTEX_SE2 0 0 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n", [], "line 2"),
         ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 0 0 0 x\n", [], "line 2: bad number"),
-        ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\n", [], "not connected"),
+        ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\n", [], "vertex 1 is not joined"),
         (None, ["--robust", "tukey"], "--robust must be"),
         (None, ["--init", "chordal"], "--init must be"),
         (None, ["--max-iterations", "-3"], "max_iterations"),

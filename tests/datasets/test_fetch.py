@@ -79,6 +79,12 @@ def test_fetch_downloads_and_verifies(server, tmp_path):
         assert f.size == f.path.stat().st_size
     assert len(requests) == 3
     assert _files(out) == sorted(out / p for p in SMALL)  # no temporary file left
+    import os
+
+    mask = os.umask(0o022)
+    os.umask(mask)
+    for f in got:  # the mode of every other output, not the 0600 of a private temporary
+        assert f.path.stat().st_mode & 0o777 == 0o666 & ~mask
 
 
 def test_second_fetch_does_not_download(server, tmp_path):

@@ -79,8 +79,7 @@ def test_mcl_in_a_session_follows_its_trajectory(intel_session):
     [
         b"FLASER 3 1 2 3 0 0 0 0 0 0 1.0 host 1.0\n",  # a log
         b"\x89PNG\r\n\x1a\n" + bytes(100),  # an image
-        pickle.dumps({"format": "something else"}),  # a pickle, but no session
-        pickle.dumps([1, 2, 3])[:5],  # a truncated pickle
+        b"PK\x03\x04" + bytes(100),  # a broken zip
     ],
 )
 def test_neither_map_nor_session_is_one_line(tmp_path, content):
@@ -93,3 +92,21 @@ def test_neither_map_nor_session_is_one_line(tmp_path, content):
     assert "neither a map_server YAML map" in msg and "session" in msg
     with pytest.raises(FileNotFoundError, match="no such map or session file"):
         load_localization_map(tmp_path / "missing.session")
+
+
+@pytest.mark.parametrize(
+    "content",
+    [
+        pickle.dumps({"format": "something else"}),  # a pickle, but no session
+        pickle.dumps([1, 2, 3])[:5],  # a truncated pickle
+    ],
+)
+def test_a_pickle_is_never_loaded_and_named_as_an_old_session(tmp_path, content):
+    """Sessions were pickles once: any pickle is refused unread, with a line to re-run."""
+    bad = tmp_path / "thing.bin"
+    bad.write_bytes(content)
+    with pytest.raises(ValueError) as info:
+        load_localization_map(bad)
+    msg = str(info.value)
+    assert "\n" not in msg and str(bad) in msg
+    assert "pickle" in msg and "re-run probmap slam grid --save-session" in msg

@@ -35,11 +35,44 @@ def _root(
     """Probabilistic robot mapping and SLAM."""
 
 
-def main() -> None:
-    """Console-script entry point."""
-    from probmap.cli import IMPORTED_AT, register
-    from probmap.cli.common import mark_process_start
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
 
-    mark_process_start(IMPORTED_AT)
-    register(app)
-    app()
+
+def _nothing_written(unless_said_since: int | None = None) -> None:
+    """The line of an interrupt that came before a command could say what it wrote (none
+    when the command said its own since ``unless_said_since`` lines)."""
+    from probmap.cli.common import interrupts_said, say_interrupted
+
+    if unless_said_since is None or interrupts_said() == unless_said_since:
+        say_interrupted("interrupted: nothing written")
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console-script entry point (``argv``: the arguments, ``sys.argv[1:]`` by default).
+
+    SIGTERM is a Ctrl-C from the start, and an interrupt at any moment ends with one line
+    and exit code 130: the commands say what they wrote; one that came before a command
+    started (while the arguments were read) says ``interrupted: nothing written``."""
+    import signal
+
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    said = 0
+    try:
+        try:
+            from probmap.cli import IMPORTED_AT, register
+            from probmap.cli.common import interrupts_said, mark_process_start
+
+            said = interrupts_said()
+            mark_process_start(IMPORTED_AT)
+            register(app)
+            app(args=argv, prog_name="probmap")
+        except KeyboardInterrupt:  # before typer's own handling (building the commands)
+            _nothing_written()
+            raise SystemExit(130) from None
+        except SystemExit as exc:
+            if exc.code == 130:  # typer ends a Ctrl-C while it reads arguments silently
+                _nothing_written(unless_said_since=said)
+            raise
+    finally:
+        signal.signal(signal.SIGTERM, previous)

@@ -18,17 +18,79 @@ class CliError(Exception):
     """An error the CLI reports on one line."""
 
 
+_INTERRUPTS_SAID = [0]
+
+
+def say_interrupted(message: str) -> None:
+    """Print the one ``interrupted: ...`` line of an interrupted command on stderr (every
+    command words it alike: ``interrupted: nothing written`` or what was written)."""
+    _INTERRUPTS_SAID[0] += 1
+    typer.echo(message, err=True)
+
+
+def interrupts_said() -> int:
+    """How many ``interrupted: ...`` lines :func:`say_interrupted` printed in this process."""
+    return _INTERRUPTS_SAID[0]
+
+
 @contextmanager
 def cli_errors() -> Iterator[None]:
     """Turn expected library errors into a one-line message on stderr and exit code 1 (a
-    missing optional extra too: its message names what to install)."""
+    missing optional extra too: its message names what to install).
+
+    SIGTERM (``timeout``, systemd, Docker, Slurm) is a Ctrl-C here: an interrupt that ends the
+    command is one line, ``interrupted: nothing written`` (the outputs are all or none), or
+    which files it had put in place, and exit code 130. Temporary files of killed runs that
+    the command's writes removed (:func:`probmap._atomic.sweep_leftovers`) are named in one
+    line at the end."""
+    from probmap import _atomic
     from probmap.errors import MissingExtraError, error_message
 
+    swept = len(_atomic.removed_leftovers)
+    wrote = len(_atomic.written)
     try:
-        yield
+        with sigterm_as_ctrl_c():
+            yield
     except (CliError, ValueError, OSError, EOFError, KeyError, MissingExtraError) as exc:
         typer.echo(f"error: {error_message(exc)}", err=True)
         raise typer.Exit(1) from None
+    except KeyboardInterrupt:
+        done = _atomic.written[wrote:]
+        if done:
+            names = ", ".join(str(p) for p in done[:3]) + (", ..." if len(done) > 3 else "")
+            say_interrupted(f"interrupted: wrote {len(done)} file(s) before it: {names}")
+        else:
+            say_interrupted("interrupted: nothing written")
+        raise typer.Exit(130) from None
+    finally:
+        gone = _atomic.removed_leftovers[swept:]
+        if gone:
+            names = ", ".join(str(p) for p in gone[:3]) + (", ..." if len(gone) > 3 else "")
+            typer.echo(
+                f"removed {len(gone)} temporary file(s) left by killed runs: {names}", err=True
+            )
+
+
+@contextmanager
+def sigterm_as_ctrl_c() -> Iterator[None]:
+    """While active (on the main thread), SIGTERM raises KeyboardInterrupt as Ctrl-C does, so
+    that every command stops on it as on Ctrl-C (all outputs or none, one line). The previous
+    handler is restored on exit."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 @contextmanager

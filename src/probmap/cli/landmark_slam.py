@@ -295,6 +295,7 @@ def run_and_report(
             with progress_bar(unit="runs") as bar:
                 bar.add_task(f"evaluating {len(result.trajectory):,} steps", total=1)
                 metrics = evaluate(result, dataset)
+    asked = stop is not None and stop()  # a Ctrl-C during the last step ends no earlier
     metrics["dataset"] = getattr(dataset, "name", "")
     metrics["estimator"] = title
     metrics.update(_provenance(estimator))
@@ -338,11 +339,11 @@ def run_and_report(
     rows.append(watch.row())
     rows += [("wrote", str(f)) for f in files]
     rows += recorded_rows(viz_save)
-    if result.interrupted:
+    if result.interrupted or asked:
         done = len(result.trajectory)
         rows.insert(0, ("interrupted", f"at step {done:,} of {result.steps_total:,}"))
     print_summary(f"{title} on {metrics['dataset']}", rows)
-    if result.interrupted:
+    if result.interrupted or asked:
         interrupted_exit(len(result.trajectory), result.steps_total, "steps", wrote=True)
     return metrics
 

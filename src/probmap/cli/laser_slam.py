@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +19,7 @@ from probmap.cli.common import (
 )
 from probmap.cli.landmark_slam import slam_app
 from probmap.cli.watch import (
+    interrupted_exit,
     open_view,
     save_partial_option,
     stop_on_ctrl_c,
@@ -86,7 +86,8 @@ def grid_command(
         None,
         "--save-session",
         help="graph: also write the run's state to FILE (a folder: FOLDER/slam.session), to "
-        "continue it later with --resume (a Python pickle: load only sessions you wrote).",
+        "continue it later with --resume (arrays and a JSON header: docs/sessions.md). After "
+        "Ctrl-C it holds the scans so far.",
     ),
     odometry: bool | None = typer.Option(
         None,
@@ -98,8 +99,9 @@ def grid_command(
         None,
         "--resume",
         help="graph: continue the session saved in FILE (a folder: FOLDER/slam.session) with "
-        "this log, in the same odometry frame (the rest of a log); the outputs cover the whole "
-        "session.",
+        "this log, in the same odometry frame: the log that continues it, or its own log "
+        "after an interrupted run (the scans it holds are skipped); the outputs cover the "
+        "whole session.",
     ),
 ) -> None:
     """Grid SLAM from a raw log or ROS bag: writes the map (PREFIX.yaml/.pgm/.npz/.png, as
@@ -166,6 +168,7 @@ def _slam_grid(
     from probmap.pipelines.laser_slam import SESSION_NAME, slam_grid
 
     session = None
+    session_info = None
     if method == "graph":
         from probmap.slam.laser.submap_slam import SubmapSlamConfig
 
@@ -175,12 +178,13 @@ def _slam_grid(
         if resume is not None and resume.is_dir():
             resume = resume / SESSION_NAME
         if resume is not None:
-            from probmap.pipelines.sessions import load_session
+            from probmap.pipelines.sessions import load_session, read_session_info
 
             if config is not None:
                 raise ValueError(
                     "--resume continues with the session's own configuration; no --config"
                 )
+            session_info = read_session_info(resume)
             session = load_session(resume)
             cfg: Any = None
         else:
@@ -221,7 +225,8 @@ def _slam_grid(
         with view_discarded_on_error(view), stopping as stop:
             out = slam_grid(
                 log, prefix, cfg, end_time=end_time, bag_options=bag_options,
-                skip_bad_lines=skip_bad_lines, resume=session, save_session=save_session,
+                skip_bad_lines=skip_bad_lines, resume=session, resume_info=session_info,
+                save_session=save_session,
                 tum=tum, command=command_line(), title=log.name, progress=tick,
                 observer=observer, stop=stop, phase=watch, odometry=odometry,
             )  # fmt: skip
@@ -230,12 +235,15 @@ def _slam_grid(
     for w in caught:
         typer.echo(f"warning: {w.message}", err=True)
     if method == "graph":
-        _graph_summary(out, watch, resume, viz_save)
+        asked = stop is not None and stop()  # a Ctrl-C during the last scan ends no earlier
+        _graph_summary(out, watch, resume, viz_save, asked=asked)
     else:
         _rbpf_summary(out, watch, cfg.particles)
 
 
-def _graph_summary(out: Any, watch: Any, resume: Path | None, viz_save: Path | None) -> None:
+def _graph_summary(
+    out: Any, watch: Any, resume: Path | None, viz_save: Path | None, *, asked: bool = False
+) -> None:
     run = out.run
     spec = run.grid.spec
     weights = run.closure_weights
@@ -244,6 +252,14 @@ def _graph_summary(out: Any, watch: Any, resume: Path | None, viz_save: Path | N
         *input_rows(out.readings, out.skipped_lines),
         *(
             [("resumed", f"{resume}: {run.scans_total - out.scans_read:,} scans before this log")]
+            if resume is not None and not out.scans_skipped
+            else [
+                (
+                    "resumed",
+                    f"{resume}: {run.scans_total - out.scans_read:,} scans, the first "
+                    f"{out.scans_skipped:,} of this log among them",
+                )
+            ]
             if resume is not None
             else []
         ),
@@ -263,16 +279,11 @@ def _graph_summary(out: Any, watch: Any, resume: Path | None, viz_save: Path | N
     rows += [("wrote", str(f)) for f in out.files]
     if viz_save is not None:
         rows.append(("recorded", f"{viz_save} (rerun {viz_save})"))
-    if run.interrupted:
+    if run.interrupted or asked:
         rows.insert(1, ("interrupted", f"at scan {len(run.times):,} of {run.scans_total:,}"))
     print_summary("grid SLAM (graph)", rows)
-    if run.interrupted:
-        print(
-            f"interrupted: wrote the map and trajectory of the first {len(run.times):,} of "
-            f"{run.scans_total:,} scans",
-            file=sys.stderr,
-        )
-        raise typer.Exit(130)
+    if run.interrupted or asked:
+        interrupted_exit(len(run.times), run.scans_total, "scans", wrote=True)
 
 
 def _check_rows(report: dict[str, Any] | None) -> list[tuple[str, str]]:

@@ -106,7 +106,8 @@ def localize_command(
         None,
         "--map",
         help="The map as an option (then the one argument is the log): a map_server YAML map or "
-        "a graph-SLAM session (a Python pickle: load only sessions you wrote). A session's map "
+        "a graph-SLAM session (data: reading one runs no code; a folder: its slam.session). A "
+        "session's map "
         "is its occupancy grid at its optimized poses, and its trajectory is the reference when "
         "--reference is not given.",
     ),
@@ -335,7 +336,8 @@ def localize_command(
 
         console = Console()
         summary_rows = [
-            ("map", f"{map_path} ({m.kind}, {m.spec.shape[1]} x {m.spec.shape[0]} cells)"),
+            # the file read (a folder's slam.session named), not only what was given
+            ("map", f"{m.source} ({m.kind}, {m.spec.shape[1]} x {m.spec.shape[0]} cells)"),
             *input_rows(batch.readings, batch.skipped_lines),
             ("laser offset", _describe_offset(mount)),
             ("updates", f"{run.times.size:,}"),

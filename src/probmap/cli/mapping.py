@@ -173,7 +173,9 @@ def _aborted_on_ctrl_c() -> Iterator[None]:
     try:
         yield
     except KeyboardInterrupt:
-        typer.echo("interrupted: nothing written", err=True)
+        from probmap.cli.common import say_interrupted
+
+        say_interrupted("interrupted: nothing written")
         raise typer.Exit(130) from None
 
 
@@ -225,6 +227,9 @@ def _map_one(
                 log, cfg, progress=tick, bag_options=bag_options, observer=observer, stop=stop
             )
         watch.phases.update(setup=setup, read=result.parse_seconds, compute=result.map_seconds)
+        asked = stop is not None and stop()  # a Ctrl-C during the last chunk ends no earlier
+        if result.interrupted and result.stats.scans == 0:  # no map to write (the view goes)
+            interrupted_exit(0, result.scans_total, "scans", wrote=False)
         if observer is not None:
             observer.finish(result)
         with watch("write"), progress_bar(unit="maps") as bar:
@@ -243,10 +248,10 @@ def _map_one(
         view.close()
     rows = [r for r in mapping_rows(result) if r[0] not in ("time", "wrote")]
     rows += [watch.row(), *(("wrote", f) for f in files), *recorded_rows(viz_save)]
-    if result.interrupted:
+    if result.interrupted or asked:
         rows.insert(0, ("interrupted", f"at scan {result.stats.scans:,} of {result.scans_total:,}"))
     print_summary(f"probmap map {log.name}", rows)
-    if result.interrupted:
+    if result.interrupted or asked:
         interrupted_exit(result.stats.scans, result.scans_total, "scans", wrote=True)
 
 

@@ -41,6 +41,13 @@ def optimize_command(
         "[default: all].",
     ),
     init: str | None = typer.Option(None, "--init", help=INIT_HELP + " [default: auto]"),
+    edge2_order: str = typer.Option(
+        "auto",
+        "--edge2-order",
+        help="Order of the information values on TORO EDGE2 lines: toro (I11 I12 I22 I33 I13 "
+        "I23), g2o (I11 I12 I13 I22 I23 I33, as GTSAM's w20000.txt writes them) or auto "
+        "(the one that makes every matrix positive semi-definite, TORO's first).",
+    ),
     config: Path | None = opt.config_option(
         "A YAML file of PoseGraphConfig fields (iterations, tolerances, damping, robust "
         "kernel and scale, chart, robust_edges, init), as PREFIX.config.yaml records it; the "
@@ -68,6 +75,7 @@ def optimize_command(
         check_choice("--init", init, ("auto", "given", "lago"))
         check_choice("--robust", robust, ("none", "huber", "cauchy", "dcs"))
         check_choice("--robust-edges", robust_edges, ("all", "closures"))
+        check_choice("--edge2-order", edge2_order, ("auto", "toro", "g2o"))
         overrides = {
             "robust": robust,
             "robust_scale": robust_scale,
@@ -77,7 +85,7 @@ def optimize_command(
         }
         cfg = resolve_config(PoseGraphConfig, config, overrides)
         with watch("read"):
-            g = read_pose_graph(graph)
+            g = read_pose_graph(graph, edge2_order=edge2_order)  # type: ignore[arg-type]
         with watch("compute"):
             try:
                 run = optimize_graph(g, cfg)
@@ -94,6 +102,9 @@ def optimize_command(
         table.add_row("format", g.format + (" (poses chained from odometry)" if g.chained else ""))
         table.add_row("nodes", f"{len(a.ids):,}")
         table.add_row("edges", f"{len(a.edges):,}")
+        if g.edge2_order is not None:
+            how = "detected" if edge2_order == "auto" else "--edge2-order"
+            table.add_row("EDGE2 information order", f"{g.edge2_order} ({how})")
         if g.equivalences:
             table.add_row("EQUIV lines (not merged)", f"{len(g.equivalences):,}")
         table.add_row("fixed nodes", ", ".join(str(int(a.ids[i])) for i in run.fixed))
@@ -111,6 +122,8 @@ def optimize_command(
         console.print(table)
         console.print(f"wrote {target}")
         console.print(f"wrote {config_path}")
+        if not r.converged:
+            typer.echo(f"warning: {graph}: not converged: {r.message}", err=True)
 
 
 def register(app: typer.Typer) -> None:

@@ -75,9 +75,9 @@ def open_view(title: str, viz: bool, viz_save: Path | None) -> Any:
 
 @contextmanager
 def stop_on_ctrl_c(enabled: bool, unit: str = "step") -> Iterator[Callable[[], bool] | None]:
-    """While active, the first Ctrl-C (SIGINT) asks the run to stop after the current
-    ``unit`` (the yielded callable then returns True) and says so on stderr; a second one
-    raises KeyboardInterrupt as usual. Disabled, or off the main thread, it yields None and
+    """While active, the first Ctrl-C (SIGINT) or SIGTERM asks the run to stop after the
+    current ``unit`` (the yielded callable then returns True) and says so on stderr; a second
+    one raises KeyboardInterrupt as usual. Disabled, or off the main thread, it yields None and
     changes nothing. The previous handler is restored on exit."""
     import signal
     import threading
@@ -91,17 +91,20 @@ def stop_on_ctrl_c(enabled: bool, unit: str = "step") -> Iterator[Callable[[], b
         if asked[0]:
             raise KeyboardInterrupt
         asked[0] = True
+        name = "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
         print(
-            f"\nCtrl-C: stopping after this {unit} and writing the results so far "
+            f"\n{name}: stopping after this {unit} and writing the results so far "
             "(Ctrl-C again to abort)",
             file=sys.stderr,
         )
 
     previous = signal.signal(signal.SIGINT, handler)
+    previous_term = signal.signal(signal.SIGTERM, handler)  # as systemd, Docker, Slurm stop
     try:
         yield lambda: asked[0]
     finally:
         signal.signal(signal.SIGINT, previous)
+        signal.signal(signal.SIGTERM, previous_term)
 
 
 def recorded_rows(viz_save: Path | None) -> list[tuple[str, str]]:
@@ -127,9 +130,11 @@ def view_discarded_on_error(view: Any) -> Iterator[None]:
 
 def interrupted_exit(done: int, total: int, unit: str, wrote: bool) -> None:
     """After a Ctrl-C: one line on stderr saying what was written, then exit code 130."""
+    from probmap.cli.common import say_interrupted
+
     if wrote:
         msg = f"interrupted: wrote the results of the first {done:,} of {total:,} {unit}"
     else:
         msg = "interrupted: nothing written"
-    typer.echo(msg, err=True)
+    say_interrupted(msg)
     raise typer.Exit(130)

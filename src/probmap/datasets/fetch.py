@@ -437,6 +437,11 @@ class _Downloader:
                 f"(downloaded from {url}; nothing was written)",
                 path=self.target,
             )
+        # pooch downloads into a private temporary file (mode 0600): give the data the mode
+        # of every other output, 0666 less the umask (os.umask both reads and sets it)
+        mask = os.umask(0o022)
+        os.umask(mask)
+        os.chmod(output_file, 0o666 & ~mask)
 
 
 @contextmanager

@@ -31,13 +31,14 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from probmap._atomic import atomic_write
 from probmap._typing import FloatArray, IntArray
-from probmap.datasets.validate import text_lines
+from probmap.datasets.validate import PoseLimits, text_lines
 from probmap.errors import DatasetError
 from probmap.geometry.se2 import pose_batch
 
@@ -93,6 +94,9 @@ class PoseGraph:
         ``"g2o"`` or ``"toro"``: the format of the file's pose records.
     chained : bool
         True when the file had no vertex lines and ``poses`` were chained from odometry.
+    edge2_order : str or None
+        The order the information of the file's ``EDGE2`` lines was read in (``"toro"`` or
+        ``"g2o"``); None without ``EDGE2`` lines.
     """
 
     poses: dict[int, FloatArray] = field(default_factory=dict)
@@ -104,6 +108,7 @@ class PoseGraph:
     equivalences: list[tuple[int, int]] = field(default_factory=list)
     format: str = "g2o"
     chained: bool = False
+    edge2_order: str | None = None
 
 
 def _upper_to_full(vals: list[float], n: int) -> FloatArray:
@@ -129,9 +134,71 @@ _COUNTS = {
     "EQUIV": 3,
 }
 _INT_FIELDS = {"EDGE_SE2": 2, "EDGE_SE2_XY": 2, "EDGE2": 2, "EQUIV": 2}
+_INT64 = (-(2**63), 2**63 - 1)
+#: Value names of each record after its ids (for the errors that name one).
+_FIELDS = {
+    "VERTEX_SE2": ("x", "y", "theta"),
+    "VERTEX2": ("x", "y", "theta"),
+    "VERTEX_XY": ("x", "y"),
+    "EDGE_SE2": ("dx", "dy", "dtheta"),
+    "EDGE2": ("dx", "dy", "dtheta"),
+    "EDGE_SE2_XY": ("dx", "dy"),
+}
+Edge2Order = Literal["auto", "toro", "g2o"]
 
 
-def read_pose_graph(path: str | os.PathLike[str], *, skip_unknown: bool = False) -> PoseGraph:
+def _positive_semidefinite(m: FloatArray) -> NDArray[np.bool_]:
+    """Which symmetric 3x3 matrices of ``m (K, 3, 3)`` are positive semi-definite with a
+    positive diagonal (the information of a pose edge), to a relative tolerance of 1e-9."""
+    diag = np.diagonal(m, axis1=1, axis2=2)
+    w = np.linalg.eigvalsh(m)
+    return (diag > 0).all(axis=1) & (w[:, 0] >= -1e-9 * np.maximum(np.abs(w[:, -1]), 1e-300))
+
+
+def _edge2_order(
+    lines: list[int], values: list[list[float]], order: Edge2Order, path: Path
+) -> Literal["toro", "g2o"]:
+    """The information order of a file's ``EDGE2`` lines (their line numbers and six values).
+
+    ``auto`` detects it as GTSAM's ``load2D`` does from the pattern of a diagonal matrix
+    (TORO's ``I11 I12 I22 I33 I13 I23`` against g2o's ``I11 I12 I13 I22 I23 I33``), for any
+    matrix: TORO's order when it makes every line's information positive semi-definite with a
+    positive diagonal, else g2o's when that one does (GTSAM's ``w20000.txt`` writes ``EDGE2``
+    in g2o's order); a file that neither order reads is an error naming the first line TORO's
+    order fails on."""
+    if order != "auto":
+        return order
+    v = np.asarray(values, dtype=np.float64).reshape(-1, 6)
+    toro_ok = _positive_semidefinite(v[:, _TORO_INDEX].reshape(-1, 3, 3))
+    if toro_ok.all():
+        return "toro"
+    if _positive_semidefinite(v[:, _G2O_INDEX].reshape(-1, 3, 3)).all():
+        return "g2o"
+    raise DatasetError(
+        "EDGE2 information is not positive semi-definite in TORO's order "
+        "(I11 I12 I22 I33 I13 I23), and g2o's order does not fit every EDGE2 line either",
+        path=path,
+        line=lines[int(np.flatnonzero(~toro_ok)[0])],
+    )
+
+
+#: Positions of the six values in a row-major 3x3 matrix: TORO's and g2o's orders.
+_TORO_INDEX = [0, 1, 4, 1, 2, 5, 4, 5, 3]
+_G2O_INDEX = [0, 1, 2, 1, 3, 4, 2, 4, 5]
+
+
+def _full3(values: list[float], order: list[int]) -> FloatArray:
+    """The symmetric 3x3 matrix of six values in the order ``order`` gives."""
+    return np.asarray(values, dtype=np.float64)[order].reshape(3, 3)
+
+
+def read_pose_graph(
+    path: str | os.PathLike[str],
+    *,
+    skip_unknown: bool = False,
+    edge2_order: Edge2Order = "auto",
+    limits: PoseLimits | None = None,
+) -> PoseGraph:
     """Parse a g2o or TORO file (recognised line by line by its tags) into a :class:`PoseGraph`.
 
     Parameters
@@ -140,6 +207,13 @@ def read_pose_graph(path: str | os.PathLike[str], *, skip_unknown: bool = False)
         The graph file.
     skip_unknown : bool
         Skip (and count in a warning) lines with unknown tags instead of raising.
+    edge2_order : {"auto", "toro", "g2o"}
+        The order of the information values on ``EDGE2`` lines: TORO's own, g2o's (as
+        GTSAM's ``w20000.txt`` writes them), or detected per file (``auto``, see
+        :func:`_edge2_order`).
+    limits : PoseLimits, optional
+        Plausibility limits, those of laser logs by default: a vertex coordinate or an edge's
+        translation beyond ``limits.max_coordinate`` is an error naming the line and field.
 
     Returns
     -------
@@ -150,12 +224,20 @@ def read_pose_graph(path: str | os.PathLike[str], *, skip_unknown: bool = False)
     Raises
     ------
     DatasetError
-        Short lines, non-numeric fields, non-finite values, duplicate vertex ids, edges that
-        reference missing vertices, a vertex-less file whose odometry chain has a gap, or
-        (unless ``skip_unknown``) unknown tags; the message names the file and line.
+        Short lines, non-numeric fields, non-finite values, ids beyond int64, implausible
+        poses or measurements (``limits``), duplicate vertex ids, edges that reference
+        missing vertices, a vertex-less file whose odometry chain has a gap, ``EDGE2``
+        information that no order reads, or (unless ``skip_unknown``) unknown tags; the
+        message names the file and line.
     """
+    if edge2_order not in ("auto", "toro", "g2o"):
+        raise ValueError(f"edge2_order must be auto, toro or g2o, got {edge2_order!r}")
+    max_coordinate = (limits if limits is not None else PoseLimits()).max_coordinate
     path = Path(path)
     g = PoseGraph(name=path.stem)
+    edge2: list[list[float]] = []  # the information values of EDGE2 lines
+    edge2_lines: list[int] = []  # their line numbers
+    edge2_rows: list[int] = []  # their rows in g.pose_edges
     unknown = 0
     edge_lines: list[tuple[int, str, int, int]] = []
     has_vertices = False
@@ -183,6 +265,19 @@ def read_pose_graph(path: str | os.PathLike[str], *, skip_unknown: bool = False)
             raise DatasetError(f"bad number in {tag}: {exc}", path=path, line=lineno) from None
         if not all(math.isfinite(v) for v in vals):
             raise DatasetError(f"non-finite value in {tag}", path=path, line=lineno)
+        if max(ids) > _INT64[1] or min(ids) < _INT64[0]:
+            vid = next(v for v in ids if not _INT64[0] <= v <= _INT64[1])
+            raise DatasetError(
+                f"{tag} id {vid} is beyond the 64-bit integer range", path=path, line=lineno
+            )
+        if len(vals) >= 2 and max(abs(vals[0]), abs(vals[1])) > max_coordinate:
+            k = 0 if abs(vals[0]) > max_coordinate else 1
+            raise DatasetError(
+                f"{tag} {_FIELDS[tag][k]}: {vals[k]:g} m is beyond the plausible extent "
+                f"(|coordinate| <= {max_coordinate:g} m)",
+                path=path,
+                line=lineno,
+            )
         if tag in ("VERTEX_SE2", "VERTEX2", "VERTEX_XY"):
             has_vertices = True
             vid = ids[0]
@@ -199,7 +294,11 @@ def read_pose_graph(path: str | os.PathLike[str], *, skip_unknown: bool = False)
         elif tag == "EQUIV":
             g.equivalences.append((ids[0], ids[1]))
         elif tag in ("EDGE_SE2", "EDGE2"):
-            info = _upper_to_full(vals[3:], 3) if tag == "EDGE_SE2" else _toro_to_full(vals[3:])
+            info = _full3(vals[3:], _G2O_INDEX if tag == "EDGE_SE2" else _TORO_INDEX)
+            if tag == "EDGE2":  # its order is known once every EDGE2 line is read
+                edge2.append(vals[3:])
+                edge2_lines.append(lineno)
+                edge2_rows.append(len(g.pose_edges))
             g.pose_edges.append(PoseEdge(ids[0], ids[1], np.array(vals[:3]), info))
             edge_lines.append((lineno, tag, ids[0], ids[1]))
             toro |= tag == "EDGE2"
@@ -210,6 +309,12 @@ def read_pose_graph(path: str | os.PathLike[str], *, skip_unknown: bool = False)
             )
             edge_lines.append((lineno, tag, ids[0], ids[1]))
     g.format = "toro" if toro and not g2o else "g2o"
+    if edge2:
+        g.edge2_order = _edge2_order(edge2_lines, edge2, edge2_order, path)
+        if g.edge2_order == "g2o":
+            for n, info_values in zip(edge2_rows, edge2, strict=True):
+                e = g.pose_edges[n]
+                g.pose_edges[n] = PoseEdge(e.i, e.j, e.measurement, _full3(info_values, _G2O_INDEX))
     if not has_vertices and g.pose_edges:
         _chain_odometry(g, edge_lines, path)
     for lineno, tag, i, j in edge_lines:
@@ -221,10 +326,12 @@ def read_pose_graph(path: str | os.PathLike[str], *, skip_unknown: bool = False)
     return g
 
 
-def read_g2o(path: str | os.PathLike[str], *, skip_unknown: bool = False) -> PoseGraph:
+def read_g2o(
+    path: str | os.PathLike[str], *, skip_unknown: bool = False, edge2_order: Edge2Order = "auto"
+) -> PoseGraph:
     """Parse a g2o file into a :class:`PoseGraph` (TORO records are read too: see
     :func:`read_pose_graph`, which this is)."""
-    return read_pose_graph(path, skip_unknown=skip_unknown)
+    return read_pose_graph(path, skip_unknown=skip_unknown, edge2_order=edge2_order)
 
 
 def _chain_odometry(g: PoseGraph, edge_lines: list[tuple[int, str, int, int]], path: Path) -> None:
@@ -378,6 +485,7 @@ def with_poses(graph: PoseGraph, ids: ArrayLike, poses: ArrayLike) -> PoseGraph:
         equivalences=list(graph.equivalences),
         format=graph.format,
         chained=graph.chained,
+        edge2_order=graph.edge2_order,
     )
 
 

@@ -255,6 +255,8 @@ def pgm_bytes(grey: NDArray[np.uint8], comment: str = "probmap") -> bytes:
 def _pgm_header(g: NDArray[np.uint8], comment: str = "probmap") -> bytes:
     if g.ndim != 2:
         raise ValueError(f"a PGM image must be 2-D, got shape {g.shape}")
+    if g.size == 0:
+        raise ValueError(f"an empty map ({g.shape[1]} x {g.shape[0]} cells): no image to write")
     return f"P5\n# {comment}\n{g.shape[1]} {g.shape[0]}\n255\n".encode("ascii")
 
 
@@ -446,8 +448,11 @@ def read_map_server(yaml_path: str | os.PathLike[str]) -> MapServerMap:
     text = ypath.read_text(encoding="utf-8", errors="replace")
     try:
         doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise MapFileError(f"not valid YAML ({exc})", path=ypath) from None
+    except yaml.YAMLError as exc:  # one line: its problem and where, not yaml's drawing
+        mark = getattr(exc, "problem_mark", None)
+        problem = getattr(exc, "problem", None) or type(exc).__name__
+        at = f" at line {mark.line + 1}" if mark is not None else ""
+        raise MapFileError(f"not valid YAML ({problem}{at})", path=ypath) from None
     if not isinstance(doc, dict):
         raise MapFileError("expected a YAML mapping of map_server fields", path=ypath)
 

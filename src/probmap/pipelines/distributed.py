@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from probmap._checks import require_at_least
+from probmap._checks import require_at_least, require_positive_finite
 from probmap.grid.increments import (
     IncrementGrid,
     SemanticIncrements,
@@ -90,6 +90,13 @@ class DistributedOptions:
         Partial sums merged per reduction task (``>= 2``).
     retries : int
         Times Dask retries a failed task before reporting it (a killed worker also reschedules).
+    worker_ttl : float
+        Seconds a worker of the local cluster this starts may go without a heartbeat (a
+        stalled process: stopped, swapped out, stuck in the kernel) before the scheduler
+        restarts it and runs its tasks on another worker; a task whose workers keep dying
+        this way fails the run with a message naming its input, never an indefinite hang.
+        Dask enforces at least ten heartbeat intervals (5 s on a small cluster). A scheduler
+        you run yourself (``scheduler``) uses its own ``distributed.scheduler.worker-ttl``.
     """
 
     mode: str = "auto"
@@ -97,6 +104,7 @@ class DistributedOptions:
     tile: int = 64
     fan_in: int = 4
     retries: int = 2
+    worker_ttl: float = 60.0
 
     def __post_init__(self) -> None:
         if self.mode not in ("auto", "sequential", "increments"):
@@ -109,6 +117,7 @@ class DistributedOptions:
         if self.fan_in < 2:
             raise ValueError(f"fan_in must be >= 2, got {self.fan_in}")
         require_at_least("retries", self.retries, 0)
+        require_positive_finite("worker_ttl", self.worker_ttl)
 
 
 # ------------------------------------------------------------------ task bodies (run on workers)
@@ -448,7 +457,7 @@ def map_logs_distributed(
         require_at_least("workers", workers, 1)
     mode = _resolve_mode(len(files), opts)
     t0 = time.perf_counter()
-    with _connected(client, workers, scheduler) as cl:
+    with _connected(client, workers, scheduler, opts.worker_ttl) as cl:
         n_workers = len(cl.scheduler_info()["workers"])
         return _run(cl, files, cfg, opts, mode, progress, allow_partial, n_workers, t0, bag_options)
 
@@ -467,9 +476,12 @@ def _require_dask() -> None:
 
 
 @contextmanager
-def _connected(client: Any, workers: int | None, scheduler: str | None) -> Iterator[Any]:
+def _connected(
+    client: Any, workers: int | None, scheduler: str | None, worker_ttl: float = 60.0
+) -> Iterator[Any]:
     """``client``, or a client of the scheduler at ``scheduler``, or of a new local cluster of
-    ``workers`` processes (closed again on exit; a given client is left open)."""
+    ``workers`` processes whose scheduler restarts a worker silent for ``worker_ttl`` seconds
+    (closed again on exit; a given client is left open)."""
     from distributed import Client
 
     if client is not None:
@@ -479,7 +491,11 @@ def _connected(client: Any, workers: int | None, scheduler: str | None) -> Itera
         with Client(scheduler) as cl:
             yield cl
         return
-    with local_cluster(workers or os.cpu_count() or 1) as cluster, Client(cluster) as cl:
+    ttl = {"worker_ttl": f"{worker_ttl}s"}
+    with (
+        local_cluster(workers or os.cpu_count() or 1, scheduler_kwargs=ttl) as cluster,
+        Client(cluster) as cl,
+    ):
         yield cl
 
 

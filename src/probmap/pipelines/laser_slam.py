@@ -29,6 +29,7 @@ from probmap.grid.occupancy import OccupancyGrid
 if TYPE_CHECKING:
     from probmap.datasets.records import ScanBatch
     from probmap.datasets.validate import ReadingReport
+    from probmap.pipelines.sessions import SessionInfo, SessionLog
     from probmap.slam.laser.rbpf import RbpfConfig, RbpfResult
     from probmap.slam.laser.submap_slam import SubmapSlam, SubmapSlamConfig
 
@@ -223,6 +224,8 @@ def run_submap_slam(
     stop: Callable[[], bool] | None = None,
     resume: SubmapSlam | None = None,
     save_session: str | os.PathLike[str] | None = None,
+    log: SessionLog | None = None,
+    log_skipped: int = 0,
     odometry: bool | None = None,
 ) -> SubmapSlamRun:
     """Run :class:`~probmap.slam.laser.submap_slam.SubmapSlam` over a scan batch (see
@@ -242,11 +245,20 @@ def run_submap_slam(
     run still writes what it mapped. Stopping between scans keeps the state consistent, which
     an exception raised inside a scan's update would not.
 
-    ``resume`` continues a saved run (:func:`~probmap.pipelines.sessions.load_session`) with this batch, in the same odometry
-    frame (the rest of a log, or a log that carries on where the saved one stopped); the
-    result then covers every scan of the session, and the earlier scans' robot poses use this
-    batch's first mounting offset (a robot's laser does not move). ``save_session`` writes the
-    run's state before it is finished, to be resumed later (a pickle: load only your own).
+    ``resume`` continues a saved run (:func:`~probmap.pipelines.sessions.load_session`) with
+    this batch, in the same odometry frame (the rest of a log, or a log that carries on where
+    the saved one stopped: every scan after the session's last; see
+    :func:`~probmap.pipelines.sessions.resume_batch`); the result then covers every scan of
+    the session, and the earlier scans' robot poses use this batch's first mounting offset (a
+    robot's laser does not move). ``save_session`` writes the run's state before it is
+    finished, to be resumed later (:func:`~probmap.pipelines.sessions.save_session`; its
+    header records ``log``, of whose scans ``log_skipped`` were in ``resume`` already, and
+    whether the run read the batch to the end).
+
+    Raises
+    ------
+    ValueError
+        When ``batch`` does not start after ``resume``'s last scan.
     """
     from probmap._memory import release_freed_memory
     from probmap.geometry.se2 import between, compose, inverse, wrap_angle
@@ -267,6 +279,12 @@ def run_submap_slam(
             raise ValueError("a resumed session keeps its own configuration; pass config=None")
         slam = resume
         cfg = slam.config
+        if slam.scan_times and len(times) and not times[0] > slam.scan_times[-1]:
+            raise ValueError(
+                f"the scans start at t = {times[0]:.3f} s, not after the session's last scan "
+                f"at t = {slam.scan_times[-1]:.3f} s (drop the scans it holds: "
+                "probmap.pipelines.sessions.resume_batch)"
+            )
     else:
         slam = SubmapSlam(cfg, max_range=float(batch.max_range))
     earlier = len(slam.scan_times)  # scans of the session before this batch
@@ -322,7 +340,7 @@ def run_submap_slam(
     if save_session is not None:
         from probmap.pipelines.sessions import save_session as _save
 
-        _save(slam, save_session)
+        _save(slam, save_session, complete=n == n_total, log=log, log_used=log_skipped + n)
     slam.finish()
     release_freed_memory()  # the matching phase's freed pages, before the map is laid out
     _, sensor = slam.trajectory()
@@ -548,6 +566,9 @@ class LaserSlamOutput:
         Graph method: ``{"closures": closure_report(...), "consistency":
         consistency_report(...)}``
         (also written as ``PREFIX.report.json``).
+    scans_skipped : int
+        Scans of this log a resumed session held already (the log it was saved from, after
+        an interrupted run); not in ``scans_read``.
     """
 
     run: SubmapSlamRun | RbpfResult
@@ -557,6 +578,7 @@ class LaserSlamOutput:
     scans_read: int
     peak_rss_mib: float
     report: dict[str, Any] | None = None
+    scans_skipped: int = 0
 
 
 def _peak_rss_mib() -> float:
@@ -576,6 +598,7 @@ def slam_grid(
     bag_options: dict[str, Any] | None = None,
     skip_bad_lines: bool = False,
     resume: SubmapSlam | None = None,
+    resume_info: SessionInfo | None = None,
     save_session: str | os.PathLike[str] | None = None,
     tum: bool = False,
     command: str | None = None,
@@ -595,6 +618,11 @@ def slam_grid(
     ``save_session``, the session file (its state before the final
     optimization, so that ``resume`` continues it); with ``tum`` the trajectory as
     ``PREFIX.tum``.
+
+    A resumed session continues with the scans of ``log`` after its last one
+    (:func:`~probmap.pipelines.sessions.resume_batch`, which ``resume_info``, the session's
+    header, lets warn of a gap): the log that continues it, or the session's own log after an
+    interrupted run.
 
     ``progress``, ``observer`` and ``stop`` are passed to the run (``observer`` and ``stop``:
     the graph method only; see :func:`run_submap_slam`). ``phase(name)``, when given, is entered
@@ -628,6 +656,14 @@ def slam_grid(
             bag_options=bag_options,
             skip_bad_lines=skip_bad_lines,
         )
+    source = None
+    skipped = 0
+    if method == "graph":
+        from probmap.pipelines.sessions import SessionLog, resume_batch
+
+        source = SessionLog.of(log, batch)
+        if resume is not None:
+            batch, skipped = resume_batch(resume, batch, resume_info, log_name=source.name)
     prefix = Path(prefix)
     part: Path | None = None
     try:
@@ -642,17 +678,21 @@ def slam_grid(
                 # the session is saved before the map is built, into a temporary file; it
                 # joins the other outputs (all or none) below
                 if save_session is not None:
-                    import tempfile
-
-                    fd, name = tempfile.mkstemp(suffix=".session")
-                    os.close(fd)
-                    part = Path(name)
+                    part = _session_part(Path(save_session))
                 graph_config = None if resume is not None else config
-                run = run_submap_slam(
-                    batch, graph_config, progress=progress,  # type: ignore[arg-type]
-                    observer=observer, stop=stop, resume=resume, save_session=part,
-                    odometry=odometry,
-                )  # fmt: skip
+                try:
+                    run = run_submap_slam(
+                        batch, graph_config, progress=progress,  # type: ignore[arg-type]
+                        observer=observer, stop=stop, resume=resume, save_session=part,
+                        log=source, log_skipped=skipped, odometry=odometry,
+                    )  # fmt: skip
+                except OSError as exc:  # a full disk: name the session, not its temporary
+                    if part is None or part.name not in str(exc):
+                        raise
+                    reason = os.strerror(exc.errno) if exc.errno else str(exc)
+                    raise type(exc)(
+                        exc.errno, f"cannot write {save_session}: {reason}", str(save_session)
+                    ) from None
         used = resume.config if resume is not None else run_config(run, config)
         report = None
         if isinstance(run, SubmapSlamRun):
@@ -694,7 +734,23 @@ def slam_grid(
         scans_read=len(batch.times),
         peak_rss_mib=_peak_rss_mib(),
         report=report,
+        scans_skipped=skipped,
     )
+
+
+def _session_part(target: Path) -> Path:
+    """An empty temporary file for the session before it joins the outputs: beside
+    ``target`` when its folder exists (named so that a later run removes it if this one is
+    killed: :func:`probmap._atomic.sweep_leftovers`), else in the system's temporary folder."""
+    from probmap._atomic import temporary_beside
+
+    if target.parent.is_dir():
+        return temporary_beside(target)
+    import tempfile
+
+    fd, name = tempfile.mkstemp(suffix=".session")
+    os.close(fd)
+    return Path(name)
 
 
 def run_config(

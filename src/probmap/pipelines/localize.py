@@ -270,10 +270,6 @@ class LocalizationMap:
         return self.poses[i[0]].copy() if j.size else None
 
 
-# a pickle of protocol 2 or newer (every session) starts with the PROTO opcode
-_PICKLE_MAGIC = b"\x80"
-
-
 def load_localization_map(path: str | os.PathLike[str]) -> LocalizationMap:
     """A map to localize in: a map_server YAML map, or a graph-SLAM session saved by
     ``probmap slam grid --save-session`` (:func:`~probmap.pipelines.sessions.save_session`).
@@ -282,13 +278,15 @@ def load_localization_map(path: str | os.PathLike[str]) -> LocalizationMap:
     its occupancy grid is rendered with every scan at its optimized pose
     (:meth:`SubmapSlam.map <probmap.slam.laser.submap_slam.SubmapSlam.map>`): the map ``slam grid``
     wrote beside the session. Its frame is the session's, the sensor odometry frame of its
-    first scan. A session is a Python pickle: load only sessions you wrote.
+    first scan. A session is data (arrays and a JSON header, docs/sessions.md): reading one
+    runs no code from it, whoever wrote it.
 
     Parameters
     ----------
     path : path-like
-        ``*.yaml`` / ``*.yml``: a map_server map; a folder: its ``slam.session``; anything
-        else: a session.
+        ``*.yaml`` / ``*.yml``: a map_server map; a folder: its ``slam.session`` (the file
+        ``slam grid --save-session FOLDER`` writes; named in ``source``); anything else: a
+        session.
 
     Returns
     -------
@@ -301,7 +299,7 @@ def load_localization_map(path: str | os.PathLike[str]) -> LocalizationMap:
     ValueError
         A file that is neither (one line naming the file), a malformed map (a
         :class:`~probmap.errors.MapFileError` naming the field), or a session of another
-        format version.
+        format version or malformed (an old pickled one among them: it is never unpickled).
     """
     p = Path(path)
     if p.is_dir():  # a folder given to slam grid --save-session holds slam.session
@@ -319,20 +317,11 @@ def load_localization_map(path: str | os.PathLike[str]) -> LocalizationMap:
         f"{p}: neither a map_server YAML map (*.yaml) nor a probmap graph-SLAM session "
         "(probmap slam grid --save-session)"
     )
-    with open(p, "rb") as f:
-        if f.read(1) != _PICKLE_MAGIC:
-            raise ValueError(neither)
-    import pickle
-
-    from probmap.pipelines.sessions import load_session
+    from probmap.pipelines.sessions import NotASessionError, load_session
 
     try:
         slam = load_session(p)
-    except ValueError as exc:
-        if "format version" in str(exc):
-            raise
-        raise ValueError(neither) from None
-    except (pickle.PickleError, TypeError, KeyError, UnicodeDecodeError, MemoryError):
+    except NotASessionError:
         raise ValueError(neither) from None
     if slam.nodes == 0:
         raise ValueError(f"{p}: the session holds no scans")

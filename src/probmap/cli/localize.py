@@ -223,14 +223,14 @@ def localize_command(
             mount = _laser_offset(log, batch, m, skip_bad_lines, bag_options)
             ref_t = ref_p = None
             ref_name = None
-            always = None
             if reference is not None:
                 with bad_lines_quiet():
                     ref_t, ref_p = _read_reference(
                         reference, reference_offset, skip_bad_lines, bag_options
                     )
-                always, _ = match_times(batch.times, ref_t)
-                if always.size == 0:
+                # the reference is compared at its own times, interpolated between the
+                # filter's updates: it never makes the filter update (trajectory_errors)
+                if match_times(batch.times, ref_t)[0].size == 0:
                     raise CliError(
                         f"{reference}: no reference time within 20 ms of a scan "
                         "(check --reference-offset)"
@@ -238,7 +238,6 @@ def localize_command(
                 ref_name = reference.name
             elif m.times is not None and m.poses is not None:
                 # a session: its own trajectory, where the log's scans are the session's
-                # (no forced updates: the session has a pose at every scan)
                 if match_times(batch.times, m.times)[0].size:
                     ref_t, ref_p = m.times, m.poses
                     ref_name = f"the session's trajectory ({map_path.name})"
@@ -279,7 +278,7 @@ def localize_command(
                     warnings.simplefilter("ignore", FilterLostWarning)
                     run = localize_scans(
                         m.spec, m.probability, batch.times, batch.ranges, angles, odo,
-                        batch.max_range, cfg, start=start, stop=stop, always_update=always,
+                        batch.max_range, cfg, start=start, stop=stop,
                         laser_offset=mount, progress=tick, observer=observer,
                     )  # fmt: skip
             except BaseException:

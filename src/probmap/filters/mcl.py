@@ -716,7 +716,14 @@ class MonteCarloLocalization:
 
         With a likelihood field and the odometry model, sampling (Table 5.6) and weighting
         (Table 6.3) run fused in one compiled pass; otherwise :meth:`update` is used.
+
+        When the odometry has not moved (``odom_prev == odom_cur``) nothing happens: no
+        measurement update and no resampling. A scan taken again from the same place is not
+        independent evidence, and resampling without motion noise only removes particles until
+        all are copies of one (particle deprivation, Probabilistic Robotics section 8.3.5).
         """
+        if np.array_equal(np.asarray(odom_prev, float), np.asarray(odom_cur, float)):
+            return self.estimate()
         if not (
             isinstance(self.sensor, LikelihoodField)
             and isinstance(self.motion, OdometryMotionModel)

@@ -41,6 +41,7 @@ __all__ = [
     "laser_offset_of",
     "load_localization_map",
     "localize_scans",
+    "interpolate_run",
     "match_times",
     "trajectory_errors",
 ]
@@ -69,7 +70,8 @@ class LocalizeConfig:
     max_range : float or None
         Readings at or beyond it are "no return"; None: 80 m or the log's maximum, the smaller.
     update_distance, update_angle : float
-        Motion (m, rad) that triggers a filter update.
+        Motion (m, rad) that triggers a filter update. The filter never updates while the
+        odometry has not moved at all, even with both at 0.
     beam_step : int
         Use every ``beam_step``-th beam.
     free_threshold : float
@@ -402,7 +404,6 @@ def localize_scans(
     start: int = 0,
     stop: int | None = None,
     max_updates: int | None = None,
-    always_update: ArrayLike | None = None,
     laser_offset: ArrayLike = (0.0, 0.0, 0.0),
     progress: Callable[[int, int], None] | None = None,
     observer: Any = None,
@@ -430,9 +431,6 @@ def localize_scans(
         Scan range to process.
     max_updates : int, optional
         Stop after this many filter updates.
-    always_update : array_like of int, optional
-        Scan indexes where the filter updates whatever the motion (e.g. the scans that have
-        a reference pose, so that errors can be measured there).
     laser_offset : (3,) array_like
         The laser's pose ``(x, y, theta)`` in the robot frame (m, rad), e.g. from
         :func:`laser_offset_of`; each particle (a robot pose) sees the scan from
@@ -510,10 +508,6 @@ def localize_scans(
     sel = slice(None, None, cfg.beam_step)
     beams = np.ascontiguousarray(a[sel])
     rows: list[tuple[float, float, float, float, float, int]] = []
-    forced = np.zeros(s_count, dtype=bool)
-    if always_update is not None:
-        idx = np.asarray(always_update, dtype=np.int64)
-        forced[idx[(idx >= 0) & (idx < s_count)]] = True
     last = start
     x0, y0 = (float(v) for v in spec.origin)
     res = float(spec.resolution)
@@ -524,8 +518,11 @@ def localize_scans(
     for k in range(start + 1, stop):
         d = odo[k] - odo[last]
         turn = abs((d[2] + math.pi) % (2 * math.pi) - math.pi)
-        small = math.hypot(d[0], d[1]) < cfg.update_distance and turn < cfg.update_angle
-        if small and not forced[k]:
+        moved = math.hypot(d[0], d[1])
+        # No update while the robot stands still, whatever the thresholds: every update
+        # resamples sooner or later, and resampling without motion noise only removes
+        # particles (particle deprivation, Probabilistic Robotics section 8.3.5).
+        if (moved < cfg.update_distance and turn < cfg.update_angle) or not (moved or turn):
             continue
         est = mcl.update_scan(odo[last], odo[k], r[k, sel], beams, mount)
         last = k
@@ -588,12 +585,17 @@ def trajectory_errors(
     run: LocalizationRun,
     ref_times: ArrayLike,
     ref_poses: ArrayLike,
-    max_dt: float = 0.02,
     *,
     laser: bool = False,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Position and heading errors at the reference poses that have an update within ``max_dt``
-    (the nearest update in time when several do).
+    """Position and heading errors at the reference poses that lie within the run's span.
+
+    The run's trajectory is interpolated at each reference time between the filter's own
+    updates (:func:`~probmap.geometry.timesync.interpolate_poses`): the filter is never made
+    to update for a reference, so a run evaluated against one is the run made without it.
+    Updates come every ``update_distance`` or ``update_angle`` of motion (0.1 m, 0.1 rad by
+    default), so the interpolation adds little; a reference may be far sparser (Intel's
+    corrected log keeps one scan in 15).
 
     The reference is a robot trajectory, compared with ``run.poses``; with ``laser=True`` it
     is a laser trajectory (a session's, a log's laser poses), compared with
@@ -610,22 +612,30 @@ def trajectory_errors(
     rp = np.asarray(ref_poses, dtype=np.float64)
     if rt.ndim != 1 or rp.shape != (rt.shape[0], 3) or rt.size == 0:
         raise ValueError(f"reference needs times (M,) and poses (M, 3), got {rt.shape}, {rp.shape}")
-    order = np.argsort(rt)
-    rt, rp = rt[order], rp[order]
-    j = (
-        np.clip(np.searchsorted(rt, run.times), 1, rt.size - 1)
-        if rt.size > 1
-        else np.zeros(run.times.size, dtype=np.int64)
-    )
-    if rt.size > 1:
-        j = np.where(np.abs(rt[j - 1] - run.times) < np.abs(rt[j] - run.times), j - 1, j)
-    gap = np.abs(rt[j] - run.times)
-    ok = np.flatnonzero(gap <= max_dt)
-    # one error per reference pose: the update nearest to it in time
-    ok = ok[np.argsort(gap[ok], kind="stable")]
-    _, first = np.unique(j[ok], return_index=True)
-    ok = np.sort(ok[first])
-    est = run.laser_poses if laser else run.poses
-    d = est[ok] - rp[j[ok]]
-    heading = np.abs(wrap_angle(d[:, 2]))
-    return np.hypot(d[:, 0], d[:, 1]), heading
+    est = interpolate_run(run, rt, laser=laser)
+    ok = np.all(np.isfinite(est), axis=1)
+    d = est[ok] - rp[ok]
+    return np.hypot(d[:, 0], d[:, 1]), np.abs(wrap_angle(d[:, 2]))
+
+
+def interpolate_run(
+    run: LocalizationRun, times: ArrayLike, *, laser: bool = False
+) -> NDArray[np.float64]:
+    """The run's poses (robot's, or the laser's with ``laser=True``) at ``times`` (M,),
+    interpolated between its updates; NaN rows outside the span of its updates.
+
+    Update times that go back (a log's clock jitter) are taken in time order.
+    """
+    from probmap.geometry.timesync import interpolate_poses
+
+    t = np.asarray(times, dtype=np.float64)
+    poses = run.laser_poses if laser else run.poses
+    if run.times.size == 0:
+        return np.full((t.size, 3), np.nan)
+    order = np.argsort(run.times, kind="stable")
+    traj = np.column_stack([run.times[order], poses[order]])
+    if traj.shape[0] == 1:  # a single update: the poses at its own time only
+        out = np.full((t.size, 3), np.nan)
+        out[t == traj[0, 0]] = traj[0, 1:]
+        return out
+    return np.asarray(interpolate_poses(traj, t))

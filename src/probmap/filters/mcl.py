@@ -57,6 +57,7 @@ __all__ = [
     "RangeBearingLandmarks",
     "SensorModel",
     "mcl_likelihood_averages",
+    "mcl_likelihood_exponent",
     "mcl_random_fraction",
     "mcl_resample",
     "mcl_sample_and_weight_scan",
@@ -97,6 +98,11 @@ class MCLConfig:
         Adaptive particle count (Table 8.4) when given.
     cluster_size : float
         Cell size (m) for the best-cluster estimate.
+    independent_measurements : float or None
+        Temper the measurement likelihood: a scan of ``B`` beams (landmarks) counts as
+        ``min(B, independent_measurements)`` independent ones, i.e. its log-likelihood is
+        multiplied by ``min(1, independent_measurements / B)`` (see
+        :func:`mcl_likelihood_exponent`). None: every beam independent (Table 8.2 as printed).
     """
 
     n_particles: int = 1000
@@ -106,6 +112,7 @@ class MCLConfig:
     alpha_fast: float = 0.1
     kld: KLDConfig | None = None
     cluster_size: float = 0.5
+    independent_measurements: float | None = None
 
     def __post_init__(self) -> None:
         if self.n_particles <= 0:
@@ -118,6 +125,9 @@ class MCLConfig:
             )
         if not self.cluster_size > 0:
             raise ValueError(f"cluster_size must be positive, got {self.cluster_size}")
+        k = self.independent_measurements
+        if k is not None and not (math.isfinite(k) and k > 0):
+            raise ValueError(f"independent_measurements must be a number > 0, got {k}")
 
 
 @dataclass(frozen=True)
@@ -365,6 +375,25 @@ def mcl_weight(
         out = lw - top - math.log(s)
     w /= s
     return out, float(1.0 / np.dot(w, w))
+
+
+def mcl_likelihood_exponent(count: int, independent: float | None) -> float:
+    """The exponent that tempers a measurement of ``count`` beams (landmarks), as if only
+    ``independent`` of them were independent: ``min(1, independent / count)``; 1 for None.
+
+    The beams of one scan are not independent (section 6.3.4: the map's errors, people and
+    unmodelled objects affect neighbouring beams alike), and counting each as independent
+    evidence makes the posterior far too peaked: the particle cloud collapses to a few copies
+    of one pose even where the scan cannot fix the pose, along a corridor. Raising
+    ``p(z | x)`` to this power (summing ``exponent * log p``) keeps the weights of a scan
+    worth ``independent`` beams, whatever the beam count.
+
+    >>> mcl_likelihood_exponent(60, 10.0), mcl_likelihood_exponent(5, 10.0)
+    (0.16666666666666666, 1.0)
+    """
+    if independent is None or count <= independent:
+        return 1.0
+    return float(independent) / count
 
 
 def mcl_likelihood_averages(
@@ -646,7 +675,8 @@ class MonteCarloLocalization:
         self._add_log_likelihood(ll, _measurement_count(z))
 
     def _add_log_likelihood(self, ll: NDArray[np.float64], count: int) -> None:
-        lw, ess = mcl_weight(self.log_weights, ll)
+        gamma = mcl_likelihood_exponent(count, self.config.independent_measurements)
+        lw, ess = mcl_weight(self.log_weights, ll if gamma == 1.0 else gamma * ll)
         if ess == 0.0:  # every particle impossible
             self._recover()
             return

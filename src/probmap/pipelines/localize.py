@@ -74,6 +74,10 @@ class LocalizeConfig:
         odometry has not moved at all, even with both at 0.
     beam_step : int
         Use every ``beam_step``-th beam.
+    independent_beams : float or None
+        Temper the likelihood field: a scan counts as this many independent beams, whatever
+        the number used (:func:`~probmap.filters.mcl.mcl_likelihood_exponent`); None counts
+        every beam as independent.
     free_threshold : float
         Cells with occupancy probability below this are free space for random particles.
     seed : int
@@ -100,6 +104,7 @@ class LocalizeConfig:
     update_distance: float = 0.1
     update_angle: float = 0.1
     beam_step: int = 3
+    independent_beams: float | None = 10.0
     free_threshold: float = 0.3
     seed: int = 0
     lost_spread: float = 3.0
@@ -109,6 +114,9 @@ class LocalizeConfig:
         if self.n_particles <= 0:
             raise ValueError(f"n_particles must be positive, got {self.n_particles}")
         require_at_least("beam_step", self.beam_step, 1)
+        k = self.independent_beams
+        if k is not None and not (math.isfinite(k) and k > 0):
+            raise ValueError(f"independent_beams must be a number > 0, got {k}")
         if not (self.update_distance >= 0 and self.update_angle >= 0):
             raise ValueError("update_distance and update_angle must be non-negative")
         # NaN or inf anywhere would give NaN trajectories: refuse it here, naming the field
@@ -498,7 +506,11 @@ def localize_scans(
     augmented = cfg.augmented or cfg.global_localization
     rng = np.random.default_rng(cfg.seed)
     motion = OdometryMotionModel(*cfg.alphas)
-    mcl_cfg = MCLConfig(n_particles=cfg.n_particles, augmented=augmented)
+    mcl_cfg = MCLConfig(
+        n_particles=cfg.n_particles,
+        augmented=augmented,
+        independent_measurements=cfg.independent_beams,
+    )
     if cfg.global_localization:
         mcl = MonteCarloLocalization.uniform(lf, motion, rng, free, mcl_cfg)
     else:

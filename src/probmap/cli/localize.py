@@ -140,9 +140,10 @@ def localize_command(
     allow_lost: bool = typer.Option(
         False,
         "--allow-lost",
-        help="Write the trajectory even when the filter loses track (its particles spread "
-        "beyond 3 m, or its estimate leaves the map's free space, for 10 updates); without it "
-        "that is an error and nothing is written.",
+        help="Write the trajectory even when the filter ends lost (its particles spread "
+        "beyond 3 m, or its estimate left the map's free space, for 10 updates, and it did not "
+        "recover); without it that is an error and nothing is written. The summary names "
+        "every time it lost track and when it recovered.",
     ),
     start: int = typer.Option(0, "--start", help="First scan to use."),
     stop: int | None = typer.Option(None, "--stop", help="Scan to stop before."),
@@ -215,9 +216,7 @@ def localize_command(
             odo = np.asarray(batch.robot_poses)
             if odo.shape[0] < 2 or np.all(odo == odo[0]):
                 raise CliError(f"{log}: no odometry (every scan carries the same robot pose)")
-            angles = np.asarray(batch.angles)
-            if angles.ndim != 1:
-                raise CliError(f"{log}: scans with differing beam geometry are not supported")
+            angles = np.asarray(batch.angles)  # (B,), or (S, B) when beam counts differ
             if not 0 <= start < len(batch.times):
                 raise CliError(f"--start {start}: the log has {len(batch.times):,} scans")
             mount = _laser_offset(log, batch, m, skip_bad_lines, bag_options)
@@ -285,12 +284,12 @@ def localize_command(
                 if observer is not None:
                     observer.view.close(keep=False)
                 raise
-        if run.lost is not None and not allow_lost:
+        if run.ended_lost and not allow_lost:
             if observer is not None:
                 observer.view.close(keep=False)
             raise CliError(
-                f"{log}: {run.lost.describe()}; nothing written (--allow-lost writes the "
-                "trajectory anyway)"
+                f"{log}: {run.episodes[-1].describe()} and did not recover; nothing written "
+                "(--allow-lost writes the trajectory anyway)"
             )
         errors = None
         if ref_t is not None and ref_p is not None:
@@ -339,7 +338,7 @@ def localize_command(
             ("laser offset", _describe_offset(mount)),
             ("updates", f"{run.times.size:,}"),
             ("final spread", f"{run.spread[-1]:.3f} m" if run.spread.size else "-"),
-            *([("lost", run.lost.describe())] if run.lost is not None else []),
+            *[("lost", e.describe()) for e in run.episodes],
             watch.row(),
             ("wrote", ", ".join(str(f) for f in (traj, plot, *extra))),
             *recorded_rows(viz_save),

@@ -94,6 +94,11 @@ class MCLConfig:
     alpha_slow, alpha_fast : float
         Decay rates of the long- and short-term likelihood averages,
         ``0 <= alpha_slow << alpha_fast``.
+    max_random_fraction : float
+        At most this fraction of the particles is replaced by random ones at a resampling
+        (1.0: as Table 8.3 prints it). On real logs the scans fit some places of a map worse
+        than others, ``w_fast`` falls well below ``w_slow`` there while the filter tracks, and
+        an uncapped fraction replaces most of a good particle set with random poses.
     kld : KLDConfig or None
         Adaptive particle count (Table 8.4) when given.
     cluster_size : float
@@ -110,6 +115,7 @@ class MCLConfig:
     augmented: bool = False
     alpha_slow: float = 0.001
     alpha_fast: float = 0.1
+    max_random_fraction: float = 1.0
     kld: KLDConfig | None = None
     cluster_size: float = 0.5
     independent_measurements: float | None = None
@@ -122,6 +128,10 @@ class MCLConfig:
         if not 0.0 <= self.alpha_slow < self.alpha_fast <= 1.0:
             raise ValueError(
                 f"need 0 <= alpha_slow < alpha_fast <= 1, got {self.alpha_slow}, {self.alpha_fast}"
+            )
+        if not 0.0 <= self.max_random_fraction <= 1.0:
+            raise ValueError(
+                f"max_random_fraction must lie in [0, 1], got {self.max_random_fraction}"
             )
         if not self.cluster_size > 0:
             raise ValueError(f"cluster_size must be positive, got {self.cluster_size}")
@@ -603,6 +613,11 @@ class MonteCarloLocalization:
         self.motion = motion
         self.rng = rng
         self.free_space = free_space
+        #: Whether resampling injects random particles now (Table 8.3); ``config.augmented`` at
+        #: first. A caller may switch it: the localization pipeline turns it on only while its
+        #: filter is lost, since on real logs the scans fit some places of a map worse than
+        #: others and ``w_fast`` falls below ``w_slow`` there while the filter tracks well.
+        self.augment = self.config.augmented
         self.w_slow = 0.0
         self.w_fast = 0.0
         p = np.array(particles, dtype=np.float64)  # a copy: the filter moves it in place
@@ -680,11 +695,11 @@ class MonteCarloLocalization:
         if ess == 0.0:  # every particle impossible
             self._recover()
             return
-        if self.config.augmented:
-            cfg = self.config
-            self.w_slow, self.w_fast = mcl_likelihood_averages(
-                self.w_slow, self.w_fast, ll, count, cfg.alpha_slow, cfg.alpha_fast
-            )
+        # kept with or without augmented MCL: w_fast / w_slow tells how well the scans fit
+        cfg = self.config
+        self.w_slow, self.w_fast = mcl_likelihood_averages(
+            self.w_slow, self.w_fast, ll, count, cfg.alpha_slow, cfg.alpha_fast
+        )
         self.log_weights = lw
         self.last_ess = ess
 
@@ -699,9 +714,9 @@ class MonteCarloLocalization:
 
     def random_fraction(self) -> float:
         """Probability of a random particle, ``max(0, 1 - w_fast / w_slow)`` (Table 8.3)."""
-        if not self.config.augmented:
+        if not self.augment or self.free_space is None:
             return 0.0
-        return mcl_random_fraction(self.w_slow, self.w_fast)
+        return min(mcl_random_fraction(self.w_slow, self.w_fast), self.config.max_random_fraction)
 
     def resample(self) -> None:
         """Low-variance resampling (Table 4.4), KLD-sampling when configured (Table 8.4),

@@ -89,6 +89,32 @@ def _describe_offset(mount: Any) -> str:
     return f"{x:.3f}, {y:.3f} m, {math.degrees(th):.1f} deg (laser in the robot frame)"
 
 
+def _convergence_rows(run: Any, global_: bool) -> list[tuple[str, str]]:
+    """Where a global localization converged (or that it did not), and the hypotheses the
+    particles hold at the end: one place, or several with their weights and spreads."""
+    rows = []
+    if global_:
+        c = run.converged_index
+        if c is None:
+            rows.append(("converged", "no: the particles never formed one tight cluster"))
+        elif not run.localized:
+            rows.append(("converged", "no: the particles hold several places at the end"))
+        else:
+            k, t = int(run.scan_index[c]), float(run.times[c])
+            rows.append(("converged", f"at update {c + 1:,} (scan {k}, t = {t:.2f} s)"))
+    hyps = run.hypotheses
+    if len(hyps) == 1:
+        h = hyps[0]
+        rows.append(("hypotheses", f"1 (weight {h.weight:.2f}, spread {h.spread:.2f} m)"))
+    elif hyps:
+        each = "; ".join(
+            f"{h.weight:.2f} at ({h.mean[0]:.1f}, {h.mean[1]:.1f}) m, spread {h.spread:.2f} m"
+            for h in hyps[:5]
+        )
+        rows.append(("hypotheses", f"{len(hyps)}, not one place: {each}"))
+    return rows
+
+
 @opt.with_option_groups
 def localize_command(
     first: Path = typer.Argument(
@@ -318,6 +344,9 @@ def localize_command(
                         plot, m, run.times, run.poses, run.spread,
                         reference=None if ref_t is None else (ref_t, ref_p),
                         particles=run.particles, title=f"MCL: {log.name} in {map_path.name}",
+                        converged=(
+                            run.times.size if run.converged_index is None else run.converged_index
+                        ),
                     )  # fmt: skip
                     if tum:
                         from probmap.datasets.tum import write_tum
@@ -338,6 +367,7 @@ def localize_command(
             ("laser offset", _describe_offset(mount)),
             ("updates", f"{run.times.size:,}"),
             ("final spread", f"{run.spread[-1]:.3f} m" if run.spread.size else "-"),
+            *_convergence_rows(run, cfg.global_localization),
             *[("lost", e.describe()) for e in run.episodes],
             watch.row(),
             ("wrote", ", ".join(str(f) for f in (traj, plot, *extra))),

@@ -50,12 +50,14 @@ from probmap.models.sampling import OdometryMotionModel, odometry_deltas, odomet
 
 __all__ = [
     "FreeSpaceSampler",
+    "Hypothesis",
     "MCLConfig",
     "MonteCarloLocalization",
     "MotionModel",
     "PoseEstimate",
     "RangeBearingLandmarks",
     "SensorModel",
+    "mcl_adaptive_exponent",
     "mcl_likelihood_averages",
     "mcl_likelihood_exponent",
     "mcl_random_fraction",
@@ -63,6 +65,7 @@ __all__ = [
     "mcl_sample_and_weight_scan",
     "mcl_sample_motion",
     "mcl_weight",
+    "particle_clusters",
     "sample_pose_gaussian",
 ]
 
@@ -103,6 +106,9 @@ class MCLConfig:
         Adaptive particle count (Table 8.4) when given.
     cluster_size : float
         Cell size (m) for the best-cluster estimate.
+    min_ess_fraction : float or None
+        Lower the exponent further where one measurement would leave fewer than this fraction
+        of effective particles (:func:`mcl_adaptive_exponent`); None: never.
     independent_measurements : float or None
         Temper the measurement likelihood: a scan of ``B`` beams (landmarks) counts as
         ``min(B, independent_measurements)`` independent ones, i.e. its log-likelihood is
@@ -119,6 +125,7 @@ class MCLConfig:
     kld: KLDConfig | None = None
     cluster_size: float = 0.5
     independent_measurements: float | None = None
+    min_ess_fraction: float | None = None
 
     def __post_init__(self) -> None:
         if self.n_particles <= 0:
@@ -135,6 +142,9 @@ class MCLConfig:
             )
         if not self.cluster_size > 0:
             raise ValueError(f"cluster_size must be positive, got {self.cluster_size}")
+        e = self.min_ess_fraction
+        if e is not None and not 0 < e < 1:
+            raise ValueError(f"min_ess_fraction must lie in (0, 1), got {e}")
         k = self.independent_measurements
         if k is not None and not (math.isfinite(k) and k > 0):
             raise ValueError(f"independent_measurements must be a number > 0, got {k}")
@@ -171,6 +181,94 @@ class PoseEstimate:
     def spread(self) -> float:
         """``sqrt(var_x + var_y)`` (m): the particle cloud's positional spread."""
         return float(math.sqrt(max(self.covariance[0, 0] + self.covariance[1, 1], 0.0)))
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """One cluster of particles: a place the robot may be (:func:`particle_clusters`).
+
+    Attributes
+    ----------
+    weight : float
+        Total weight of its particles.
+    mean : (3,) ndarray
+        Their weighted mean pose (m, rad).
+    spread : float
+        Their positional spread ``sqrt(var_x + var_y)`` (m).
+    n_particles : int
+    """
+
+    weight: float
+    mean: NDArray[np.float64]
+    spread: float
+    n_particles: int
+
+
+def particle_clusters(
+    particles: ArrayLike, weights: ArrayLike, cell: float = 0.5, min_weight: float = 0.05
+) -> list[Hypothesis]:
+    """The places a particle set holds: particles in touching cells of ``cell`` metres (8
+    neighbours) form one cluster; clusters of at least ``min_weight`` are returned, heaviest
+    first.
+
+    A weighted spread over all particles cannot tell one wide cloud from two tight ones far
+    apart (a symmetric building); the clusters can.
+
+    Parameters
+    ----------
+    particles : (N, 3) array_like
+        Poses (m, rad).
+    weights : (N,) array_like
+        Normalised weights.
+    cell : float
+        Cell size (m).
+    min_weight : float
+        Lightest cluster reported.
+
+    Returns
+    -------
+    list of Hypothesis
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> p = np.zeros((4, 3)); p[2:, 0] = 10.0
+    >>> [round(h.weight, 2) for h in particle_clusters(p, np.full(4, 0.25))]
+    [0.5, 0.5]
+    """
+    from scipy import ndimage
+
+    p = np.asarray(particles, dtype=np.float64).reshape(-1, 3)
+    w = np.asarray(weights, dtype=np.float64).reshape(-1)
+    if w.shape != (p.shape[0],) or p.shape[0] == 0:
+        raise ValueError(f"need particles (N, 3) and weights (N,), got {p.shape}, {w.shape}")
+    if not cell > 0:
+        raise ValueError(f"cell must be positive, got {cell}")
+    size = float(cell)
+    while True:  # a set spread over a huge area: coarser cells keep the label image small
+        cells = np.floor(p[:, :2] / size).astype(np.int64)
+        lo = cells.min(axis=0)
+        span = cells.max(axis=0) - lo + 1
+        if span[0] * span[1] <= 4_000_000:
+            break
+        size *= 2.0
+    occupied = np.zeros((int(span[0]), int(span[1])), dtype=bool)
+    ij = cells - lo
+    occupied[ij[:, 0], ij[:, 1]] = True
+    labels, count = ndimage.label(occupied, structure=np.ones((3, 3), dtype=bool))
+    of = labels[ij[:, 0], ij[:, 1]] - 1
+    mass = np.bincount(of, weights=w, minlength=count)
+    out = []
+    for c in np.argsort(-mass):
+        if mass[c] < min_weight or mass[c] <= 0:
+            break
+        sel = of == c
+        wc = w[sel] / mass[c]
+        mean = weighted_pose_mean(p[sel], wc)
+        cov = weighted_pose_covariance(p[sel], wc, mean)
+        spread = math.sqrt(max(cov[0, 0] + cov[1, 1], 0.0))
+        out.append(Hypothesis(float(mass[c]), mean, spread, int(sel.sum())))
+    return out
 
 
 class FreeSpaceSampler:
@@ -406,6 +504,49 @@ def mcl_likelihood_exponent(count: int, independent: float | None) -> float:
     return float(independent) / count
 
 
+def _ess_fraction(lw: NDArray[np.float64], ll: NDArray[np.float64], gamma: float) -> float:
+    x = np.where(np.isnan(ll), -np.inf, lw + gamma * ll)
+    top = float(x.max())
+    if not math.isfinite(top):
+        return 0.0
+    w = np.exp(x - top)
+    s = float(w.sum())
+    return s * s / float(np.dot(w, w)) / w.size
+
+
+def mcl_adaptive_exponent(
+    log_weights: NDArray[np.float64],
+    log_likelihood: NDArray[np.float64],
+    exponent: float,
+    min_ess_fraction: float,
+) -> float:
+    """The largest exponent ``g <= exponent`` whose weights ``w p(z | x)^g`` keep an effective
+    sample size of at least ``min_ess_fraction * N`` (found by bisection; ``exponent`` itself
+    when it already does).
+
+    Adaptive tempering, as sequential Monte Carlo samplers anneal: when one scan would leave a
+    handful of effective particles (the first scan of a global localization, where the luckiest
+    of thousands of random poses outweighs all others), it is taken in part, so that resampling
+    keeps every place that fits and the next scans decide between them.
+
+    >>> import numpy as np
+    >>> lw = np.full(4, -np.log(4)); ll = np.array([0.0, -100.0, -100.0, -100.0])
+    >>> g = mcl_adaptive_exponent(lw, ll, 1.0, 0.5)
+    >>> 0.0 < g < 0.05, mcl_adaptive_exponent(lw, np.zeros(4), 1.0, 0.5)
+    (True, 1.0)
+    """
+    if _ess_fraction(log_weights, log_likelihood, exponent) >= min_ess_fraction:
+        return exponent
+    lo, hi = 0.0, exponent
+    for _ in range(30):  # to 1e-9 of the exponent
+        mid = 0.5 * (lo + hi)
+        if _ess_fraction(log_weights, log_likelihood, mid) >= min_ess_fraction:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
 def mcl_likelihood_averages(
     w_slow: float,
     w_fast: float,
@@ -620,6 +761,7 @@ class MonteCarloLocalization:
         self.augment = self.config.augmented
         self.w_slow = 0.0
         self.w_fast = 0.0
+        self.last_exponent = 1.0  # the exponent the last measurement was taken to
         p = np.array(particles, dtype=np.float64)  # a copy: the filter moves it in place
         if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] == 0:
             raise ValueError(f"particles must have shape (N, 3) with N > 0, got {p.shape}")
@@ -691,6 +833,9 @@ class MonteCarloLocalization:
 
     def _add_log_likelihood(self, ll: NDArray[np.float64], count: int) -> None:
         gamma = mcl_likelihood_exponent(count, self.config.independent_measurements)
+        if self.config.min_ess_fraction is not None:
+            gamma = mcl_adaptive_exponent(self.log_weights, ll, gamma, self.config.min_ess_fraction)
+        self.last_exponent = gamma
         lw, ess = mcl_weight(self.log_weights, ll if gamma == 1.0 else gamma * ll)
         if ess == 0.0:  # every particle impossible
             self._recover()
@@ -799,6 +944,11 @@ class MonteCarloLocalization:
         self._add_log_likelihood(ll, int(lx.shape[0]))
 
     # -- estimates ----------------------------------------------------------------------------
+    def hypotheses(self, min_weight: float = 0.05) -> list[Hypothesis]:
+        """The particle set's clusters (:func:`particle_clusters`, cells of
+        ``config.cluster_size``), heaviest first."""
+        return particle_clusters(self.particles, self.weights, self.config.cluster_size, min_weight)
+
     def estimate(self) -> PoseEstimate:
         """Weighted mean and covariance, and the heaviest cluster's mean."""
         w = self.weights

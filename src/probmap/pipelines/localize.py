@@ -89,14 +89,23 @@ class LocalizeConfig:
         Temper the likelihood field: a scan counts as this many independent beams, whatever
         the number used (:func:`~probmap.filters.mcl.mcl_likelihood_exponent`); None counts
         every beam as independent.
+    min_ess_fraction : float or None
+        Temper a scan further where it would leave fewer than this fraction of effective
+        particles (:func:`~probmap.filters.mcl.mcl_adaptive_exponent`): the first scans of a
+        global localization then keep every place that fits, not the luckiest random pose.
     free_threshold : float
         Cells with occupancy probability below this are free space for random particles.
     seed : int
+    converged_weight, converged_spread : float
+        Global localization has converged once the particles form one cluster
+        (:func:`~probmap.filters.mcl.particle_clusters`) holding at least
+        ``converged_weight`` of the weight, with a spread (m) of at most ``converged_spread``;
+        until then the run reports its hypotheses, not a position.
     lost_spread : float
         The filter counts as lost once its particles' spread (metres, ``sqrt(var_x +
         var_y)``) stays above this, or its estimate stays off the map's free space (outside the
         grid, on an unknown or occupied cell), for ``lost_updates`` updates in a row after it
-        had converged (spread below ``lost_spread``; a tracking run starts converged). It has
+        had converged (see ``converged_weight``; a tracking run starts converged). It has
         recovered once both hold again for ``lost_updates`` updates in a row.
     lost_updates : int
         Consecutive updates beyond (within) those bounds before the filter counts as lost
@@ -126,8 +135,11 @@ class LocalizeConfig:
     update_angle: float = 0.1
     beam_step: int = 3
     independent_beams: float | None = 10.0
+    min_ess_fraction: float | None = 0.3
     free_threshold: float = 0.3
     seed: int = 0
+    converged_weight: float = 0.9
+    converged_spread: float = 0.5
     lost_spread: float = 3.0
     lost_updates: int = 10
     lost_jump: float = 1.0
@@ -166,6 +178,11 @@ class LocalizeConfig:
         if not (math.isfinite(self.lost_spread) and self.lost_spread > 0):
             raise ValueError(f"lost_spread must be a finite number > 0 m, got {self.lost_spread}")
         require_at_least("lost_updates", self.lost_updates, 1)
+        if not (0 < self.converged_weight <= 1 and 0 < self.converged_spread < math.inf):
+            raise ValueError(
+                "need 0 < converged_weight <= 1 and a finite converged_spread > 0 m, got "
+                f"{self.converged_weight}, {self.converged_spread}"
+            )
         if not (math.isfinite(self.lost_jump) and self.lost_jump > 0):
             raise ValueError(f"lost_jump must be a finite number > 0 m, got {self.lost_jump}")
 
@@ -240,6 +257,12 @@ class LocalizationRun:
     lost : LostReport or None
         Where the filter first lost track (see ``LocalizeConfig.lost_spread``) and where it
         recovered, None if it never lost track.
+    converged_index : int or None
+        The first row from which the particles formed one tight cluster (0 for tracking);
+        None when a global localization never converged.
+    hypotheses : tuple of Hypothesis
+        The particle set's clusters after the last update, heaviest first (those of at least
+        5 % of the weight): one when it knows where the robot is.
     episodes : tuple of LostReport
         Every time it lost track, in order; only the last one may be unrecovered.
     fit : (T,) ndarray
@@ -263,8 +286,16 @@ class LocalizationRun:
     particles: NDArray[np.float64] | None = None
     laser_offset: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
     episodes: tuple[LostReport, ...] = ()
+    converged_index: int | None = 0
+    hypotheses: tuple[Any, ...] = ()
     fit: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     matched: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def localized(self) -> bool:
+        """Whether the run knows where the robot is: it converged, and its particles form one
+        cluster at the end (:attr:`hypotheses`)."""
+        return self.converged_index is not None and len(self.hypotheses) == 1
 
     @property
     def ended_lost(self) -> bool:
@@ -576,6 +607,7 @@ def localize_scans(
         alpha_fast=cfg.alpha_fast,
         max_random_fraction=cfg.max_random_fraction,
         independent_measurements=cfg.independent_beams,
+        min_ess_fraction=cfg.min_ess_fraction,
     )
     if cfg.global_localization:
         mcl = MonteCarloLocalization.uniform(lf, motion, rng, free, mcl_cfg)
@@ -591,6 +623,7 @@ def localize_scans(
     res = float(spec.resolution)
     h, w = free_mask.shape
     converged = not cfg.global_localization
+    converged_index: int | None = None if cfg.global_localization else 0
     streak: list[tuple[int, str, float]] = []  # the current run of lost-looking updates
     good, k_good = 0, start  # while lost: good updates in a row, and the first of them
     episodes: list[LostReport] = []
@@ -617,14 +650,20 @@ def localize_scans(
         ix, iy = math.floor((p[0] - x0) / res), math.floor((p[1] - y0) / res)
         on_map = 0 <= ix < w and 0 <= iy < h and bool(free_mask[iy, ix])
         wide = not est.spread <= cfg.lost_spread
+        if not converged:  # global localization: one tight cluster, or not yet
+            top = mcl.hypotheses()[:1]
+            converged = bool(top) and (
+                top[0].weight >= cfg.converged_weight and top[0].spread <= cfg.converged_spread
+            )
+            if converged:
+                converged_index = len(rows) - 1
         jump = 0.0
-        if prev is not None and converged:
+        if prev is not None:  # the previous update converged too
             k1, pose1 = prev  # where the odometry alone takes the previous estimate
             guess = compose(pose1, between(odo[k1], odo[k]))
             jump = math.hypot(p[0] - guess[0], p[1] - guess[1])
-        prev = (k, np.array(p))
+        prev = (k, np.array(p)) if converged else None
         if lost is None:
-            converged = converged or not wide
             if converged and jump > cfg.lost_jump:
                 streak = [(k1, "jump", jump)]  # lost at once
             elif converged and (wide or not on_map):
@@ -649,7 +688,7 @@ def localize_scans(
                     lost, recovered_index=int(k_good), recovered_time=float(t[k_good])
                 )
                 lost = None
-        mcl.augment = cfg.global_localization or (cfg.augmented and lost is not None)
+        mcl.augment = not converged or (cfg.augmented and lost is not None)
         if progress is not None and len(rows) % 50 == 0:
             progress(k - start, stop - start)
         if max_updates is not None and len(rows) >= max_updates:
@@ -661,6 +700,7 @@ def localize_scans(
         arr[:, 0], arr[:, 1:4], arr[:, 4], arr[:, 5].astype(np.int64),
         lost=episodes[0] if episodes else None, particles=np.array(mcl.particles),
         laser_offset=mount, episodes=tuple(episodes), fit=arr[:, 6], matched=arr[:, 7],
+        converged_index=converged_index, hypotheses=tuple(mcl.hypotheses()),
     )  # fmt: skip
     if observer is not None and hasattr(observer, "finish"):
         observer.finish(run)

@@ -142,7 +142,7 @@ class LocalizeConfig:
     converged_spread: float = 0.5
     lost_spread: float = 3.0
     lost_updates: int = 10
-    lost_jump: float = 1.0
+    lost_jump: float = 2.0
 
     def __post_init__(self) -> None:
         if self.n_particles <= 0:

@@ -98,7 +98,10 @@ def _convergence_rows(run: Any, global_: bool) -> list[tuple[str, str]]:
         if c is None:
             rows.append(("converged", "no: the particles never formed one tight cluster"))
         elif not run.localized:
-            rows.append(("converged", "no: the particles hold several places at the end"))
+            rows.append(
+                ("converged", "no: at the end its particles hold several places, or the scans "
+                 "do not fit the map there")
+            )  # fmt: skip
         else:
             k, t = int(run.scan_index[c]), float(run.times[c])
             rows.append(("converged", f"at update {c + 1:,} (scan {k}, t = {t:.2f} s)"))

@@ -96,11 +96,15 @@ class LocalizeConfig:
     free_threshold : float
         Cells with occupancy probability below this are free space for random particles.
     seed : int
-    converged_weight, converged_spread : float
+    converged_weight, converged_spread, converged_matched : float
         Global localization has converged once the particles form one cluster
         (:func:`~probmap.filters.mcl.particle_clusters`) holding at least
-        ``converged_weight`` of the weight, with a spread (m) of at most ``converged_spread``;
-        until then the run reports its hypotheses, not a position.
+        ``converged_weight`` of the weight, with a spread (m) of at most ``converged_spread``,
+        and the last ``lost_updates`` scans fit the map seen from its estimate: on average at
+        least ``converged_matched`` of their beams end within ``2 sigma_hit`` of an obstacle
+        (:attr:`LocalizationRun.matched`). A cloud that collapsed on a look-alike place fits
+        worse (Intel, 20,000 particles from random scans: 0.65-0.67 there, 0.96-1.00 where it
+        was right). Until then the run reports its hypotheses, not a position.
     lost_spread : float
         The filter counts as lost once its particles' spread (metres, ``sqrt(var_x +
         var_y)``) stays above this, or its estimate stays off the map's free space (outside the
@@ -140,6 +144,7 @@ class LocalizeConfig:
     seed: int = 0
     converged_weight: float = 0.9
     converged_spread: float = 0.5
+    converged_matched: float = 0.8
     lost_spread: float = 3.0
     lost_updates: int = 10
     lost_jump: float = 2.0
@@ -178,6 +183,8 @@ class LocalizeConfig:
         if not (math.isfinite(self.lost_spread) and self.lost_spread > 0):
             raise ValueError(f"lost_spread must be a finite number > 0 m, got {self.lost_spread}")
         require_at_least("lost_updates", self.lost_updates, 1)
+        if not 0 <= self.converged_matched <= 1:
+            raise ValueError(f"converged_matched must lie in [0, 1], got {self.converged_matched}")
         if not (0 < self.converged_weight <= 1 and 0 < self.converged_spread < math.inf):
             raise ValueError(
                 "need 0 < converged_weight <= 1 and a finite converged_spread > 0 m, got "
@@ -263,6 +270,10 @@ class LocalizationRun:
     hypotheses : tuple of Hypothesis
         The particle set's clusters after the last update, heaviest first (those of at least
         5 % of the weight): one when it knows where the robot is.
+    localized : bool
+        Whether the run knows where the robot is at the end: it converged, its particles form
+        one cluster, and its last ``lost_updates`` scans fit the map there (a mean
+        :attr:`matched` of at least ``converged_matched``).
     episodes : tuple of LostReport
         Every time it lost track, in order; only the last one may be unrecovered.
     fit : (T,) ndarray
@@ -288,14 +299,9 @@ class LocalizationRun:
     episodes: tuple[LostReport, ...] = ()
     converged_index: int | None = 0
     hypotheses: tuple[Any, ...] = ()
+    localized: bool = True
     fit: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     matched: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
-
-    @property
-    def localized(self) -> bool:
-        """Whether the run knows where the robot is: it converged, and its particles form one
-        cluster at the end (:attr:`hypotheses`)."""
-        return self.converged_index is not None and len(self.hypotheses) == 1
 
     @property
     def ended_lost(self) -> bool:
@@ -650,10 +656,15 @@ def localize_scans(
         ix, iy = math.floor((p[0] - x0) / res), math.floor((p[1] - y0) / res)
         on_map = 0 <= ix < w and 0 <= iy < h and bool(free_mask[iy, ix])
         wide = not est.spread <= cfg.lost_spread
-        if not converged:  # global localization: one tight cluster, or not yet
+        if not converged:  # global localization: one tight cluster that fits, or not yet
             top = mcl.hypotheses()[:1]
-            converged = bool(top) and (
-                top[0].weight >= cfg.converged_weight and top[0].spread <= cfg.converged_spread
+            recent = [row[7] for row in rows[-cfg.lost_updates :]]
+            converged = (
+                bool(top)
+                and top[0].weight >= cfg.converged_weight
+                and top[0].spread <= cfg.converged_spread
+                and len(recent) >= min(cfg.lost_updates, max_updates or cfg.lost_updates)
+                and float(np.mean(recent)) >= cfg.converged_matched
             )
             if converged:
                 converged_index = len(rows) - 1
@@ -696,11 +707,17 @@ def localize_scans(
     if progress is not None:
         progress(stop - start, stop - start)
     arr = np.array(rows, dtype=np.float64).reshape(-1, 8)
+    hyps = tuple(mcl.hypotheses())
     run = LocalizationRun(
         arr[:, 0], arr[:, 1:4], arr[:, 4], arr[:, 5].astype(np.int64),
         lost=episodes[0] if episodes else None, particles=np.array(mcl.particles),
         laser_offset=mount, episodes=tuple(episodes), fit=arr[:, 6], matched=arr[:, 7],
-        converged_index=converged_index, hypotheses=tuple(mcl.hypotheses()),
+        converged_index=converged_index, hypotheses=hyps,
+        localized=(
+            converged_index is not None and len(hyps) == 1 and lost is None
+            and arr.shape[0] > 0
+            and float(np.mean(arr[-cfg.lost_updates :, 7])) >= cfg.converged_matched
+        ),
     )  # fmt: skip
     if observer is not None and hasattr(observer, "finish"):
         observer.finish(run)

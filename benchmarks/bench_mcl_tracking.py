@@ -121,6 +121,8 @@ def main() -> None:
         slam_t, slam_p = read_trajectory(session.parent / "slam.trajectory.csv")
         slam_fig = relation_figure(slam_t, slam_p, rel)
 
+        order = np.argsort(m.times, kind="stable")  # a log's clock may jitter back
+        session_traj = np.column_stack([m.times[order], m.poses[order]])
         rng = np.random.default_rng(0)
         right = wrong = said = 0
         g0 = time.perf_counter()
@@ -139,7 +141,7 @@ def main() -> None:
                 said += 1
                 continue
             # the session keeps a pose at the scans it used: interpolated at the last update
-            ref = interpolate_poses(np.column_stack([m.times, m.poses]), g.times[-1:])[0]
+            ref = interpolate_poses(session_traj, g.times[-1:])[0]
             err = float(np.hypot(*(g.laser_poses[-1, :2] - ref[:2])))  # NaN outside: wrong
             right, wrong = (right + 1, wrong) if err <= 0.3 else (right, wrong + 1)
         gwall = time.perf_counter() - g0

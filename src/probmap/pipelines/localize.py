@@ -2,8 +2,14 @@
 
 Used by ``probmap localize``; the core algorithm is :class:`~probmap.filters.mcl.MonteCarloLocalization`.
 The filter updates when the odometry has moved ``update_distance`` or turned ``update_angle``
-since the last update (between updates scans are skipped, as in ROS amcl), using every
-``beam_step``-th beam with the likelihood field model.
+since the last update (between updates scans are skipped, as in ROS amcl), never while the
+robot stands still, using every ``beam_step``-th beam with the likelihood field model, its
+log-likelihood tempered as if a scan held ``independent_beams`` independent beams. A run says
+when it lost track and when it recovered (:class:`LostReport`); while lost, augmented MCL
+injects random particles. A global localization reports the places its particles hold
+(:attr:`LocalizationRun.hypotheses`) and claims convergence only for one tight cluster whose
+scans fit the map. A reference trajectory is compared at its own times, the run interpolated
+between its updates (:func:`trajectory_errors`): it never changes the run.
 
 The map is a map_server map or a graph-SLAM session (``probmap slam grid --save-session``):
 :func:`load_localization_map` reads either, and renders a session's occupancy grid at its

@@ -629,7 +629,7 @@ def load_scans(
     batch = _stack(log, poses, sources, dtype, None)
     if batch is None:
         raise DatasetError(f"no {'/'.join(sources)} scans in the log", path=log.path)
-    if log.max_range_defaulted:
+    if not batch.max_range_stated:
         batch = with_inferred_no_return(batch)
     return batch
 
@@ -708,6 +708,7 @@ def _stack(
         beams=beams,
         skipped_lines=log.skipped_lines,
         readings=report,
+        max_range_stated=not log.max_range_defaulted,
     )
 
 

@@ -61,9 +61,11 @@ __all__ = [
     "dataset_directory",
     "NoReturnValue",
     "infer_no_return",
+    "no_return_from_tops",
     "number_rows",
     "require_usable",
     "text_lines",
+    "top_readings",
     "validate_ranges",
 ]
 
@@ -267,22 +269,58 @@ def infer_no_return(ranges: NDArray[np.floating], below: float) -> NoReturnValue
     >>> infer_no_return(np.linspace(0.5, 40.0, 500), 80.0) is None
     True
     """
+    return no_return_from_tops([top_readings(ranges, below)])
+
+
+def top_readings(
+    ranges: NDArray[np.floating], below: float
+) -> tuple[float, int, float, int] | None:
+    """The largest finite reading below ``below`` and how often it occurs, then the next
+    smaller one and its count (NaN, 0 when none): what :func:`infer_no_return` looks at, in a
+    form that parts of a log can compute apart (:func:`no_return_from_tops` joins them).
+    None when there is no such reading."""
     r = np.asarray(ranges).reshape(-1)
     with np.errstate(invalid="ignore"):
         r = r[np.isfinite(r) & (r > 0) & (r < below)]
     if r.size == 0:
         return None
     top = r.max()
-    count = int(np.count_nonzero(r == top))
     rest = r[r < top]
-    if rest.size:
-        nxt = rest.max()
-        next_count = int(np.count_nonzero(rest == nxt))
-    else:
-        nxt, next_count = np.nan, 0
+    if rest.size == 0:
+        return float(top), int(r.size), math.nan, 0
+    nxt = rest.max()
+    return (
+        float(top),
+        int(np.count_nonzero(r == top)),
+        float(nxt),
+        int(np.count_nonzero(rest == nxt)),
+    )
+
+
+def no_return_from_tops(
+    tops: Sequence[tuple[float, int, float, int] | None],
+) -> NoReturnValue | None:
+    """:func:`infer_no_return` over the parts of a log whose :func:`top_readings` are
+    ``tops``: the whole log's two largest readings and counts are exact from the parts'."""
+    values: dict[float, int] = {}
+    for t in tops:
+        if t is None:
+            continue
+        values[t[0]] = values.get(t[0], 0) + t[1]
+        if t[3]:
+            values[t[2]] = values.get(t[2], 0) + t[3]
+    if not values:
+        return None
+    top = max(values)
+    below = [v for v in values if v < top]
+    nxt = max(below) if below else math.nan
+    # a part whose top is the whole log's next value counts it in full; one whose top is
+    # larger holds it as its second value, counted in full too: the sums are exact
+    next_count = values[nxt] if below else 0
+    count = values[top]
     if count < NO_RETURN_MIN_COUNT or count < NO_RETURN_RATIO * next_count:
         return None
-    return NoReturnValue(float(top), count, float(nxt), next_count)
+    return NoReturnValue(top, count, nxt, next_count)
 
 
 def _sorted_counts(counts: dict[int, int]) -> tuple[tuple[int, int], ...]:

@@ -700,3 +700,27 @@ def test_every_single_log_option_of_map_works_on_the_cluster(client, tmp_path, s
         res = runner.invoke(app, ["map", str(source), "-o", str(tmp_path / "no"), *extra, *address])
         assert res.exit_code == 1 and words in res.output and "Traceback" not in res.output
     assert not list(tmp_path.glob("no*"))
+
+
+def test_cluster_chunks_infer_the_no_return_reading(client, tmp_path) -> None:
+    """A log writing no return as 50.00 m without a PARAM line: its shares, parsed apart, find
+    the same no-return reading as the whole log (issue 37), and count the same max-range
+    readings."""
+    rng = np.random.default_rng(0)
+    ranges = rng.uniform(0.3, 6.0, (60, 90))
+    ranges[rng.uniform(size=ranges.shape) < 0.2] = 50.0
+    lines = []
+    for k, row in enumerate(ranges):
+        r = " ".join(f"{v:.2f}" for v in row)
+        x, t = 0.05 * k, 10.0 + 0.2 * k
+        lines.append(f"FLASER 90 {r} {x} 0 0 {x} 0 0 {t:.6f} host {t:.6f}")
+    log = tmp_path / "fifty.log"
+    log.write_text("\n".join(lines) + "\n")
+    cfg = MappingConfig(resolution=0.1, clamp=(1e-15, 1 - 1e-15), max_clear_range=None)
+    n_50 = int(np.count_nonzero(np.round(ranges, 2) == 50.0))
+    direct = map_log(log, cfg)
+    assert direct.stats.max_range == n_50  # the whole log: 50.00 m is no return
+    for chunks in (1, 3):
+        res = map_logs_distributed([log], cfg, client=client, progress=False,
+                                   options=DistributedOptions(chunks=chunks, mode="increments"))  # fmt: skip
+        assert res.stats.max_range == n_50 and res.stats.hits == direct.stats.hits

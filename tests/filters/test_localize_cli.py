@@ -111,3 +111,53 @@ def test_localize_errors(sim, tmp_path):
     )
     assert res.exit_code == 1 and "reference-offset" in res.output
     assert not (tmp_path / "o" / "trajectory.csv").exists()
+
+
+def _write_log_with_stop(path, world, n, stop_at, stop_scans):
+    """As :func:`_write_log`, with the robot standing still for ``stop_scans`` scans (0.2 s
+    apart) after scan ``stop_at``: the same odometry, fresh range noise."""
+    angles = -math.pi / 2 + np.arange(60) * math.pi / 60
+    rng = np.random.default_rng(1)
+    order = np.r_[np.arange(stop_at + 1), np.full(stop_scans, stop_at), np.arange(stop_at + 1, n)]
+    clean = BeamModel(world.spec, world.occupied, max_range=8.0).expected_ranges(
+        world.poses[order], angles
+    )
+    ranges = np.where(clean < 8.0, clean + rng.normal(0, 0.01, clean.shape), 8.0)
+    lines, times = [], 100.0 + 0.2 * np.arange(order.size)
+    for k, i in enumerate(order):
+        r = " ".join(f"{v:.3f}" for v in ranges[k])
+        x, y, th = world.poses[i]
+        o = world.odometry[i]
+        lines.append(
+            f"FLASER 60 {r} {x:.4f} {y:.4f} {th:.5f} {o[0]:.4f} {o[1]:.4f} {o[2]:.5f} "
+            f"{times[k]:.6f} sim {times[k]:.6f}"
+        )
+    path.write_text("PARAM robot_front_laser_max 8.0\n" + "\n".join(lines) + "\n")
+    truth = path.with_suffix(".csv")
+    rows = np.column_stack([times, world.poses[order]])
+    np.savetxt(truth, rows, delimiter=",", header="time,x,y,theta", comments="")
+    return path, truth, times[stop_at], times[stop_at + stop_scans]
+
+
+def test_standing_still_and_a_reference_change_nothing(sim):
+    """A 60 s stop neither shrinks the particle cloud nor, with a reference given, adds
+    updates: the trajectory with --reference is the one without, byte for byte."""
+    d, world = sim
+    log, truth, t_stop, t_go = _write_log_with_stop(d / "stop.log", world, 120, 60, 300)
+    outs = []
+    for extra in ((), ("--reference", truth)):
+        out = d / f"stop{len(extra)}"
+        res = run("localize", d / "map.yaml", log, "-o", out, "--particles", "500", *extra)
+        assert res.exit_code == 0, res.output
+        outs.append(out / "trajectory.csv")
+    assert outs[0].read_bytes() == outs[1].read_bytes()
+    traj = np.loadtxt(outs[0], delimiter=",", skiprows=1)
+    t, spread = traj[:, 0], traj[:, 4]
+    assert not np.any((t > t_stop) & (t < t_go))  # no update while standing still
+    before = spread[t <= t_stop][-1]
+    after = spread[t >= t_go][0]  # the first update after the stop: one motion step on
+    assert before > 0.005 and after > 0.5 * before
+    # the reference run measured errors at the reference's times, interpolated
+    res = run("localize", d / "map.yaml", log, "-o", d / "stop9", "--particles", "500",
+              "--reference", truth)  # fmt: skip
+    assert "position" in res.output

@@ -55,9 +55,11 @@ def test_run_started_a_kilometre_off_the_map_is_lost(world):
 def test_blind_run_with_wild_odometry_spreads_and_is_lost(world):
     blind = world.max_range * np.ones_like(world.ranges)  # no return: nothing to correct
     probability = world.occupied.astype(float)
+    # lost_jump out of the way: the spreading cloud's best cluster also jumps about
     cfg = LocalizeConfig(
-        n_particles=300, initial_pose=tuple(world.poses[0]), alphas=(2.0, 2.0, 2.0, 2.0)
-    )
+        n_particles=300, initial_pose=tuple(world.poses[0]), alphas=(2.0, 2.0, 2.0, 2.0),
+        lost_jump=100.0,
+    )  # fmt: skip
     with pytest.warns(FilterLostWarning, match="spread"):
         run = localize_scans(
             world.spec, probability, 0.2 * np.arange(120), blind[:120], world.angles,
@@ -68,6 +70,8 @@ def test_blind_run_with_wild_odometry_spreads_and_is_lost(world):
         LocalizeConfig(lost_spread=0.0)
     with pytest.raises(ValueError, match="lost_updates"):
         LocalizeConfig(lost_updates=0)
+    with pytest.raises(ValueError, match="lost_jump"):
+        LocalizeConfig(lost_jump=0.0)
 
 
 def test_cli_refuses_a_lost_run_unless_allowed(tmp_path, world):

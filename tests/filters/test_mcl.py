@@ -276,3 +276,35 @@ def test_bad_configuration(field):
         )
     with pytest.raises(ValueError, match="no free cell"):
         FreeSpaceSampler(field.spec, np.zeros(field.spec.shape, dtype=bool))
+
+
+def test_random_fraction_capped_and_switchable(world, field):
+    start = (world.poses[0], np.eye(3) * 0.01)
+    mcl = _mcl(field, 0, start, n_particles=100, augmented=True, max_random_fraction=0.05)
+    mcl.w_slow, mcl.w_fast = 1.0, 0.2  # the book's fraction: 1 - 0.2 = 0.8
+    assert mcl.random_fraction() == 0.05
+    mcl.augment = False  # as the pipeline switches it while tracking well
+    assert mcl.random_fraction() == 0.0
+    off = _mcl(field, 0, start, n_particles=100)  # not augmented: averages kept, none injected
+    off.update_scan(world.odometry[0], world.odometry[1], world.ranges[1], world.angles)
+    assert off.w_slow > 0 and off.random_fraction() == 0.0
+    with pytest.raises(ValueError, match="max_random_fraction"):
+        MCLConfig(max_random_fraction=1.5)
+
+
+def test_standing_still_changes_nothing(world, field):
+    """No weighting and no resampling while the odometry has not moved (particle deprivation)."""
+    mcl = _mcl(field, 0, (world.poses[0], np.eye(3) * 0.01), n_particles=200)
+    before = mcl.particles.copy()
+    for _ in range(100):
+        mcl.update_scan(world.odometry[0], world.odometry[0], world.ranges[0], world.angles)
+    assert np.array_equal(mcl.particles, before) and np.allclose(mcl.weights, 1 / 200)
+
+
+def test_likelihood_exponent():
+    from probmap.filters.mcl import mcl_likelihood_exponent
+
+    assert mcl_likelihood_exponent(60, 10.0) == pytest.approx(1 / 6)
+    assert mcl_likelihood_exponent(8, 10.0) == 1.0 and mcl_likelihood_exponent(60, None) == 1.0
+    with pytest.raises(ValueError, match="independent_measurements"):
+        MCLConfig(independent_measurements=0.0)

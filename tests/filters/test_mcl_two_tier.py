@@ -89,10 +89,10 @@ def test_functions_and_class_agree_step_by_step(world, field, free, name, fused)
             count = len(z[0])
         lw, ess = mcl_weight(lw, ll)
         assert ess > 0.0
-        if cfg.augmented:
-            w_slow, w_fast = mcl_likelihood_averages(
-                w_slow, w_fast, ll, count, cfg.alpha_slow, cfg.alpha_fast
-            )
+        # kept whether augmented or not (the pipeline reads w_fast / w_slow)
+        w_slow, w_fast = mcl_likelihood_averages(
+            w_slow, w_fast, ll, count, cfg.alpha_slow, cfg.alpha_fast
+        )
         assert est.ess == ess
         p_rand = mcl_random_fraction(w_slow, w_fast) if cfg.augmented else 0.0
         if ess < cfg.resample_threshold * p.shape[0] or p_rand > 0:

@@ -50,7 +50,6 @@ def test_intel_tracking_within_gmapping_poses(intel):
         LocalizeConfig(n_particles=1000, initial_pose=tuple(ref_p[ref_idx[0]])),
         start=start,
         stop=stop,
-        always_update=raw_idx,
     )
     err, _ = trajectory_errors(run, ref_t, ref_p)
     assert err.size > 200
@@ -85,7 +84,6 @@ def test_intel_global_localization_converges(intel, seed):
         cfg,
         start=start,
         max_updates=110,
-        always_update=raw_idx,
     )
     err, _ = trajectory_errors(run, ref_t, ref_p)
     # the reference scans met after the 100th update

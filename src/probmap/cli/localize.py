@@ -89,6 +89,35 @@ def _describe_offset(mount: Any) -> str:
     return f"{x:.3f}, {y:.3f} m, {math.degrees(th):.1f} deg (laser in the robot frame)"
 
 
+def _convergence_rows(run: Any, global_: bool) -> list[tuple[str, str]]:
+    """Where a global localization converged (or that it did not), and the hypotheses the
+    particles hold at the end: one place, or several with their weights and spreads."""
+    rows = []
+    if global_:
+        c = run.converged_index
+        if c is None:
+            rows.append(("converged", "no: the particles never formed one tight cluster"))
+        elif not run.localized:
+            rows.append(
+                ("converged", "no: at the end its particles hold several places, or the scans "
+                 "do not fit the map there")
+            )  # fmt: skip
+        else:
+            k, t = int(run.scan_index[c]), float(run.times[c])
+            rows.append(("converged", f"at update {c + 1:,} (scan {k}, t = {t:.2f} s)"))
+    hyps = run.hypotheses
+    if len(hyps) == 1:
+        h = hyps[0]
+        rows.append(("hypotheses", f"1 (weight {h.weight:.2f}, spread {h.spread:.2f} m)"))
+    elif hyps:
+        each = "; ".join(
+            f"{h.weight:.2f} at ({h.mean[0]:.1f}, {h.mean[1]:.1f}) m, spread {h.spread:.2f} m"
+            for h in hyps[:5]
+        )
+        rows.append(("hypotheses", f"{len(hyps)}, not one place: {each}"))
+    return rows
+
+
 @opt.with_option_groups
 def localize_command(
     first: Path = typer.Argument(
@@ -141,9 +170,10 @@ def localize_command(
     allow_lost: bool = typer.Option(
         False,
         "--allow-lost",
-        help="Write the trajectory even when the filter loses track (its particles spread "
-        "beyond 3 m, or its estimate leaves the map's free space, for 10 updates); without it "
-        "that is an error and nothing is written.",
+        help="Write the trajectory even when the filter ends lost (its particles spread "
+        "beyond 3 m, or its estimate left the map's free space, for 10 updates, and it did not "
+        "recover); without it that is an error and nothing is written. The summary names "
+        "every time it lost track and when it recovered.",
     ),
     start: int = typer.Option(0, "--start", help="First scan to use."),
     stop: int | None = typer.Option(None, "--stop", help="Scan to stop before."),
@@ -216,22 +246,20 @@ def localize_command(
             odo = np.asarray(batch.robot_poses)
             if odo.shape[0] < 2 or np.all(odo == odo[0]):
                 raise CliError(f"{log}: no odometry (every scan carries the same robot pose)")
-            angles = np.asarray(batch.angles)
-            if angles.ndim != 1:
-                raise CliError(f"{log}: scans with differing beam geometry are not supported")
+            angles = np.asarray(batch.angles)  # (B,), or (S, B) when beam counts differ
             if not 0 <= start < len(batch.times):
                 raise CliError(f"--start {start}: the log has {len(batch.times):,} scans")
             mount = _laser_offset(log, batch, m, skip_bad_lines, bag_options)
             ref_t = ref_p = None
             ref_name = None
-            always = None
             if reference is not None:
                 with bad_lines_quiet():
                     ref_t, ref_p = _read_reference(
                         reference, reference_offset, skip_bad_lines, bag_options
                     )
-                always, _ = match_times(batch.times, ref_t)
-                if always.size == 0:
+                # the reference is compared at its own times, interpolated between the
+                # filter's updates: it never makes the filter update (trajectory_errors)
+                if match_times(batch.times, ref_t)[0].size == 0:
                     raise CliError(
                         f"{reference}: no reference time within 20 ms of a scan "
                         "(check --reference-offset)"
@@ -239,7 +267,6 @@ def localize_command(
                 ref_name = reference.name
             elif m.times is not None and m.poses is not None:
                 # a session: its own trajectory, where the log's scans are the session's
-                # (no forced updates: the session has a pose at every scan)
                 if match_times(batch.times, m.times)[0].size:
                     ref_t, ref_p = m.times, m.poses
                     ref_name = f"the session's trajectory ({map_path.name})"
@@ -280,19 +307,19 @@ def localize_command(
                     warnings.simplefilter("ignore", FilterLostWarning)
                     run = localize_scans(
                         m.spec, m.probability, batch.times, batch.ranges, angles, odo,
-                        batch.max_range, cfg, start=start, stop=stop, always_update=always,
+                        batch.max_range, cfg, start=start, stop=stop,
                         laser_offset=mount, progress=tick, observer=observer,
                     )  # fmt: skip
             except BaseException:
                 if observer is not None:
                     observer.view.close(keep=False)
                 raise
-        if run.lost is not None and not allow_lost:
+        if run.ended_lost and not allow_lost:
             if observer is not None:
                 observer.view.close(keep=False)
             raise CliError(
-                f"{log}: {run.lost.describe()}; nothing written (--allow-lost writes the "
-                "trajectory anyway)"
+                f"{log}: {run.episodes[-1].describe()} and did not recover; nothing written "
+                "(--allow-lost writes the trajectory anyway)"
             )
         errors = None
         if ref_t is not None and ref_p is not None:
@@ -321,6 +348,9 @@ def localize_command(
                         plot, m, run.times, run.poses, run.spread,
                         reference=None if ref_t is None else (ref_t, ref_p),
                         particles=run.particles, title=f"MCL: {log.name} in {map_path.name}",
+                        converged=(
+                            run.times.size if run.converged_index is None else run.converged_index
+                        ),
                     )  # fmt: skip
                     if tum:
                         from probmap.datasets.tum import write_tum
@@ -342,7 +372,8 @@ def localize_command(
             ("laser offset", _describe_offset(mount)),
             ("updates", f"{run.times.size:,}"),
             ("final spread", f"{run.spread[-1]:.3f} m" if run.spread.size else "-"),
-            *([("lost", run.lost.describe())] if run.lost is not None else []),
+            *_convergence_rows(run, cfg.global_localization),
+            *[("lost", e.describe()) for e in run.episodes],
             watch.row(),
             ("wrote", ", ".join(str(f) for f in (traj, plot, *extra))),
             *recorded_rows(viz_save),

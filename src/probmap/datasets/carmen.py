@@ -46,7 +46,7 @@ from numpy.typing import NDArray
 
 from probmap._checks import require_at_least
 from probmap.datasets.records import LaserScan, Odometry, ScanBatch, stack_beams
-from probmap.datasets.validate import PoseLimits, PoseTracker, validate_ranges
+from probmap.datasets.validate import PoseLimits, PoseTracker, infer_no_return, validate_ranges
 from probmap.errors import BadLinesWarning, DatasetError
 
 if TYPE_CHECKING:
@@ -322,6 +322,8 @@ class CarmenLog:
         # a share of the log's lines already read (see _text_share): text, first line number,
         # PARAMs logged before it
         self._share: tuple[str, int, dict[str, str]] | None = None
+        # set when a scan fell back on DEFAULT_MAX_RANGE: the log states no maximum range
+        self.max_range_defaulted = False
 
     # ------------------------------------------------------------------ protocol
     def __len__(self) -> int:
@@ -453,6 +455,7 @@ class CarmenLog:
             v = params.get(name)
             if v is not None:
                 return float(v)
+        self.max_range_defaulted = True
         return DEFAULT_MAX_RANGE
 
     def _parse_flaser(self, f: list[str], lineno: int, params: dict[str, str]) -> LaserScan:
@@ -503,6 +506,7 @@ class CarmenLog:
             max_range = msg_max
         else:
             max_range = DEFAULT_MAX_RANGE
+            self.max_range_defaulted = True
         return LaserScan(
             time=ipc,
             ranges=ranges,
@@ -625,7 +629,21 @@ def load_scans(
     batch = _stack(log, poses, sources, dtype, None)
     if batch is None:
         raise DatasetError(f"no {'/'.join(sources)} scans in the log", path=log.path)
+    if not batch.max_range_stated:
+        batch = with_inferred_no_return(batch)
     return batch
+
+
+def with_inferred_no_return(batch: ScanBatch) -> ScanBatch:
+    """``batch`` of a log that states no maximum range, its readings classified against the
+    no-return value found in them (:func:`~probmap.datasets.validate.infer_no_return`), with
+    the rule in ``readings.no_return_rule``; unchanged when no value stands out."""
+    found = infer_no_return(np.asarray(batch.ranges), float(batch.max_range))
+    if found is None:
+        return batch
+    ranges, report = validate_ranges(batch.ranges, found.value, beams=batch.beams)
+    report = replace(report, skipped_lines=batch.skipped_lines, no_return_rule=found.describe())
+    return replace(batch, ranges=ranges, max_range=found.value, readings=report)
 
 
 def _check_load_args(poses: str, sources: Sequence[str]) -> None:
@@ -690,6 +708,7 @@ def _stack(
         beams=beams,
         skipped_lines=log.skipped_lines,
         readings=report,
+        max_range_stated=not log.max_range_defaulted,
     )
 
 

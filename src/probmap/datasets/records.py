@@ -129,6 +129,9 @@ class ScanBatch:
     readings : ReadingReport or None
         How the readings were classified (usable, no return, zero, invalid; beam counts);
         None for a batch built by hand.
+    max_range_stated : bool
+        False when the log stated no maximum range (a CARMEN log without ``ROBOTLASER1``
+        ranges or PARAM): ``max_range`` is then the default or inferred from the data.
     """
 
     times: FloatArray
@@ -140,6 +143,7 @@ class ScanBatch:
     beams: NDArray[np.int64]
     skipped_lines: int = 0
     readings: ReadingReport | None = None
+    max_range_stated: bool = True
 
     def __len__(self) -> int:
         return int(self.times.shape[0])

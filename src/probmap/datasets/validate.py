@@ -16,7 +16,8 @@ invalid    NaN, ``-inf``, ``r < 0``                  NaN (dropped, counted)
 
 "No return" per format: CARMEN logs store it as a reading at or beyond the maximum range
 (81.83-81.91 m for the SICK LMS; the maximum range is the ``ROBOTLASER1`` message's own, else
-the PARAM ``laser_front_laser_max``, else 80 m); ROS bags as ``+inf`` or a reading at or above
+the PARAM ``laser_front_laser_max``, else the reading :func:`infer_no_return` finds repeated
+as a point mass at the top of the data, else 80 m); ROS bags as ``+inf`` or a reading at or above
 ``range_max`` (readings below ``range_min`` are invalid, as NaN and ``-inf`` are). Every command
 (``map``, ``match``, ``fit-sensor-model``, ``localize``, ``slam grid``, ``semantic``) sees the
 same cleaned readings, so the same input gets the same verdict everywhere. Padding (the NaN
@@ -58,9 +59,13 @@ __all__ = [
     "ReadingReport",
     "check_end_time",
     "dataset_directory",
+    "NoReturnValue",
+    "infer_no_return",
+    "no_return_from_tops",
     "number_rows",
     "require_usable",
     "text_lines",
+    "top_readings",
     "validate_ranges",
 ]
 
@@ -149,6 +154,9 @@ class ReadingReport:
         ``(beams per scan, scans)`` for every beam count seen, most frequent first.
     skipped_lines : int
         Lines of the log skipped as malformed or physically implausible (``skip_bad_lines``).
+    no_return_rule : str
+        How the maximum range was chosen when the log did not state it (:func:`infer_no_return`),
+        e.g. ``"no return = 50.00 m, inferred: ..."``; empty when the log stated it.
     """
 
     scans: int = 0
@@ -159,12 +167,14 @@ class ReadingReport:
     invalid: int = 0
     beam_counts: tuple[tuple[int, int], ...] = field(default=())
     skipped_lines: int = 0
+    no_return_rule: str = ""
 
     def __add__(self, other: ReadingReport) -> ReadingReport:
         counts: dict[int, int] = dict(self.beam_counts)
         for b, n in other.beam_counts:
             counts[b] = counts.get(b, 0) + n
-        return field_sums(self, other, beam_counts=_sorted_counts(counts))
+        rule = self.no_return_rule or other.no_return_rule
+        return field_sums(self, other, beam_counts=_sorted_counts(counts), no_return_rule=rule)
 
     @property
     def dropped(self) -> int:
@@ -184,7 +194,133 @@ class ReadingReport:
             text += "; " + ", ".join(
                 f"{b} beams x {n:,} scan{'s' if n != 1 else ''}" for b, n in self.beam_counts
             )
+        if self.no_return_rule:
+            text += "; " + self.no_return_rule
         return text
+
+
+#: A no-return value must repeat at least this many times, and this many times more often than
+#: the next smaller reading, to be inferred (:func:`infer_no_return`).
+NO_RETURN_MIN_COUNT = 20
+NO_RETURN_RATIO = 10
+
+
+@dataclass(frozen=True)
+class NoReturnValue:
+    """A no-return reading found in the data by :func:`infer_no_return`.
+
+    Attributes
+    ----------
+    value : float
+        The reading (m): readings at or beyond it are "no return".
+    count : int
+        How often it occurs exactly.
+    next_value : float
+        The largest reading below it (m; NaN when there is none).
+    next_count : int
+        How often that one occurs.
+    """
+
+    value: float
+    count: int
+    next_value: float
+    next_count: int
+
+    def describe(self) -> str:
+        """Which value was used and why, for the commands' summaries."""
+        nxt = (
+            f"the next largest, {self.next_value:.2f} m, {self.next_count:,} times"
+            if math.isfinite(self.next_value)
+            else "no other reading"
+        )
+        return (
+            f"no return = {self.value:.2f} m, inferred (the log states no maximum range): the "
+            f"largest reading occurs exactly {self.count:,} times, {nxt}"
+        )
+
+
+def infer_no_return(ranges: NDArray[np.floating], below: float) -> NoReturnValue | None:
+    """The no-return reading of a log that does not state its maximum range.
+
+    Lasers write "no return" as one fixed reading, usually their maximum range (50.00 m,
+    81.83 m, ...). It shows in the data as the largest reading repeated exactly, many times,
+    where genuine far readings are spread out and rare. It is inferred when the largest finite
+    reading below ``below`` occurs at least :data:`NO_RETURN_MIN_COUNT` times and at least
+    :data:`NO_RETURN_RATIO` times as often as the next smaller reading.
+
+    Parameters
+    ----------
+    ranges : ndarray, shape (S, B) or (B,)
+        Readings (m); NaN, zero and negative ones are ignored.
+    below : float
+        Readings at or beyond it are no return already (the default maximum range, 80 m).
+
+    Returns
+    -------
+    NoReturnValue or None
+        None when no reading stands out so.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> r = np.r_[np.linspace(0.5, 40.0, 500), np.full(30, 50.0)]
+    >>> infer_no_return(r, 80.0).value
+    50.0
+    >>> infer_no_return(np.linspace(0.5, 40.0, 500), 80.0) is None
+    True
+    """
+    return no_return_from_tops([top_readings(ranges, below)])
+
+
+def top_readings(
+    ranges: NDArray[np.floating], below: float
+) -> tuple[float, int, float, int] | None:
+    """The largest finite reading below ``below`` and how often it occurs, then the next
+    smaller one and its count (NaN, 0 when none): what :func:`infer_no_return` looks at, in a
+    form that parts of a log can compute apart (:func:`no_return_from_tops` joins them).
+    None when there is no such reading."""
+    r = np.asarray(ranges).reshape(-1)
+    with np.errstate(invalid="ignore"):
+        r = r[np.isfinite(r) & (r > 0) & (r < below)]
+    if r.size == 0:
+        return None
+    top = r.max()
+    rest = r[r < top]
+    if rest.size == 0:
+        return float(top), int(r.size), math.nan, 0
+    nxt = rest.max()
+    return (
+        float(top),
+        int(np.count_nonzero(r == top)),
+        float(nxt),
+        int(np.count_nonzero(rest == nxt)),
+    )
+
+
+def no_return_from_tops(
+    tops: Sequence[tuple[float, int, float, int] | None],
+) -> NoReturnValue | None:
+    """:func:`infer_no_return` over the parts of a log whose :func:`top_readings` are
+    ``tops``: the whole log's two largest readings and counts are exact from the parts'."""
+    values: dict[float, int] = {}
+    for t in tops:
+        if t is None:
+            continue
+        values[t[0]] = values.get(t[0], 0) + t[1]
+        if t[3]:
+            values[t[2]] = values.get(t[2], 0) + t[3]
+    if not values:
+        return None
+    top = max(values)
+    below = [v for v in values if v < top]
+    nxt = max(below) if below else math.nan
+    # a part whose top is the whole log's next value counts it in full; one whose top is
+    # larger holds it as its second value, counted in full too: the sums are exact
+    next_count = values[nxt] if below else 0
+    count = values[top]
+    if count < NO_RETURN_MIN_COUNT or count < NO_RETURN_RATIO * next_count:
+        return None
+    return NoReturnValue(top, count, nxt, next_count)
 
 
 def _sorted_counts(counts: dict[int, int]) -> tuple[tuple[int, int], ...]:

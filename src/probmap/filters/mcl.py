@@ -50,18 +50,22 @@ from probmap.models.sampling import OdometryMotionModel, odometry_deltas, odomet
 
 __all__ = [
     "FreeSpaceSampler",
+    "Hypothesis",
     "MCLConfig",
     "MonteCarloLocalization",
     "MotionModel",
     "PoseEstimate",
     "RangeBearingLandmarks",
     "SensorModel",
+    "mcl_adaptive_exponent",
     "mcl_likelihood_averages",
+    "mcl_likelihood_exponent",
     "mcl_random_fraction",
     "mcl_resample",
     "mcl_sample_and_weight_scan",
     "mcl_sample_motion",
     "mcl_weight",
+    "particle_clusters",
     "sample_pose_gaussian",
 ]
 
@@ -93,10 +97,23 @@ class MCLConfig:
     alpha_slow, alpha_fast : float
         Decay rates of the long- and short-term likelihood averages,
         ``0 <= alpha_slow << alpha_fast``.
+    max_random_fraction : float
+        At most this fraction of the particles is replaced by random ones at a resampling
+        (1.0: as Table 8.3 prints it). On real logs the scans fit some places of a map worse
+        than others, ``w_fast`` falls well below ``w_slow`` there while the filter tracks, and
+        an uncapped fraction replaces most of a good particle set with random poses.
     kld : KLDConfig or None
         Adaptive particle count (Table 8.4) when given.
     cluster_size : float
         Cell size (m) for the best-cluster estimate.
+    min_ess_fraction : float or None
+        Lower the exponent further where one measurement would leave fewer than this fraction
+        of effective particles (:func:`mcl_adaptive_exponent`); None: never.
+    independent_measurements : float or None
+        Temper the measurement likelihood: a scan of ``B`` beams (landmarks) counts as
+        ``min(B, independent_measurements)`` independent ones, i.e. its log-likelihood is
+        multiplied by ``min(1, independent_measurements / B)`` (see
+        :func:`mcl_likelihood_exponent`). None: every beam independent (Table 8.2 as printed).
     """
 
     n_particles: int = 1000
@@ -104,8 +121,11 @@ class MCLConfig:
     augmented: bool = False
     alpha_slow: float = 0.001
     alpha_fast: float = 0.1
+    max_random_fraction: float = 1.0
     kld: KLDConfig | None = None
     cluster_size: float = 0.5
+    independent_measurements: float | None = None
+    min_ess_fraction: float | None = None
 
     def __post_init__(self) -> None:
         if self.n_particles <= 0:
@@ -116,8 +136,18 @@ class MCLConfig:
             raise ValueError(
                 f"need 0 <= alpha_slow < alpha_fast <= 1, got {self.alpha_slow}, {self.alpha_fast}"
             )
+        if not 0.0 <= self.max_random_fraction <= 1.0:
+            raise ValueError(
+                f"max_random_fraction must lie in [0, 1], got {self.max_random_fraction}"
+            )
         if not self.cluster_size > 0:
             raise ValueError(f"cluster_size must be positive, got {self.cluster_size}")
+        e = self.min_ess_fraction
+        if e is not None and not 0 < e < 1:
+            raise ValueError(f"min_ess_fraction must lie in (0, 1), got {e}")
+        k = self.independent_measurements
+        if k is not None and not (math.isfinite(k) and k > 0):
+            raise ValueError(f"independent_measurements must be a number > 0, got {k}")
 
 
 @dataclass(frozen=True)
@@ -151,6 +181,94 @@ class PoseEstimate:
     def spread(self) -> float:
         """``sqrt(var_x + var_y)`` (m): the particle cloud's positional spread."""
         return float(math.sqrt(max(self.covariance[0, 0] + self.covariance[1, 1], 0.0)))
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """One cluster of particles: a place the robot may be (:func:`particle_clusters`).
+
+    Attributes
+    ----------
+    weight : float
+        Total weight of its particles.
+    mean : (3,) ndarray
+        Their weighted mean pose (m, rad).
+    spread : float
+        Their positional spread ``sqrt(var_x + var_y)`` (m).
+    n_particles : int
+    """
+
+    weight: float
+    mean: NDArray[np.float64]
+    spread: float
+    n_particles: int
+
+
+def particle_clusters(
+    particles: ArrayLike, weights: ArrayLike, cell: float = 0.5, min_weight: float = 0.05
+) -> list[Hypothesis]:
+    """The places a particle set holds: particles in touching cells of ``cell`` metres (8
+    neighbours) form one cluster; clusters of at least ``min_weight`` are returned, heaviest
+    first.
+
+    A weighted spread over all particles cannot tell one wide cloud from two tight ones far
+    apart (a symmetric building); the clusters can.
+
+    Parameters
+    ----------
+    particles : (N, 3) array_like
+        Poses (m, rad).
+    weights : (N,) array_like
+        Normalised weights.
+    cell : float
+        Cell size (m).
+    min_weight : float
+        Lightest cluster reported.
+
+    Returns
+    -------
+    list of Hypothesis
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> p = np.zeros((4, 3)); p[2:, 0] = 10.0
+    >>> [round(h.weight, 2) for h in particle_clusters(p, np.full(4, 0.25))]
+    [0.5, 0.5]
+    """
+    from scipy import ndimage
+
+    p = np.asarray(particles, dtype=np.float64).reshape(-1, 3)
+    w = np.asarray(weights, dtype=np.float64).reshape(-1)
+    if w.shape != (p.shape[0],) or p.shape[0] == 0:
+        raise ValueError(f"need particles (N, 3) and weights (N,), got {p.shape}, {w.shape}")
+    if not cell > 0:
+        raise ValueError(f"cell must be positive, got {cell}")
+    size = float(cell)
+    while True:  # a set spread over a huge area: coarser cells keep the label image small
+        cells = np.floor(p[:, :2] / size).astype(np.int64)
+        lo = cells.min(axis=0)
+        span = cells.max(axis=0) - lo + 1
+        if span[0] * span[1] <= 4_000_000:
+            break
+        size *= 2.0
+    occupied = np.zeros((int(span[0]), int(span[1])), dtype=bool)
+    ij = cells - lo
+    occupied[ij[:, 0], ij[:, 1]] = True
+    labels, count = ndimage.label(occupied, structure=np.ones((3, 3), dtype=bool))
+    of = labels[ij[:, 0], ij[:, 1]] - 1
+    mass = np.bincount(of, weights=w, minlength=count)
+    out = []
+    for c in np.argsort(-mass):
+        if mass[c] < min_weight or mass[c] <= 0:
+            break
+        sel = of == c
+        wc = w[sel] / mass[c]
+        mean = weighted_pose_mean(p[sel], wc)
+        cov = weighted_pose_covariance(p[sel], wc, mean)
+        spread = math.sqrt(max(cov[0, 0] + cov[1, 1], 0.0))
+        out.append(Hypothesis(float(mass[c]), mean, spread, int(sel.sum())))
+    return out
 
 
 class FreeSpaceSampler:
@@ -367,6 +485,68 @@ def mcl_weight(
     return out, float(1.0 / np.dot(w, w))
 
 
+def mcl_likelihood_exponent(count: int, independent: float | None) -> float:
+    """The exponent that tempers a measurement of ``count`` beams (landmarks), as if only
+    ``independent`` of them were independent: ``min(1, independent / count)``; 1 for None.
+
+    The beams of one scan are not independent (section 6.3.4: the map's errors, people and
+    unmodelled objects affect neighbouring beams alike), and counting each as independent
+    evidence makes the posterior far too peaked: the particle cloud collapses to a few copies
+    of one pose even where the scan cannot fix the pose, along a corridor. Raising
+    ``p(z | x)`` to this power (summing ``exponent * log p``) keeps the weights of a scan
+    worth ``independent`` beams, whatever the beam count.
+
+    >>> mcl_likelihood_exponent(60, 10.0), mcl_likelihood_exponent(5, 10.0)
+    (0.16666666666666666, 1.0)
+    """
+    if independent is None or count <= independent:
+        return 1.0
+    return float(independent) / count
+
+
+def _ess_fraction(lw: NDArray[np.float64], ll: NDArray[np.float64], gamma: float) -> float:
+    x = np.where(np.isnan(ll), -np.inf, lw + gamma * ll)
+    top = float(x.max())
+    if not math.isfinite(top):
+        return 0.0
+    w = np.exp(x - top)
+    s = float(w.sum())
+    return s * s / float(np.dot(w, w)) / w.size
+
+
+def mcl_adaptive_exponent(
+    log_weights: NDArray[np.float64],
+    log_likelihood: NDArray[np.float64],
+    exponent: float,
+    min_ess_fraction: float,
+) -> float:
+    """The largest exponent ``g <= exponent`` whose weights ``w p(z | x)^g`` keep an effective
+    sample size of at least ``min_ess_fraction * N`` (found by bisection; ``exponent`` itself
+    when it already does).
+
+    Adaptive tempering, as sequential Monte Carlo samplers anneal: when one scan would leave a
+    handful of effective particles (the first scan of a global localization, where the luckiest
+    of thousands of random poses outweighs all others), it is taken in part, so that resampling
+    keeps every place that fits and the next scans decide between them.
+
+    >>> import numpy as np
+    >>> lw = np.full(4, -np.log(4)); ll = np.array([0.0, -100.0, -100.0, -100.0])
+    >>> g = mcl_adaptive_exponent(lw, ll, 1.0, 0.5)
+    >>> 0.0 < g < 0.05, mcl_adaptive_exponent(lw, np.zeros(4), 1.0, 0.5)
+    (True, 1.0)
+    """
+    if _ess_fraction(log_weights, log_likelihood, exponent) >= min_ess_fraction:
+        return exponent
+    lo, hi = 0.0, exponent
+    for _ in range(30):  # to 1e-9 of the exponent
+        mid = 0.5 * (lo + hi)
+        if _ess_fraction(log_weights, log_likelihood, mid) >= min_ess_fraction:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
 def mcl_likelihood_averages(
     w_slow: float,
     w_fast: float,
@@ -574,8 +754,14 @@ class MonteCarloLocalization:
         self.motion = motion
         self.rng = rng
         self.free_space = free_space
+        #: Whether resampling injects random particles now (Table 8.3); ``config.augmented`` at
+        #: first. A caller may switch it: the localization pipeline turns it on only while its
+        #: filter is lost, since on real logs the scans fit some places of a map worse than
+        #: others and ``w_fast`` falls below ``w_slow`` there while the filter tracks well.
+        self.augment = self.config.augmented
         self.w_slow = 0.0
         self.w_fast = 0.0
+        self.last_exponent = 1.0  # the exponent the last measurement was taken to
         p = np.array(particles, dtype=np.float64)  # a copy: the filter moves it in place
         if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] == 0:
             raise ValueError(f"particles must have shape (N, 3) with N > 0, got {p.shape}")
@@ -646,15 +832,19 @@ class MonteCarloLocalization:
         self._add_log_likelihood(ll, _measurement_count(z))
 
     def _add_log_likelihood(self, ll: NDArray[np.float64], count: int) -> None:
-        lw, ess = mcl_weight(self.log_weights, ll)
+        gamma = mcl_likelihood_exponent(count, self.config.independent_measurements)
+        if self.config.min_ess_fraction is not None:
+            gamma = mcl_adaptive_exponent(self.log_weights, ll, gamma, self.config.min_ess_fraction)
+        self.last_exponent = gamma
+        lw, ess = mcl_weight(self.log_weights, ll if gamma == 1.0 else gamma * ll)
         if ess == 0.0:  # every particle impossible
             self._recover()
             return
-        if self.config.augmented:
-            cfg = self.config
-            self.w_slow, self.w_fast = mcl_likelihood_averages(
-                self.w_slow, self.w_fast, ll, count, cfg.alpha_slow, cfg.alpha_fast
-            )
+        # kept with or without augmented MCL: w_fast / w_slow tells how well the scans fit
+        cfg = self.config
+        self.w_slow, self.w_fast = mcl_likelihood_averages(
+            self.w_slow, self.w_fast, ll, count, cfg.alpha_slow, cfg.alpha_fast
+        )
         self.log_weights = lw
         self.last_ess = ess
 
@@ -669,9 +859,9 @@ class MonteCarloLocalization:
 
     def random_fraction(self) -> float:
         """Probability of a random particle, ``max(0, 1 - w_fast / w_slow)`` (Table 8.3)."""
-        if not self.config.augmented:
+        if not self.augment or self.free_space is None:
             return 0.0
-        return mcl_random_fraction(self.w_slow, self.w_fast)
+        return min(mcl_random_fraction(self.w_slow, self.w_fast), self.config.max_random_fraction)
 
     def resample(self) -> None:
         """Low-variance resampling (Table 4.4), KLD-sampling when configured (Table 8.4),
@@ -716,7 +906,14 @@ class MonteCarloLocalization:
 
         With a likelihood field and the odometry model, sampling (Table 5.6) and weighting
         (Table 6.3) run fused in one compiled pass; otherwise :meth:`update` is used.
+
+        When the odometry has not moved (``odom_prev == odom_cur``) nothing happens: no
+        measurement update and no resampling. A scan taken again from the same place is not
+        independent evidence, and resampling without motion noise only removes particles until
+        all are copies of one (particle deprivation, Probabilistic Robotics section 8.3.5).
         """
+        if np.array_equal(np.asarray(odom_prev, float), np.asarray(odom_cur, float)):
+            return self.estimate()
         if not (
             isinstance(self.sensor, LikelihoodField)
             and isinstance(self.motion, OdometryMotionModel)
@@ -747,6 +944,11 @@ class MonteCarloLocalization:
         self._add_log_likelihood(ll, int(lx.shape[0]))
 
     # -- estimates ----------------------------------------------------------------------------
+    def hypotheses(self, min_weight: float = 0.05) -> list[Hypothesis]:
+        """The particle set's clusters (:func:`particle_clusters`, cells of
+        ``config.cluster_size``), heaviest first."""
+        return particle_clusters(self.particles, self.weights, self.config.cluster_size, min_weight)
+
     def estimate(self) -> PoseEstimate:
         """Weighted mean and covariance, and the heaviest cluster's mean."""
         w = self.weights

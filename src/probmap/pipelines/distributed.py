@@ -259,6 +259,29 @@ def _max_range_task(path: str, *ranges: float | None) -> float:
 
 
 @_task
+def _share_top(batch: ScanBatch | None) -> tuple[float, int, float, int] | None:
+    """A parsed share's two largest readings and their counts, when its log states no maximum
+    range (runs where the share is: four numbers travel)."""
+    from probmap.datasets.validate import top_readings
+
+    if batch is None or batch.max_range_stated:
+        return None
+    return top_readings(batch.ranges, float(batch.max_range))
+
+
+@_task
+def _no_return_task(max_range: float, *tops: tuple[float, int, float, int] | None) -> float:
+    """The whole log's no-return reading when it states no maximum range and its shares'
+    readings show one (:func:`probmap.datasets.validate.no_return_from_tops`, as
+    :func:`probmap.datasets.carmen.load_scans` infers it from the whole log), else
+    ``max_range``."""
+    from probmap.datasets.validate import no_return_from_tops
+
+    found = no_return_from_tops(tops)
+    return max_range if found is None or found.value >= max_range else found.value
+
+
+@_task
 def _merge_task(*parts: IncrementGrid) -> IncrementGrid:
     return tree_sum(parts, fan_in=max(len(parts), 2))
 
@@ -594,8 +617,10 @@ def _run(
         futs = [split, *picks, *parsed, *reports, usable]
         if cfg.max_range is None:  # the smallest of the scans' maxima, as for the whole log
             each = [client.submit(_share_max_range, b, retries=retries) for b in parsed]
-            mr = client.submit(_max_range_task, str(f), *each, retries=retries)
-            futs.extend([*each, mr])
+            stated = client.submit(_max_range_task, str(f), *each, retries=retries)
+            tops = [client.submit(_share_top, b, retries=retries) for b in parsed]
+            mr = client.submit(_no_return_task, stated, *tops, retries=retries)
+            futs.extend([*each, stated, *tops, mr])
         else:
             mr = float(cfg.max_range)
         incs = [client.submit(_batch_task, b, mr, cfg, opts.tile, retries=retries) for b in parsed]

@@ -10,13 +10,15 @@ of the loop comes out too short; grid SLAM tests use it to check the degeneracy 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import NDArray
 
 from probmap.grid.spec import GridSpec
 from probmap.sim.laser import SimulatedLaserWorld, drive_route, interpolate_route, walled_box
 
-__all__ = ["corridor_plan", "simulate_corridor_loop"]
+__all__ = ["DoorCorridor", "corridor_plan", "simulate_corridor_loop", "simulate_door_corridor"]
 
 
 def corridor_plan(
@@ -81,3 +83,89 @@ def simulate_corridor_loop(
         truth, spec, xy, rng, angles, max_range=max_range, range_noise=range_noise,
         pose_noise=pose_noise, heading_noise=0.03,
     )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class DoorCorridor:
+    """A straight corridor with doors, and a map of it whose doors are a little off.
+
+    Attributes
+    ----------
+    world : SimulatedLaserWorld
+        The drive: true poses, drifting odometry, scans of the true corridor.
+    map_occupied : (H, W) bool ndarray
+        The map the robot localizes in: the corridor with every door moved along it by a
+        random amount (the errors of a map built by SLAM), on ``world.spec``.
+    """
+
+    world: SimulatedLaserWorld
+    map_occupied: NDArray[np.bool_]
+
+
+def _door_plan(
+    length: float, width: float, doors: list[tuple[float, int]], resolution: float
+) -> tuple[NDArray[np.bool_], GridSpec]:
+    depth, door = 0.3, 1.0  # door recesses: 0.3 m deep, 1 m wide
+    occ, spec, t = walled_box(length, width + 2 * depth, resolution)
+    j0, j1 = round(depth / resolution), round((width + depth) / resolution)
+    occ[:j0, :] = True
+    occ[j1:, :] = True
+    for x, side in doors:
+        i0, i1 = round((x - door / 2) / resolution), round((x + door / 2) / resolution)
+        rows = slice(t, j0) if side == 0 else slice(j1, occ.shape[0] - t)
+        occ[rows, max(i0, t) : i1] = False
+    return occ, spec
+
+
+def simulate_door_corridor(
+    *,
+    seed: int = 0,
+    length: float = 60.0,
+    width: float = 2.4,
+    door_spacing: float = 4.0,
+    map_error: float = 0.3,
+    step: float = 0.05,
+    n_beams: int = 181,
+    max_range: float = 8.0,
+) -> DoorCorridor:
+    """A robot driving the length of a corridor with a door every ``door_spacing`` metres on
+    both sides, and a map in which each door is moved along the corridor by
+    ``N(0, map_error^2)`` metres.
+
+    The doors look alike and the laser (``max_range`` < ``length``) never sees both ends: only
+    odometry tells where along the corridor the robot is, and the map's doors pull a filter that
+    trusts every beam to wherever they fit the scan best.
+
+    Parameters
+    ----------
+    seed : int
+        Seeds the map's door errors, the heading wobble, the range noise and the odometry drift.
+    length, width : float
+        Corridor length and width (m).
+    door_spacing : float
+        Distance between doors along each wall (m).
+    map_error : float
+        Standard deviation (m) of a door's displacement in the map.
+    step : float
+        Distance between scans (m), timestamps 0.1 s apart.
+    n_beams, max_range : int, float
+        Laser: beams over 180 degrees, maximum range (m); range noise 0.02 m.
+
+    Returns
+    -------
+    DoorCorridor
+    """
+    rng = np.random.default_rng(seed)
+    resolution = 0.05
+    doors = [(float(x), s) for x in np.arange(3.0, length - 2.0, door_spacing) for s in (0, 1)]
+    truth, spec = _door_plan(length, width, doors, resolution)
+    moved = [(x + float(rng.normal(0.0, map_error)), s) for x, s in doors]
+    map_occ, _ = _door_plan(length, width, moved, resolution)
+    y = 0.3 + width / 2
+    xy = interpolate_route(np.array([[2.0, y], [length - 2.0, y]]), step)
+    angles = np.linspace(-np.pi / 2, np.pi / 2, n_beams)
+    world = drive_route(
+        truth, spec, xy, rng, angles, max_range=max_range, range_noise=0.02,
+        pose_noise=(0.03, 0.03), heading_noise=0.01,
+    )  # fmt: skip
+    return DoorCorridor(world, map_occ)

@@ -72,6 +72,7 @@ def plot_localization(
     particles: ArrayLike | None = None,
     converged_spread: float = 1.0,
     converged_hold: int = 10,
+    converged: int | None = None,
     max_step: float = 1.0,
     title: str | None = None,
 ) -> Any:
@@ -102,6 +103,10 @@ def plot_localization(
     converged_spread, converged_hold : float, int
         The filter counts as converged from the first of ``converged_hold`` consecutive
         updates with a spread (m) at or below ``converged_spread``.
+    converged : int, optional
+        The first converged update as the filter judged it
+        (:attr:`~probmap.pipelines.localize.LocalizationRun.converged_index`; ``len(times)``
+        when it never converged); replaces the rule of ``converged_spread``.
     max_step : float
         Largest distance (m) between consecutive estimates drawn as one line (updates come
         every 0.1 m of motion by default, so 1 m is a jump).
@@ -119,7 +124,8 @@ def plot_localization(
             f"times {t.shape}, poses {p.shape} and spread {s.shape} need one row per update"
         )
     plot_map(ax, grid, title=title)
-    c = converged_index(s, converged_spread, converged_hold)
+    c = converged_index(s, converged_spread, converged_hold) if converged is None else converged
+    c = min(max(int(c), 0), len(t))
     if reference is not None and c < len(t):
         rt = np.asarray(reference[0], dtype=np.float64).reshape(-1)
         rp = np.asarray(reference[1], dtype=np.float64).reshape(-1, 3)

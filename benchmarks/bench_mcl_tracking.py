@@ -1,0 +1,157 @@
+"""Monte Carlo localization on real logs, in the map that ``probmap slam grid`` builds from the
+same log: what a user does (map the building, then localize in it). Issue 37.
+
+For each log with relations in the data folder (Intel, the Freiburg hospital, Freiburg 079, the
+Intel ROS bag):
+
+1. ``probmap slam grid LOG -o CACHE/NAME/ --save-session CACHE/NAME/slam.session`` once (about a
+   minute each; later runs reuse CACHE).
+2. Tracking: ``localize_scans`` with ``LocalizeConfig``'s defaults over the whole log, started
+   at the session's first pose, as ``probmap localize SESSION LOG`` runs it (same laser mounting
+   and start). Scored with the relation metric (Kuemmerle et al. 2009) on the robot poses,
+   interpolated between the filter's updates at the relations' timestamps; the SLAM
+   trajectory's own figure beside it (the map's quality bounds the filter's). "lost" counts the
+   times the run said it lost track; "ended lost" whether it never recovered.
+3. Global localization: ``--starts`` runs from particles over free space, each from a random
+   scan (seeded), ``--updates`` updates long; a run *converged* when it says so
+   (``LocalizationRun.localized``), and is *right* when its last estimate lies within 0.3 m of
+   the session's trajectory there (interpolated). "said so" counts the runs that did not converge and reported it.
+
+Run:  PROBMAP_DATA=/work/shared/data python benchmarks/bench_mcl_tracking.py \\
+          [--cache /tmp/mcl_maps] [--logs intel hospital fr079 intelbag] [--starts 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+LOGS = {
+    "intel": ("intel-research-lab/intel.clf.bz2", "intel-research-lab/intel.relations"),
+    "hospital": (
+        "freiburg-clinic/fr-clinic_robotlaser.clf.bz2",
+        "freiburg-clinic/fr-clinic.relations",
+    ),
+    "fr079": ("freiburg-079/fr079.clf.bz2", "freiburg-079/fr079.relations"),
+    "intelbag": ("intel-research-lab/intel.orig.bag", "intel-research-lab/intel.relations"),
+}
+
+
+def data_dir() -> Path:
+    return Path(os.environ.get("PROBMAP_DATA", Path(__file__).parents[2] / "shared" / "data"))
+
+
+def session_for(name: str, log: Path, cache: Path) -> Path:
+    """The slam grid session of ``log`` in ``cache``, built when missing."""
+    out = cache / name
+    session = out / "slam.session"
+    if not session.is_file():
+        out.mkdir(parents=True, exist_ok=True)
+        cmd = [
+            sys.executable, "-c", "from probmap.cli.app import main; main()", "slam", "grid",
+            str(log), "-o", f"{out}/", "--save-session", str(session),
+        ]  # fmt: skip
+        subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+    return session
+
+
+def relation_figure(times, poses, rel) -> str:
+    from probmap.metrics.relations import relation_errors
+
+    s = relation_errors(times, poses, rel).summary()
+    return f"{s['trans_abs_mean_m']:.3f} ± {s['trans_abs_std_m']:.3f}"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cache", type=Path, default=Path("/tmp/mcl_maps"))
+    ap.add_argument("--logs", nargs="+", default=list(LOGS), choices=list(LOGS))
+    ap.add_argument("--starts", type=int, default=10, help="global localizations per log")
+    ap.add_argument("--updates", type=int, default=150, help="updates per global run")
+    ap.add_argument("--global-particles", type=int, default=20000)
+    args = ap.parse_args()
+
+    from probmap.cli.localize import _laser_offset
+    from probmap.datasets.scans import open_scans
+    from probmap.geometry.se2 import compose, inverse
+    from probmap.geometry.timesync import interpolate_poses
+    from probmap.metrics.relations import read_relations, read_trajectory
+    from probmap.pipelines.localize import (
+        LocalizeConfig,
+        interpolate_run,
+        load_localization_map,
+        localize_scans,
+    )
+
+    print(
+        "| log | SLAM relation error (m) | MCL relation error (m) | lost | ended lost | updates "
+        "| s | global: converged right / converged wrong / said not | global s |"
+    )
+    print("| --- | ---: | ---: | ---: | --- | ---: | ---: | --- | ---: |")
+    for name in args.logs:
+        log = data_dir() / LOGS[name][0]
+        rel = read_relations(data_dir() / LOGS[name][1])
+        session = session_for(name, log, args.cache)
+        m = load_localization_map(session)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            batch = open_scans(log, poses="corrected")
+            mount = _laser_offset(log, batch, m, False, None)
+        t = np.asarray(batch.times)
+        args_run = (m.spec, m.probability, t, batch.ranges, batch.angles, batch.robot_poses)
+        pose0 = m.pose_at(float(t[0]))
+        robot0 = compose(pose0, inverse(mount))
+        cfg = LocalizeConfig(initial_pose=tuple(float(v) for v in robot0))
+        t0 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            run = localize_scans(*args_run, batch.max_range, cfg, laser_offset=mount)
+        wall = time.perf_counter() - t0
+        ts = np.unique(np.r_[rel.t1, rel.t2])
+        est = interpolate_run(run, ts)
+        ok = np.all(np.isfinite(est), axis=1)
+        mcl_fig = relation_figure(ts[ok], est[ok], rel)
+        slam_t, slam_p = read_trajectory(session.parent / "slam.trajectory.csv")
+        slam_fig = relation_figure(slam_t, slam_p, rel)
+
+        order = np.argsort(m.times, kind="stable")  # a log's clock may jitter back
+        session_traj = np.column_stack([m.times[order], m.poses[order]])
+        rng = np.random.default_rng(0)
+        right = wrong = said = 0
+        g0 = time.perf_counter()
+        for i in range(args.starts):
+            s = int(rng.integers(0, max(1, t.size - 3000)))
+            gcfg = LocalizeConfig(
+                n_particles=args.global_particles, global_localization=True, seed=i
+            )
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                g = localize_scans(
+                    *args_run, batch.max_range, gcfg, laser_offset=mount, start=s,
+                    max_updates=args.updates,
+                )  # fmt: skip
+            if not g.localized:
+                said += 1
+                continue
+            # the session keeps a pose at the scans it used: interpolated at the last update
+            ref = interpolate_poses(session_traj, g.times[-1:])[0]
+            err = float(np.hypot(*(g.laser_poses[-1, :2] - ref[:2])))  # NaN outside: wrong
+            right, wrong = (right + 1, wrong) if err <= 0.3 else (right, wrong + 1)
+        gwall = time.perf_counter() - g0
+        print(
+            f"| {name} | {slam_fig} | {mcl_fig} | {len(run.episodes)} | "
+            f"{'yes' if run.ended_lost else 'no'} | {run.times.size:,} | {wall:.0f} | "
+            f"{right} / {wrong} / {said} of {args.starts} | {gwall:.0f} |",
+            flush=True,
+        )
+
+
+if __name__ == "__main__":
+    main()

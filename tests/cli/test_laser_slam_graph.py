@@ -74,8 +74,13 @@ def test_slam_grid_graph_on_intel_writes_every_file(shared_data, tmp_path):
     assert 0 <= closures["down_weighted"] <= accepted
     res_m = closures["residual_m"]
     assert 0 <= res_m["median"] <= res_m["p90"] <= res_m["p99"] <= res_m["max"]
-    assert report["local"]["odometry_overridden_s"] == []  # Intel's odometry never glitches
-    assert "local SLAM" in res.output and "overrode the odometry 0 times" in res.output
+    # Intel's odometry never glitches, but at some nodes the scan refutes it (a match
+    # beyond its 3 sigma that no pose within them nearly equals): each such time is reported
+    overridden = report["local"]["odometry_overridden_s"]
+    assert overridden == sorted(overridden) and all(0 <= t <= 200 for t in overridden)
+    assert report["local"]["lidar_only"] is False and report["local"]["untracked_s"] == []
+    shown = " ".join(res.output.split())
+    assert f"overrode the odometry {len(overridden)} times" in shown
     doubt = report["consistency"]
     assert 0.0 <= doubt["share"] < 1.0 and len(doubt["visits"]) >= 3  # 10 m each
     assert all(0 <= v["contradicted"] <= v["occupied"] for v in doubt["visits"])
@@ -114,7 +119,7 @@ def _flaser_log(path, poses):
 def test_log_without_odometry(tmp_path):
     log = _flaser_log(tmp_path / "still.clf", [(1.0, 2.0, 0.5)] * 5)
     res = run("slam", "grid", log, "-o", tmp_path / "out")
-    _one_line_error(res, "still.clf", "odometry")
+    _one_line_error(res, "still.clf", "needs at least 2 scans a second")
     assert not list(tmp_path.glob("out*"))
 
 

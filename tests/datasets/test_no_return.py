@@ -71,7 +71,8 @@ def test_infer_no_return_thresholds():
     assert infer_no_return(np.r_[far, np.full(25, 30.0), np.full(200, 40.0)], 80.0) is None
     assert infer_no_return(np.r_[far, np.full(25, 90.0)], 80.0) is None  # beyond: no return
     assert infer_no_return(np.full(5, np.nan), 80.0) is None
-    assert math.isnan(infer_no_return(np.full(30, 9.0), 80.0).next_value)
+    # one value throughout: nothing shows it to be a cap rather than a wall at that distance
+    assert infer_no_return(np.full(30, 9.0), 80.0) is None
 
 
 def test_every_command_says_which_value(tmp_path):

@@ -246,7 +246,8 @@ def infer_no_return(ranges: NDArray[np.floating], below: float) -> NoReturnValue
     81.83 m, ...). It shows in the data as the largest reading repeated exactly, many times,
     where genuine far readings are spread out and rare. It is inferred when the largest finite
     reading below ``below`` occurs at least :data:`NO_RETURN_MIN_COUNT` times and at least
-    :data:`NO_RETURN_RATIO` times as often as the next smaller reading.
+    :data:`NO_RETURN_RATIO` times as often as the next smaller reading; a log whose every
+    reading is one value (a synthetic wall at a fixed distance) has none.
 
     Parameters
     ----------
@@ -313,7 +314,9 @@ def no_return_from_tops(
         return None
     top = max(values)
     below = [v for v in values if v < top]
-    nxt = max(below) if below else math.nan
+    if not below:  # one value throughout: nothing shows it to be a cap, not a wall
+        return None
+    nxt = max(below)
     # a part whose top is the whole log's next value counts it in full; one whose top is
     # larger holds it as its second value, counted in full too: the sums are exact
     next_count = values[nxt] if below else 0

@@ -686,6 +686,8 @@ def slam_grid(
                         observer=observer, stop=stop, resume=resume, save_session=part,
                         log=source, log_skipped=skipped, odometry=odometry,
                     )  # fmt: skip
+                except ValueError as exc:  # a log lidar-only SLAM cannot follow: name it
+                    raise ValueError(f"{log}: {exc}") from None
                 except OSError as exc:  # a full disk: name the session, not its temporary
                     if part is None or part.name not in str(exc):
                         raise

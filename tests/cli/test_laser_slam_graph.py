@@ -81,6 +81,8 @@ def test_slam_grid_graph_on_intel_writes_every_file(shared_data, tmp_path):
     assert report["local"]["lidar_only"] is False and report["local"]["untracked_s"] == []
     shown = " ".join(res.output.split())
     assert f"overrode the odometry {len(overridden)} times" in shown
+    assert report["doubts"] == [] and "doubtful places none" in shown
+    assert "the map may be wrong" not in res.output
     doubt = report["consistency"]
     assert 0.0 <= doubt["share"] < 1.0 and len(doubt["visits"]) >= 3  # 10 m each
     assert all(0 <= v["contradicted"] <= v["occupied"] for v in doubt["visits"])

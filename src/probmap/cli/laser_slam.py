@@ -236,13 +236,19 @@ def _slam_grid(
         typer.echo(f"warning: {w.message}", err=True)
     if method == "graph":
         asked = stop is not None and stop()  # a Ctrl-C during the last scan ends no earlier
-        _graph_summary(out, watch, resume, viz_save, asked=asked)
+        _graph_summary(out, watch, resume, viz_save, asked=asked, prefix=prefix)
     else:
         _rbpf_summary(out, watch, cfg.particles)
 
 
 def _graph_summary(
-    out: Any, watch: Any, resume: Path | None, viz_save: Path | None, *, asked: bool = False
+    out: Any,
+    watch: Any,
+    resume: Path | None,
+    viz_save: Path | None,
+    *,
+    asked: bool = False,
+    prefix: Path | None = None,
 ) -> None:
     run = out.run
     spec = run.grid.spec
@@ -282,6 +288,12 @@ def _graph_summary(
     if run.interrupted or asked:
         rows.insert(1, ("interrupted", f"at scan {len(run.times):,} of {run.scans_total:,}"))
     print_summary("grid SLAM (graph)", rows)
+    if out.report is not None and prefix is not None:
+        from probmap.pipelines.laser_slam import doubt_line
+
+        line = doubt_line(out.report.get("doubts", []), prefix)
+        if line is not None:
+            typer.echo(f"warning: {line}", err=True)
     if run.interrupted or asked:
         interrupted_exit(len(run.times), run.scans_total, "scans", wrote=True)
 
@@ -312,7 +324,24 @@ def _check_rows(report: dict[str, Any] | None) -> list[tuple[str, str]]:
             f"{rejected['ambiguous_place']:,} ambiguous",
         ),
         ("consistency", f"{share:.2%} of the walls seen were open space to other visits"),
+        ("doubtful places", _doubt_row(report.get("doubts", []))),
     ]
+
+
+def _doubt_row(doubts: list[dict[str, Any]]) -> str:
+    """The summary's row of places and times where the map may be wrong."""
+    places = [d for d in doubts if d["kind"] == "walls_in_open_space"]
+    lost = [d for d in doubts if d["kind"] == "untracked"]
+    if not doubts:
+        return "none"
+    parts = []
+    if places:
+        shown = ", ".join(f"{d['walls_seen_s'][0]:.0f}/{d['open_space_seen_s'][0]:.0f}"
+                          for d in places[:4])  # fmt: skip
+        parts.append(f"{len(places)} (visits at t = {shown}{', ...' if len(places) > 4 else ''} s)")
+    if lost:
+        parts.append(f"{len(lost)} span(s) of scans that matched nothing")
+    return "; ".join(parts)
 
 
 def _time_row(watch: Any, duration: float, seconds: float) -> tuple[str, str]:

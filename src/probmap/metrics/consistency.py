@@ -35,7 +35,13 @@ from scipy.ndimage import label, maximum_filter
 
 from probmap.grid.occupancy import InverseSensorModel, OccupancyGrid
 
-__all__ = ["MapConsistency", "VisitConflict", "map_consistency", "visits_by_travel"]
+__all__ = [
+    "MapConsistency",
+    "VisitConflict",
+    "VisitPair",
+    "map_consistency",
+    "visits_by_travel",
+]
 
 
 @dataclass(frozen=True)
@@ -57,11 +63,25 @@ class VisitConflict:
 
 
 @dataclass(frozen=True)
+class VisitPair:
+    """Visit ``wall`` saw ``cells`` of its contradicted walls where visit ``open`` saw open
+    space; ``box`` bounds those cells, ``(x_min, y_min, x_max, y_max)`` in metres, map frame."""
+
+    wall: int
+    open: int
+    cells: int
+    box: tuple[float, float, float, float]
+
+
+@dataclass(frozen=True)
 class MapConsistency:
-    """The visits of a run and how much they contradict each other."""
+    """The visits of a run and how much they contradict each other; ``pairs`` are the pairs of
+    visits where one saw at least ``pair_cells`` of the other's walls as open space (largest
+    first)."""
 
     visits: tuple[VisitConflict, ...]
     resolution: float
+    pairs: tuple[VisitPair, ...] = ()
 
     @property
     def occupied(self) -> int:
@@ -117,6 +137,7 @@ def map_consistency(
     margin: int = 1,
     tolerance: float = 0.3,
     min_length: float = 0.5,
+    pair_cells: int = 10,
 ) -> MapConsistency:
     """How much the visits of a trajectory contradict each other (module docstring).
 
@@ -149,6 +170,9 @@ def map_consistency(
     min_length : float
         Contradicted cells count only in connected groups this long (metres, as cells along
         one side): a misplaced wall is a stretch, a person walking by is a blob.
+    pair_cells : int
+        Least contradicted cells of one visit inside one other visit's open space for the
+        pair to be listed (``MapConsistency.pairs``).
 
     Returns
     -------
@@ -178,6 +202,7 @@ def map_consistency(
     occ_count = np.zeros(shape, np.int16)  # visits that saw each cell occupied
     free_count = np.zeros(shape, np.int16)  # ... and free
     occupied: list[tuple[NDArray[np.int64], NDArray[np.int64]]] = []
+    frees: list[NDArray[np.int64]] = []  # each visit's free cells, sorted flat indices
     spans: list[tuple[int, int]] = []
     n_visits = int(visit.max()) + 1 if len(visit) else 0
     for v in range(n_visits):
@@ -192,12 +217,15 @@ def map_consistency(
         gy, gx = occ_iy + oy, occ_ix + ox
         occ_count[gy, gx] += 1
         free_count[free_iy + oy, free_ix + ox] += 1
+        frees.append(np.sort((free_iy + oy).astype(np.int64) * shape[1] + (free_ix + ox)))
         occupied.append((gy, gx))
         spans.append((int(idx[0]), int(idx[-1])))
     k = max(int(math.ceil(tolerance / resolution)), 0)
     out = []
+    walls: list[NDArray[np.int64]] = []  # each visit's contradicted cells, sorted flat indices
     for (first, last), (gy, gx) in zip(spans, occupied, strict=True):
         hit = 0
+        flat = np.zeros(0, np.int64)
         if len(gy):
             # the visit's window, widened by the tolerance
             y0, y1 = max(int(gy.min()) - k, 0), min(int(gy.max()) + k + 1, shape[0])
@@ -217,8 +245,30 @@ def map_consistency(
                 sizes = np.bincount(lab.ravel(), minlength=n_lab + 1)
                 keep = sizes >= max(int(round(min_length / resolution)), 1)
                 keep[0] = False
-                hit = int(keep[lab[gy[bad] - y0, gx[bad] - x0]].sum())
+                kept = keep[lab[gy[bad] - y0, gx[bad] - x0]]
+                hit = int(kept.sum())
+                flat = np.sort(gy[bad][kept] * shape[1] + gx[bad][kept])
             else:
                 hit = int(bad.sum())
+                flat = np.sort(gy[bad] * shape[1] + gx[bad])
         out.append(VisitConflict(first, last, float(t[first]), float(t[last]), len(gy), hit))
-    return MapConsistency(tuple(out), float(resolution))
+        walls.append(flat)
+    pairs = []
+    for i, wall in enumerate(walls):
+        if len(wall) < pair_cells:
+            continue
+        for j, free in enumerate(frees):
+            if j == i or not len(free):
+                continue
+            at = np.minimum(np.searchsorted(free, wall), len(free) - 1)
+            inside = wall[free[at] == wall]
+            if len(inside) < pair_cells:
+                continue
+            iy, ix = np.divmod(inside, shape[1])
+            x = (ix + lo_xy[0]) * resolution
+            y = (iy + lo_xy[1]) * resolution
+            box = (float(x.min()), float(y.min()), float(x.max() + resolution),
+                   float(y.max() + resolution))  # fmt: skip
+            pairs.append(VisitPair(i, j, len(inside), box))
+    pairs.sort(key=lambda q: -q.cells)
+    return MapConsistency(tuple(out), float(resolution), tuple(pairs))

@@ -4,6 +4,7 @@ axes in metres (axes first; the caller owns the figure)."""
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -14,10 +15,19 @@ from probmap.viz.maps import label_metric_axes, sampled_cells
 __all__ = ["plot_graph_slam", "save_graph_slam_figure"]
 
 
-def plot_graph_slam(ax: Any, run: Any, *, title: str | None = None, max_pixels: int = 2000) -> Any:
+def plot_graph_slam(
+    ax: Any,
+    run: Any,
+    *,
+    title: str | None = None,
+    max_pixels: int = 2000,
+    doubts: Sequence[dict[str, Any]] = (),
+) -> Any:
     """Draw ``run.grid`` (occupied black, free white, unknown grey), the robot trajectory
-    ``run.poses``, and each accepted closure as a segment from the node to the anchor of the
-    submap it matched (green: kept by the robust cost, red: down-weighted below 0.5).
+    ``run.poses``, each accepted closure as a segment from the node to the anchor of the
+    submap it matched (green: kept by the robust cost, red: down-weighted below 0.5), and a
+    red box around each doubtful place (``doubts``: the report's entries with a ``box_m``,
+    see :func:`probmap.pipelines.laser_slam.doubts_of`).
 
     Parameters
     ----------
@@ -25,6 +35,8 @@ def plot_graph_slam(ax: Any, run: Any, *, title: str | None = None, max_pixels: 
     run : SubmapSlamRun
         From :func:`probmap.pipelines.laser_slam.run_submap_slam`.
     title : str, optional
+    doubts : sequence of dict
+        Entries with ``box_m = [x_min, y_min, x_max, y_max]`` (metres, map frame).
     max_pixels : int
         The map is drawn from every ``step``-th cell so that its longer side has at most this
         many pixels.
@@ -49,6 +61,19 @@ def plot_graph_slam(ax: Any, run: Any, *, title: str | None = None, max_pixels: 
             alpha=0.25,
         )  # fmt: skip
     ax.plot(run.poses[:, 0], run.poses[:, 1], color="tab:blue", lw=0.5, label="trajectory")
+    from matplotlib.patches import Rectangle
+
+    boxes = [d["box_m"] for d in doubts if "box_m" in d]
+    for bx0, by0, bx1, by1 in boxes:
+        pad = 1.0  # metres around the contradicted walls, so a small place shows
+        ax.add_patch(
+            Rectangle(
+                (bx0 - pad, by0 - pad), bx1 - bx0 + 2 * pad, by1 - by0 + 2 * pad, fill=False,
+                edgecolor="red", lw=1.2,
+            )
+        )  # fmt: skip
+    if boxes:
+        ax.plot([], [], color="red", lw=1.2, label=f"doubtful places ({len(boxes)})")
     kept = int(np.sum(weights >= 0.5))
     ax.plot([], [], color="tab:green", lw=0.8, label=f"loop closures ({kept})")
     if kept < len(weights):
@@ -57,7 +82,11 @@ def plot_graph_slam(ax: Any, run: Any, *, title: str | None = None, max_pixels: 
 
 
 def save_graph_slam_figure(
-    path: str | os.PathLike[str], run: Any, *, title: str | None = None
+    path: str | os.PathLike[str],
+    run: Any,
+    *,
+    title: str | None = None,
+    doubts: Sequence[dict[str, Any]] = (),
 ) -> Path:
     """Render :func:`plot_graph_slam` to a PNG (Agg backend, written atomically)."""
     from matplotlib.figure import Figure
@@ -66,7 +95,7 @@ def save_graph_slam_figure(
 
     path = Path(path)
     fig = Figure(figsize=(9, 9))
-    plot_graph_slam(fig.add_subplot(), run, title=title)
+    plot_graph_slam(fig.add_subplot(), run, title=title, doubts=doubts)
     with atomic_write(path, "wb") as f:
         fig.savefig(f, format="png", dpi=150, bbox_inches="tight")
     return path

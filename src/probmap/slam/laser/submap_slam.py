@@ -56,7 +56,7 @@ from probmap.slam.laser.closures import (
     LoopClosure,
     edge_information,
 )
-from probmap.slam.laser.local_matching import LocalMatchingConfig, LocalMatch
+from probmap.slam.laser.local_matching import LocalMatch, LocalMatchingConfig
 from probmap.slam.laser.scan_matching import (
     correlative_search,
     normal_equations,

@@ -76,6 +76,9 @@ LOGS = {
         "freiburg-079/fr079.relations",
     ),
 }
+# the raw logs without their odometry (--no-odometry): run with --worker KEY (not in the table)
+LOGS["intel_lidar"] = ("Intel, raw log, lidar only", *LOGS["intel"][1:])
+LOGS["fr079_lidar"] = ("Freiburg 079, lidar only", *LOGS["fr079"][1:])
 KEYS = ("intel", "bag", "bag_lidar", "clinic", "fr079")
 LOOP_S = 10.0  # a relation between scans further apart than this is a loop relation
 BRIDGE_S = 2.0  # longest stretch of the run's own trajectory used to reach a relation

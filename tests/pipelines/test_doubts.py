@@ -147,9 +147,8 @@ def test_doubt_rules():
 def test_the_picture_marks_the_doubtful_places(tmp_path, n_boxes):
     from matplotlib.figure import Figure
 
-    from probmap.viz.laser_slam import plot_graph_slam
-
     from probmap.pipelines.laser_slam import run_submap_slam
+    from probmap.viz.laser_slam import plot_graph_slam
 
     _, batch, _ = _sim_run()
     run = run_submap_slam(batch)

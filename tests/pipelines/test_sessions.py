@@ -439,3 +439,18 @@ def test_localize_in_a_folder_names_the_session_it_read(tour, tmp_path):
     )
     assert res.exit_code == 0, res.output
     assert f"{folder / 'slam.session'} (session" in " ".join(res.output.split())
+
+
+def test_a_lidar_only_session_resumes_to_exactly_the_whole_run(tour, tmp_path):
+    """Without odometry the run's motion model (last pose, velocity, step, score level) is
+    state too; a resume continues without odometry, and refuses a request for it."""
+    _, batch, _ = tour
+    n = len(batch.times)
+    whole = run_submap_slam(batch, odometry=False)
+    path = tmp_path / "s.session"
+    run_submap_slam(_part(batch, 0, n // 2), save_session=path, odometry=False)
+    slam = load_session(path)
+    assert slam.lidar_only
+    with pytest.raises(ValueError, match="ran without odometry"):
+        run_submap_slam(_part(batch, n // 2, n), resume=load_session(path), odometry=True)
+    _assert_same_run(run_submap_slam(_part(batch, n // 2, n), resume=slam), whole)

@@ -694,11 +694,7 @@ class SubmapSlam:
             pose2, _, _ = refine(fld, pts, best2, m.iterations, (m.linear_step, m.angular_step))
             score2, _, _ = normal_equations(fld, pts, pose2)
             searched_wide = True
-            d2 = between(guess, pose2)
-            inside = wide_window is None or (  # lidar-only: Gauss-Newton must not leave it
-                math.hypot(d2[0], d2[1]) <= lin and abs(float(wrap_angle(d2[2]))) <= ang
-            )
-            if score2 > score + 0.05 * pts.shape[0] and inside:
+            if score2 > score + 0.05 * pts.shape[0]:
                 pose, score = pose2, score2
                 took_wide = True
         if score / pts.shape[0] < cfg.local.min_match_score:

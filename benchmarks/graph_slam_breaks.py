@@ -13,6 +13,7 @@ Runs graph SLAM with the defaults on one log of ``bench_graph_slam.py`` and prin
 Usage::
 
     python benchmarks/graph_slam_breaks.py [--log fr079|intel|bag|clinic] [--bin 100]
+        [--no-odometry]
 """
 
 from __future__ import annotations
@@ -33,6 +34,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--log", default="fr079", choices=sorted(bench.LOGS))
     ap.add_argument("--bin", type=float, default=100.0, help="Seconds per time bin.")
+    ap.add_argument(
+        "--no-odometry", action="store_true", help="Ignore the odometry (lidar-only SLAM)."
+    )
     default = Path(__file__).resolve().parents[2] / "shared" / "data"
     ap.add_argument("--data", type=Path, default=Path(os.environ.get("PROBMAP_DATA", default)))
     args = ap.parse_args()
@@ -43,7 +47,7 @@ def main() -> None:
 
     _, log, rel_file = bench.LOGS[args.log]
     batch = load_laser_log(args.data / log)
-    run = run_submap_slam(batch)
+    run = run_submap_slam(batch, odometry=False if args.no_odometry else None)
     times, robot = np.asarray(run.times), np.asarray(run.poses)
     t0 = float(times[0])
     rel = bench._within(read_relations(args.data / rel_file), times)

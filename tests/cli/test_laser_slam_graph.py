@@ -216,3 +216,15 @@ def test_bad_method_missing_file_and_bad_options(tmp_path):
     _one_line_error(run("slam", "grid", log, "-o", tmp_path / "o", "--end-time", "-3"), "end_time")
     _one_line_error(run("slam", "grid", log, "-o", log / "o"), "ok.clf", "not a folder")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ok.clf"]
+
+
+@pytest.mark.parametrize(
+    ("args", "named"),
+    [(["--particles", "30"], "--particles is"), (["--seed", "1", "--no-guard"], "--seed, --guard")],
+)
+def test_rbpf_options_without_the_rbpf_are_refused(tmp_path, args, named):
+    """Graph SLAM has no particles: an RBPF option without ``--method rbpf`` is one line,
+    not silently ignored."""
+    log = _flaser_log(tmp_path / "ok.clf", [(0.3 * i, 0.0, 0.0) for i in range(5)])
+    res = run("slam", "grid", log, "-o", tmp_path / "o", *args)
+    _one_line_error(res, named, "--method rbpf")

@@ -125,6 +125,15 @@ def grid_command(
             "seed": seed,
             "degeneracy_guard": guard,
         }
+        flags = {"particles": "--particles", "linear_update": "--linear-update",
+                 "angular_update": "--angular-update", "seed": "--seed",
+                 "degeneracy_guard": "--guard/--no-guard"}  # fmt: skip
+        given = [flags[k] for k, v in rbpf_options.items() if v is not None]
+        if method == "graph" and given:
+            raise ValueError(
+                f"{', '.join(given)} {'is' if len(given) == 1 else 'are'} for the RBPF: add "
+                "--method rbpf (graph SLAM, the default, has no particles)"
+            )
         if method == "rbpf" and (viz or viz_save is not None):
             raise ValueError("--viz and --viz-save watch the graph method (--method graph)")
         if method == "rbpf" and (save_session is not None or resume is not None):

@@ -386,14 +386,27 @@ def test_cli_slam_grid_and_match_on_a_simulated_log(tmp_path):
     _write_carmen(log, world, 150)
     runner = CliRunner()
     out = tmp_path / "m"
-    res = runner.invoke(app, ["slam", "grid", str(log), "-o", str(out), "--particles", "2"])
+    res = runner.invoke(
+        app, ["slam", "grid", str(log), "-o", str(out), "--method", "rbpf", "--particles", "2"]
+    )
     assert res.exit_code == 0, res.output
     for ext in (".yaml", ".pgm", ".npz", ".png", ".trajectory.csv"):
         assert (tmp_path / f"m{ext}").exists()
     t, p = read_trajectory(tmp_path / "m.trajectory.csv")
     np.testing.assert_allclose(t, 1000.0 + world.times[:150], atol=1e-6)
     assert _step_error(world.poses[:150], p) < 0.05
-    args = ["slam", "grid", str(log), "-o", str(tmp_path / "g"), "-n", "1", "--no-guard"]
+    args = [
+        "slam",
+        "grid",
+        str(log),
+        "-o",
+        str(tmp_path / "g"),
+        "--method",
+        "rbpf",
+        "-n",
+        "1",
+        "--no-guard",
+    ]
     res = runner.invoke(app, [*args, "--end-time", "10"])
     assert res.exit_code == 0, res.output
     t, p = read_trajectory(tmp_path / "g.trajectory.csv")

@@ -495,12 +495,14 @@ def write_submap_slam(
     run: SubmapSlamRun,
     *,
     report: dict[str, Any] | None = None,
+    title: str | None = None,
 ) -> list[Path]:
     """Write ``PREFIX.yaml/.pgm/.npz/.png`` (the map), ``PREFIX.trajectory.csv`` (robot pose
     at every scan time), ``PREFIX.g2o`` (the optimized pose graph, laser poses) and
     ``PREFIX.plot.png`` (map, trajectory and accepted closures, axes in metres), and with
-    ``report`` (:func:`closure_report`, :func:`consistency_report`) ``PREFIX.report.json``;
-    all-or-nothing (a missing folder is created).
+    ``report`` (:func:`closure_report`, :func:`consistency_report`) ``PREFIX.report.json``
+    and red boxes in the picture at its ``doubts``; all-or-nothing (a missing folder is
+    created). ``title`` heads the picture (the prefix's name by default).
     Returns the paths written."""
     from probmap.datasets.g2o import write_pose_graph_g2o
     from probmap.grid.io import save_map
@@ -516,7 +518,7 @@ def write_submap_slam(
         )
         files.append(
             save_graph_slam_figure(
-                f"{prefix}.plot.png", run, title=prefix.name,
+                f"{prefix}.plot.png", run, title=title or prefix.name,
                 doubts=(report or {}).get("doubts", ()),
             )
         )  # fmt: skip
@@ -716,7 +718,10 @@ def slam_grid(
                 report["doubts"] = doubts_of(report)
         with phase("write"), atomic_outputs():  # every file or none
             if isinstance(run, SubmapSlamRun):
-                files = write_submap_slam(prefix, run, report=report)
+                files = write_submap_slam(
+                    prefix, run, report=report,
+                    title=f"graph SLAM: {title}" if title else None,
+                )  # fmt: skip
                 files.append(write_config(f"{prefix}.config.yaml", used, command=command))
                 if save_session is not None and part is not None:
                     import shutil

@@ -145,3 +145,26 @@ def test_sweeping_is_once_per_target_and_never_fails_a_write(tmp_path):
     assert first == [] and _atomic.sweep_leftovers(target) == []  # swept once per process
     assert _atomic.sweep_leftovers(tmp_path / "missing" / "y.csv") == []
     assert not target.exists()
+
+
+def test_library_warnings_are_one_line_without_python_source(monkeypatch, capsys):
+    """``probmap`` shows a library warning as ``warning: MESSAGE``: no file name and line of
+    probmap's source, no second line (issue 39: every bag command printed
+    ``rosbag.py:1113: UserWarning ...``). The handler is the CLI's only."""
+    import warnings
+
+    import probmap.cli as cli
+    from probmap.cli import app as entry
+
+    def command(args: list[str] | None = None, prog_name: str | None = None) -> None:
+        warnings.warn("x.bag: dropped 1 scan(s)\n  past the tf buffer", UserWarning, stacklevel=1)
+
+    monkeypatch.setattr(cli, "register", lambda app: None)
+    monkeypatch.setattr(entry, "app", command)
+    before = warnings.showwarning
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        entry.main([])
+    err = capsys.readouterr().err
+    assert err == "warning: x.bag: dropped 1 scan(s) past the tf buffer\n"
+    assert warnings.showwarning is before

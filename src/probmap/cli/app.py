@@ -7,6 +7,9 @@ matplotlib at start-up).
 
 from __future__ import annotations
 
+import sys
+from typing import Any
+
 import typer
 
 from probmap import __version__
@@ -48,6 +51,20 @@ def _nothing_written(unless_said_since: int | None = None) -> None:
         say_interrupted("interrupted: nothing written")
 
 
+def _one_line_warning(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: Any = None,
+    line: str | None = None,
+) -> None:
+    """A library warning as the command line shows it: ``warning: MESSAGE``, one line,
+    without Python's source file and line."""
+    text = " ".join(str(message).split())
+    print(f"warning: {text}", file=sys.stderr if file is None else file)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry point (``argv``: the arguments, ``sys.argv[1:]`` by default).
 
@@ -55,8 +72,11 @@ def main(argv: list[str] | None = None) -> None:
     and exit code 130: the commands say what they wrote; one that came before a command
     started (while the arguments were read) says ``interrupted: nothing written``."""
     import signal
+    import warnings
 
     previous = signal.signal(signal.SIGTERM, _interrupt)
+    shown = warnings.showwarning
+    warnings.showwarning = _one_line_warning
     said = 0
     try:
         try:
@@ -76,3 +96,4 @@ def main(argv: list[str] | None = None) -> None:
             raise
     finally:
         signal.signal(signal.SIGTERM, previous)
+        warnings.showwarning = shown

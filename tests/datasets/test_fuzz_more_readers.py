@@ -8,19 +8,22 @@ naming the file; nothing else escapes."""
 
 from __future__ import annotations
 
+import os
 import shutil
+import signal
 import struct
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, reject, settings
 from hypothesis import strategies as st
 
-FUZZ = settings(
-    max_examples=40,
+FUZZ = settings(  # PROBMAP_FUZZ_EXAMPLES=2000 for a longer search
+    max_examples=int(os.environ.get("PROBMAP_FUZZ_EXAMPLES", "40")),
     deadline=None,
     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
 )
@@ -40,15 +43,43 @@ _U32 = st.sampled_from([0, 1, 4, 8, 255, 4096, 2**31 - 1, 2**31, 2**32 - 1])
 
 def _check(path: Path, read: Callable[[Path], object], *names: str) -> None:
     """``read(path)`` succeeds or raises a ValueError whose message is one line naming the file
-    (or one of ``names``: the folder of a multi-file dataset, say)."""
+    (or one of ``names``: the folder of a multi-file dataset, say), within ``_LIMIT_S``
+    seconds (a tf cycle once made a bag read loop for ever)."""
+    with _time_limit(_LIMIT_S):
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # skipped rows and scans are warned about
+                read(path)
+        except ValueError as exc:
+            _one_line_naming(exc, path, *names)
+
+
+_LIMIT_S = 10
+
+
+@contextmanager
+def _time_limit(seconds: int) -> Iterator[None]:
+    """A TimeoutError after ``seconds`` (where the platform has SIGALRM)."""
+    if not hasattr(signal, "SIGALRM"):
+        yield
+        return
+
+    def stop(signum: int, frame: object) -> None:
+        raise TimeoutError(f"the read took more than {seconds} s")
+
+    old = signal.signal(signal.SIGALRM, stop)
+    signal.alarm(seconds)
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # skipped rows and scans are warned about: fine
-            read(path)
-    except ValueError as exc:
-        msg = str(exc)
-        assert "\n" not in msg.strip(), msg
-        assert any(n in msg for n in (path.name, *names)), msg
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def _one_line_naming(exc: BaseException, path: Path, *names: str) -> None:
+    msg = str(exc)
+    assert len(msg.strip().splitlines()) == 1, msg
+    assert any(n in msg for n in (path.name, *names)), msg
 
 
 class _Valid(dict):
@@ -109,25 +140,40 @@ def _write_bag(path: Path, ros: int, storage: str = "sqlite3", **v: object) -> P
     scans (``multiecho``: MultiEchoLaserScan), every value overridable through ``v``."""
     from bagwriter import BagBuilder
 
-    b = BagBuilder(path, ros, storage)
+    quat = v.get("quat")
+
+    class Builder(BagBuilder):
+        def pose_msg(self, p: np.ndarray) -> tuple[object, object]:
+            pos, q = super().pose_msg(p)
+            if quat is None:
+                return pos, q
+            x, y, z, w = quat  # type: ignore[misc]
+            return pos, self.t["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w)
+
+    b = Builder(path, ros, storage)
     n = int(v.get("scans", 4))  # type: ignore[call-overload]
     t0 = float(v.get("t0", 10.0))  # type: ignore[arg-type]
-    b.tf("/tf_static", t0, [(v.get("parent", "base_link"), "laser", np.array([0.1, 0.0, 0.0]))])
+    odom, base = str(v.get("odom_frame", "odom")), str(v.get("base_frame", "base_link"))
+    b.tf("/tf_static", t0, [(v.get("parent", base), "laser", np.array([0.1, 0.0, 0.0]))])
     pose = np.array(v.get("pose", (0.0, 0.0, 0.0)), dtype=np.float64)
     for k in range(n + 1):
-        b.odom("/odom", t0 + 0.1 * k, "odom", "base_link", pose + [0.05 * k, 0.0, 0.01 * k])
+        b.odom("/odom", t0 + 0.1 * k, odom, base, pose + [0.05 * k, 0.0, 0.01 * k])
     beams = int(v.get("beams", 8))  # type: ignore[call-overload]
     ranges = np.asarray(v.get("ranges", np.linspace(1.0, 5.0, beams)), dtype=np.float32)
-    for k in range(n):
+    topics = [str(v.get("topic", "/scan"))] + (["/scan2"] if v.get("second_topic") else [])
+    for k, topic in ((k, t) for k in range(n) for t in topics):
         stamp = float(v.get("stamp", t0 + 0.1 * k + 0.05))  # type: ignore[arg-type]
         frame = str(v.get("frame", "laser"))
         if v.get("multiecho"):
             echoes = [[float(r)] * int(v.get("echoes", 1)) for r in ranges]  # type: ignore[call-overload]
-            b.multiecho("/scan", stamp, frame, echoes, float(v.get("amin", -1.0)))  # type: ignore[arg-type]
+            b.multiecho(topic, stamp, frame, echoes, float(v.get("amin", -1.0)))  # type: ignore[arg-type]
         else:
+            amin, ainc = float(v.get("amin", -1.0)), float(v.get("ainc", 0.25))  # type: ignore[arg-type]
+            if abs(amin + ainc * (len(ranges) - 1)) > 3.4e38:
+                b.close()  # angle_max beyond float32: no bag can hold it
+                reject()
             b.scan(
-                "/scan", stamp, frame, ranges,
-                float(v.get("amin", -1.0)), float(v.get("ainc", 0.25)),  # type: ignore[arg-type]
+                topic, stamp, frame, ranges, amin, ainc,
                 float(v.get("rmin", 0.1)), float(v.get("rmax", 30.0)),  # type: ignore[arg-type]
             )  # fmt: skip
     b.close()
@@ -178,9 +224,14 @@ _BAG_FIELDS = st.fixed_dictionaries(
         "scans": st.integers(0, 3),
         "t0": st.sampled_from([0.0, 1e-9, 1.0, 2.1e9]),
         "stamp": st.sampled_from([0.0, 5.0, 10.15, 2.1e9]),
-        "parent": st.sampled_from(["base_link", "laser", "", "/", "odom", "map"]),
-        "frame": st.sampled_from(["laser", "", "/", "/laser", "odom", "base_link", "x y"]),
-        "pose": st.tuples(_FLOAT, _FLOAT, _FLOAT),
+        "parent": st.sampled_from(["base_link", "laser", "", "/", "odom", "map", "p\nq"]),
+        "frame": st.sampled_from(["laser", "", "/", "/laser", "odom", "base_link", "x y", "a\nb"]),
+        "odom_frame": st.sampled_from(["odom", "", "/", "map", "laser", "o\nm"]),
+        "base_frame": st.sampled_from(["base_link", "", "odom", "laser", "b\nl"]),
+        "topic": st.sampled_from(["/scan", "scan", "/odom", "/tf", "/s\nt", "/s can"]),
+        "second_topic": st.booleans(),
+        "pose": st.tuples(_FLOAT, _FLOAT, st.floats(-1e6, 1e6)),
+        "quat": st.tuples(_FLOAT, _FLOAT, _FLOAT, _FLOAT),
         "beams": st.integers(0, 3),
         "ranges": st.lists(_FLOAT, max_size=6),
         "amin": _FLOAT,
@@ -193,8 +244,18 @@ _BAG_FIELDS = st.fixed_dictionaries(
 )
 
 
+_FOUND = [  # what the fuzzing found: a tf cycle (a read looped for ever), a line break in a name
+    {"odom_frame": "laser"},
+    {"base_frame": "b\nl"},
+    {"topic": "/s\nt", "second_topic": True},
+]
+
+
 @FUZZ
 @given(fields=_BAG_FIELDS)
+@example(fields=_FOUND[0])
+@example(fields=_FOUND[1])
+@example(fields=_FOUND[2])
 def test_ros1_bags_with_arbitrary_field_values(tmp_path, ros1_bags, fields):
     path = tmp_path / "fuzz.bag"
     path.unlink(missing_ok=True)
@@ -238,6 +299,8 @@ def test_ros2_bags_with_a_broken_metadata_yaml(tmp_path, ros2_bags, storage, dat
 
 @FUZZ
 @given(storage=st.sampled_from(["sqlite3", "mcap"]), fields=_BAG_FIELDS)
+@example(storage="sqlite3", fields=_FOUND[0])
+@example(storage="mcap", fields=_FOUND[1])
 def test_ros2_bags_with_arbitrary_field_values(tmp_path, ros2_bags, storage, fields):
     d = tmp_path / "bag"
     shutil.rmtree(d, ignore_errors=True)
@@ -327,3 +390,7 @@ def test_the_unfuzzed_inputs_read(tmp_path, ros1_bags, ros2_bags):
         _check(tmp_path / "x.bag", lambda p: (_ for _ in ()).throw(ValueError("no name")))
     with pytest.raises(KeyError):
         _check(tmp_path / "x.bag", lambda p: {}["k"])
+    if hasattr(signal, "SIGALRM"):
+        with pytest.raises(TimeoutError), _time_limit(1):
+            while True:
+                pass

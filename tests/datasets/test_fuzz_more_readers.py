@@ -343,10 +343,38 @@ def _tables(draw: st.DrawFn, base: dict[str, list[list[str]]]) -> dict[str, list
     return {**base, name: rows}
 
 
-def _write_tables(d: Path, tables: dict[str, list[list[str]]]) -> None:
+def _write_tables(
+    d: Path, tables: dict[str, list[list[str]]], damage: tuple[str, str, bytes] | None = None
+) -> None:
+    """The tables as text files; ``damage`` = ``("junk", name, bytes)`` appends bytes (not
+    UTF-8, say) to a file, ``("missing", name, b"")`` leaves it out."""
     d.mkdir(exist_ok=True)
     for name, rows in tables.items():
         (d / name).write_text("\n".join(" ".join(r) for r in rows) + "\n")
+    if damage is not None:
+        kind, name, junk = damage
+        if kind == "missing":
+            (d / name).unlink()
+        else:
+            with open(d / name, "ab") as f:
+                f.write(junk)
+
+
+def _damage(names: dict[str, list[list[str]]]) -> st.SearchStrategy[tuple[str, str, bytes] | None]:
+    return st.one_of(
+        st.none(),
+        st.tuples(
+            st.sampled_from(["junk", "missing"]), st.sampled_from(sorted(names)), st.binary()
+        ),
+    )
+
+
+def _check_folder(d: Path, read: Callable[[Path], object], names: list[str]) -> None:
+    """:func:`_check`, and a missing file is a FileNotFoundError naming it (as every reader's)."""
+    try:
+        _check(d, read, *names)
+    except FileNotFoundError as exc:
+        _one_line_naming(exc, d, *names)
 
 
 def _read_landmarks(ds: object) -> None:
@@ -355,23 +383,25 @@ def _read_landmarks(ds: object) -> None:
 
 
 @FUZZ
-@given(tables=_tables(_MRCLAM))
-def test_mrclam_folders(tmp_path, tables):
+@given(tables=_tables(_MRCLAM), damage=_damage(_MRCLAM))
+def test_mrclam_folders(tmp_path, tables, damage):
     from probmap.datasets.utias import MRCLAM
 
     d = tmp_path / "mrclam"
-    _write_tables(d, tables)
-    _check(d, lambda p: _read_landmarks(MRCLAM(p, 1)), *tables)
+    shutil.rmtree(d, ignore_errors=True)
+    _write_tables(d, tables, damage)
+    _check_folder(d, lambda p: _read_landmarks(MRCLAM(p, 1)), list(tables))
 
 
 @FUZZ
-@given(tables=_tables(_VICTORIA))
-def test_victoria_park_folders(tmp_path, tables):
+@given(tables=_tables(_VICTORIA), damage=_damage(_VICTORIA))
+def test_victoria_park_folders(tmp_path, tables, damage):
     from probmap.datasets.victoria_park import VictoriaPark
 
     d = tmp_path / "vp"
-    _write_tables(d, tables)
-    _check(d, lambda p: _read_landmarks(VictoriaPark(p)), *tables)
+    shutil.rmtree(d, ignore_errors=True)
+    _write_tables(d, tables, damage)
+    _check_folder(d, lambda p: _read_landmarks(VictoriaPark(p)), list(tables))
 
 
 def test_the_unfuzzed_inputs_read(tmp_path, ros1_bags, ros2_bags):

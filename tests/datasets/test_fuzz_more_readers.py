@@ -297,6 +297,22 @@ def test_ros2_bags_with_a_broken_metadata_yaml(tmp_path, ros2_bags, storage, dat
     _check(d, _read_scans, d.name, "metadata.yaml")
 
 
+@pytest.mark.parametrize(
+    ("old", "new"),
+    [("name: /tf_static", "name: []"), ("message_count: 1\n", "message_count: x\n")],
+)
+def test_ros2_metadata_the_fuzzing_found(tmp_path, ros2_bags, old, new):
+    """A topic named by a list once escaped as a TypeError from deep in the reader."""
+    from probmap.errors import BagError
+
+    valid, name, metadata = ros2_bags["sqlite3"]
+    assert old in metadata
+    d = _ros2_folder(tmp_path, name, valid, metadata.replace(old, new, 1))
+    with pytest.raises(BagError) as err:
+        _read_scans(d)
+    _one_line_naming(err.value, d)
+
+
 @FUZZ
 @given(storage=st.sampled_from(["sqlite3", "mcap"]), fields=_BAG_FIELDS)
 @example(storage="sqlite3", fields=_FOUND[0])

@@ -76,9 +76,32 @@ def _open_reader(path: Path) -> Iterator[Any]:
         # a MemoryError among them: a corrupt size field asks to read exabytes
         raise BagError(f"corrupt or truncated bag ({_cause(exc)})", path=path) from None
     try:
+        _check_index(reader, path)
         yield reader
     finally:
         reader.close()
+
+
+def _check_index(reader: Any, path: Path) -> None:
+    """Refuse an index that ``rosbags`` opened but probmap cannot use: a ROS 2 ``metadata.yaml``
+    can give a topic as a list, or a count or start time as text."""
+    for c in reader.connections:
+        if not (isinstance(c.topic, str) and isinstance(c.msgtype, str)):
+            raise BagError(
+                f"corrupt bag index: a topic {c.topic!r} of type {c.msgtype!r} (not names)",
+                path=path,
+            )
+        if not isinstance(c.msgcount, int) or isinstance(c.msgcount, bool):
+            raise BagError(
+                f"corrupt bag index: topic {c.topic!r} has message count {c.msgcount!r}",
+                path=path,
+            )
+    try:
+        start = reader.start_time
+    except Exception as exc:
+        raise BagError(f"corrupt bag index: no start time ({_cause(exc)})", path=path) from None
+    if not isinstance(start, int) or isinstance(start, bool):
+        raise BagError(f"corrupt bag index: start time {start!r}", path=path)
 
 
 def _messages(

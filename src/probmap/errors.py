@@ -72,7 +72,25 @@ class DatasetError(ValueError):
 
 
 class BagError(DatasetError):
-    """A bag that cannot be read or used: names the file and the topic, frame or time."""
+    """A bag that cannot be read or used: names the file and the topic, frame or time.
+
+    The message stays on one line: topic and frame names come from the bag, and a line break
+    or other control character among them is written as its escape (``\\n``).
+
+    >>> str(BagError("no frame a\\nb", path="x.bag"))
+    'x.bag: no frame a\\\\nb'
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        path: object | None = None,
+        line: int | None = None,
+        field: str | None = None,
+    ) -> None:
+        message = "".join(c if c.isprintable() else repr(c)[1:-1] for c in message)
+        super().__init__(message, path=path, line=line, field=field)
 
 
 class NoPoseSourceError(BagError):

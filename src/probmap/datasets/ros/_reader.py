@@ -36,6 +36,14 @@ def require_rosbags() -> Any:
     return rosbags
 
 
+def _cause(exc: BaseException, limit: int = 160) -> str:
+    """What ``rosbags`` (or the decoder) said, on one line: its message with every run of
+    whitespace one space (a bad message definition comes back quoted, over many lines), cut
+    to ``limit`` characters, or the exception's class name when it said nothing."""
+    msg = " ".join(str(exc).split()) or type(exc).__name__
+    return msg if len(msg) <= limit else msg[: limit - 3] + "..."
+
+
 # ---------------------------------------------------------------------------- opening bags
 
 
@@ -65,13 +73,35 @@ def _open_reader(path: Path) -> Iterator[Any]:
     try:
         reader.open()
     except Exception as exc:  # rosbags raises many types on a bad file
-        if isinstance(exc, (KeyboardInterrupt, MemoryError)):
-            raise
-        raise BagError(f"corrupt or truncated bag ({exc})", path=path) from None
+        # a MemoryError among them: a corrupt size field asks to read exabytes
+        raise BagError(f"corrupt or truncated bag ({_cause(exc)})", path=path) from None
     try:
+        _check_index(reader, path)
         yield reader
     finally:
         reader.close()
+
+
+def _check_index(reader: Any, path: Path) -> None:
+    """Refuse an index that ``rosbags`` opened but probmap cannot use: a ROS 2 ``metadata.yaml``
+    can give a topic as a list, or a count or start time as text."""
+    for c in reader.connections:
+        if not (isinstance(c.topic, str) and isinstance(c.msgtype, str)):
+            raise BagError(
+                f"corrupt bag index: a topic {c.topic!r} of type {c.msgtype!r} (not names)",
+                path=path,
+            )
+        if not isinstance(c.msgcount, int) or isinstance(c.msgcount, bool):
+            raise BagError(
+                f"corrupt bag index: topic {c.topic!r} has message count {c.msgcount!r}",
+                path=path,
+            )
+    try:
+        start = reader.start_time
+    except Exception as exc:
+        raise BagError(f"corrupt bag index: no start time ({_cause(exc)})", path=path) from None
+    if not isinstance(start, int) or isinstance(start, bool):
+        raise BagError(f"corrupt bag index: start time {start!r}", path=path)
 
 
 def _messages(
@@ -89,7 +119,7 @@ def _messages(
             return
         except Exception as exc:
             raise BagError(
-                f"corrupt or truncated bag while reading topic {topic!r} ({exc})", path=path
+                f"corrupt or truncated bag while reading topic {topic!r} ({_cause(exc)})", path=path
             ) from None
         topic = conn.topic
         yield conn, ts, raw
@@ -100,7 +130,8 @@ def _deserialize(reader: Any, path: Path, conn: Any, raw: Any) -> Any:
         return reader.deserialize(raw, conn.msgtype)
     except Exception as exc:
         raise BagError(
-            f"cannot decode a {conn.msgtype} message on topic {conn.topic!r} ({exc})", path=path
+            f"cannot decode a {conn.msgtype} message on topic {conn.topic!r} ({_cause(exc)})",
+            path=path,
         ) from None
 
 

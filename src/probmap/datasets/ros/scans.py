@@ -388,9 +388,10 @@ class RosBag:
             return self.fixed_frame
         if odom_frame is not None:
             return odom_frame
-        chain = [laser]
-        while (p := tf.parent(chain[-1])) is not None:
-            chain.append(p)
+        try:
+            chain = tf.ancestors(laser)
+        except ValueError as exc:  # a cycle
+            raise BagError(str(exc), path=self.path) from None
         for name in ("map", "odom"):
             if name in chain:
                 return name

@@ -138,16 +138,30 @@ class TfBuffer:
         return None if e is None else e.parent
 
     def time_range(self, frame: str) -> tuple[float, float]:
-        """First and last time (s) at which the chain from ``frame`` to its root is known."""
+        """First and last time (s) at which the chain from ``frame`` to its root is known.
+
+        Raises
+        ------
+        ValueError
+            When the chain runs into a cycle (a bag can link a frame back to itself).
+        """
         lo, hi = -math.inf, math.inf
-        f = frame.lstrip("/")
-        while f in self._edges:
+        for f in self._chain(frame.lstrip("/"))[:-1]:
             e = self._edges[f]
             if not e.static:
                 t, _ = e.arrays()
                 lo, hi = max(lo, float(t[0])), min(hi, float(t[-1]))
-            f = e.parent
         return lo, hi
+
+    def ancestors(self, frame: str) -> list[str]:
+        """``frame`` and its parents up to its root (first ``frame``).
+
+        Raises
+        ------
+        ValueError
+            When the chain runs into a cycle.
+        """
+        return self._chain(frame.lstrip("/"))
 
     def _chain(self, frame: str) -> list[str]:
         chain = [frame]

@@ -4,7 +4,6 @@ every command's summary."""
 
 from __future__ import annotations
 
-import math
 import re
 
 import numpy as np

@@ -162,6 +162,10 @@ class _ScanGrid:
         """Cells updated by at least one scan, shape (H, W)."""
         return self._stamp != 0
 
+    def observed_rows(self, r0: int, r1: int) -> NDArray[np.bool_]:
+        """``observed[r0:r1]`` without the whole mask (writers stream large maps by rows)."""
+        return self._stamp[r0:r1] != 0
+
     @property
     def scans_integrated(self) -> int:
         """Number of scans integrated so far."""

@@ -552,3 +552,27 @@ def test_growth_past_max_extent_is_refused_and_changes_nothing():
         big.integrate_scan([0.0, 0.0, 0.0], [1e9] * 3, angles)
     with pytest.raises(ValueError, match="max_extent"):
         OccupancyGrid(0.1, max_extent=0.0)
+
+
+# ------------------------------------------------------------------ lazily resident arrays
+def test_filled_equals_np_full_bit_for_bit():
+    # all-zero fills take np.zeros (pages no scan writes stay unresident); the values, dtype
+    # and sign bits are those of np.full, including a negative zero (not all-zero bits)
+    from probmap.grid._storage import filled
+
+    for fill in (np.float32(0.0), np.float32(-0.0), np.float32(0.4), np.uint8(0), np.uint8(3)):
+        got = filled((5, 7), fill)
+        want = np.full((5, 7), fill, dtype=fill.dtype)
+        assert got.dtype == want.dtype
+        assert got.tobytes() == want.tobytes()
+
+
+def test_reset_stamps_equals_np_minimum():
+    # a new stamp epoch, written block of rows by block of rows (a ragged last block)
+    from probmap.grid._storage import reset_stamps
+
+    stamp = np.random.default_rng(2).integers(0, 256, (11, 13)).astype(np.uint8)
+    want = np.minimum(stamp, 1)
+    reset_stamps(stamp, rows=4)
+    np.testing.assert_array_equal(stamp, want)
+    assert stamp.dtype == np.uint8

@@ -80,13 +80,34 @@ def plan_growth(
     return new, (off_x, off_y)
 
 
+def filled(shape: tuple[int, ...], fill: Any) -> NDArray[Any]:
+    """An array of ``shape`` and ``fill``'s dtype holding ``fill`` everywhere. A fill of all
+    zero bits (the log odds of p0 = 0.5, an unset stamp) takes ``np.zeros``: the pages of a
+    large array that no scan ever writes are then never made resident (a building's map
+    leaves much of its bounding box unseen), and the values are the same."""
+    v = np.asarray(fill)
+    if v.ndim == 0 and not v.tobytes().strip(b"\x00"):
+        return np.zeros(shape, dtype=v.dtype)
+    out = np.empty(shape, dtype=v.dtype)
+    out[...] = v
+    return out
+
+
+def reset_stamps(stamp: NDArray[np.uint8], rows: int = 256) -> None:
+    """``np.minimum(stamp, 1, out=stamp)`` (a new stamp epoch), writing only the cells it
+    changes, block of rows by block of rows: pages of never-updated cells stay untouched
+    (see :func:`filled`) and no whole-grid temporary is made."""
+    for r0 in range(0, stamp.shape[0], rows):
+        block = stamp[r0 : r0 + rows]
+        block[block > 1] = 1
+
+
 def regrid(
     old: NDArray[Any], shape: tuple[int, int], offset: tuple[int, int] | None, fill: Any
 ) -> NDArray[Any]:
     """A ``shape`` (H, W, ...) array filled with ``fill`` holding ``old`` at ``offset`` (column,
     row) — the cells of a grown grid; ``offset=None`` gives a fresh array."""
-    new = np.empty((*shape, *old.shape[2:]), dtype=old.dtype)
-    new[...] = fill
+    new = filled((*shape, *old.shape[2:]), np.asarray(fill, dtype=old.dtype))
     if offset is not None:
         off_x, off_y = offset
         h, w = old.shape[:2]

@@ -8,6 +8,7 @@ from stored values. Private: the grids' public classes are its interface.
 from __future__ import annotations
 
 import math
+import mmap
 from collections.abc import Callable
 from typing import Any
 
@@ -81,16 +82,25 @@ def plan_growth(
 
 
 def filled(shape: tuple[int, ...], fill: Any) -> NDArray[Any]:
-    """An array of ``shape`` and ``fill``'s dtype holding ``fill`` everywhere. A fill of all
-    zero bits (the log odds of p0 = 0.5, an unset stamp) takes ``np.zeros``: the pages of a
-    large array that no scan ever writes are then never made resident (a building's map
-    leaves much of its bounding box unseen), and the values are the same."""
+    """An array of ``shape`` and ``fill``'s dtype holding ``fill`` everywhere.
+
+    A fill of all zero bits (the log odds of p0 = 0.5, an unset stamp) of at least
+    ``LAZY_BYTES`` is an anonymous memory map: the OS makes a page resident only when a scan
+    writes it, so the unseen parts of a building's bounding box cost no memory. (numpy's own
+    large arrays ask for transparent huge pages, which the first write makes resident 2 MiB
+    at a time: all of a map's rows.) The values are those of ``np.full``.
+    """
     v = np.asarray(fill)
-    if v.ndim == 0 and not v.tobytes().strip(b"\x00"):
-        return np.zeros(shape, dtype=v.dtype)
+    size = math.prod(shape) * v.dtype.itemsize
+    if v.ndim == 0 and size >= LAZY_BYTES and not v.tobytes().strip(b"\x00"):
+        return np.frombuffer(mmap.mmap(-1, size), dtype=v.dtype).reshape(shape)
     out = np.empty(shape, dtype=v.dtype)
     out[...] = v
     return out
+
+
+#: smallest zero-filled array (bytes) that :func:`filled` maps lazily
+LAZY_BYTES = 1 << 22
 
 
 def reset_stamps(stamp: NDArray[np.uint8], rows: int = 256) -> None:

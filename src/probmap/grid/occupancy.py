@@ -304,7 +304,7 @@ class OccupancyGrid(_ScanGrid):
         # scan that updated the cell. One byte per cell: when the ids run out every nonzero
         # stamp is set back to 1 and ids restart at 2 (see _next_ids), so a cell is still
         # changed at most once per scan and ``observed`` is still ``stamp != 0``.
-        self._stamp = np.zeros(spec.shape, dtype=np.uint8)
+        self._stamp = filled(spec.shape, np.uint8(0))
         self._sid = 1  # last scan id handed out in the current epoch
         self._fast: tuple[tuple[Any, ...], NDArray[np.float64]] | None = None
 

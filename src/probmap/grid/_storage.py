@@ -93,7 +93,7 @@ def filled(shape: tuple[int, ...], fill: Any) -> NDArray[Any]:
     v = np.asarray(fill)
     size = math.prod(shape) * v.dtype.itemsize
     if v.ndim == 0 and size >= LAZY_BYTES and not v.tobytes().strip(b"\x00"):
-        return np.frombuffer(mmap.mmap(-1, size), dtype=v.dtype).reshape(shape)
+        return np.frombuffer(_anonymous_map(size), dtype=v.dtype).reshape(shape)
     out = np.empty(shape, dtype=v.dtype)
     out[...] = v
     return out
@@ -101,6 +101,15 @@ def filled(shape: tuple[int, ...], fill: Any) -> NDArray[Any]:
 
 #: smallest zero-filled array (bytes) that :func:`filled` maps lazily
 LAZY_BYTES = 1 << 22
+
+
+def _anonymous_map(size: int) -> mmap.mmap:
+    """``size`` zero bytes of private anonymous memory. Private, not the module's default
+    shared mapping: a page that is only read then stays the kernel's zero page instead of
+    becoming resident (a map writer reads every cell)."""
+    if hasattr(mmap, "MAP_PRIVATE"):
+        return mmap.mmap(-1, size, flags=mmap.MAP_PRIVATE)
+    return mmap.mmap(-1, size)  # pragma: no cover - Windows: no flags
 
 
 def reset_stamps(stamp: NDArray[np.uint8], rows: int = 256) -> None:

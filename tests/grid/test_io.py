@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import io
 import math
 import os
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -440,7 +442,7 @@ def test_save_map_leaves_nothing_when_it_fails(tmp_path, monkeypatch):
         raise RuntimeError("disk full while writing the PGM")
 
     # the PGM is streamed inside the all-or-nothing block, after the YAML temp file was written
-    monkeypatch.setattr(gio, "_write_pgm", boom)
+    monkeypatch.setattr(gio, "_write_pgm_rows", boom)
     with pytest.raises(RuntimeError, match="disk full"):
         save_map(tmp_path / "m", grid)
     assert sorted(os.listdir(tmp_path)) == ["afile"]
@@ -468,3 +470,32 @@ def test_save_map_in_row_blocks_equals_whole_array_encoding(tmp_path, monkeypatc
     back = load_npz(paths[2])
     np.testing.assert_array_equal(back.log_odds, grid.log_odds)
     np.testing.assert_array_equal(back.observed, grid.observed)
+    # the observed mask is streamed into the archive by blocks: every member's bytes are those
+    # of the whole-array writer
+    whole = io.BytesIO()
+    gio._write_npz(whole, grid)
+    with zipfile.ZipFile(paths[2]) as a, zipfile.ZipFile(whole) as b:
+        assert a.namelist() == b.namelist()
+        for name in a.namelist():
+            assert a.read(name) == b.read(name), name
+
+
+def test_png_stream_equals_pillow_pixels_and_checks_its_rows(tmp_path):
+    # the streaming PNG writer against pillow's reader, on a block split that leaves a ragged
+    # last block; too many or too few rows are refused
+    rng = np.random.default_rng(5)
+    img = rng.integers(0, 256, (37, 29), dtype=np.uint8)
+    buf = io.BytesIO()
+    png = gio._PngStream(buf, 29, 37)
+    for r0 in range(0, 37, 8):
+        png.rows(img[r0 : r0 + 8])
+    png.close()
+    with Image.open(io.BytesIO(buf.getvalue())) as back:
+        assert back.mode == "L"
+        np.testing.assert_array_equal(np.asarray(back), img)
+    short = gio._PngStream(io.BytesIO(), 29, 37)
+    short.rows(img[:10])
+    with pytest.raises(ValueError, match="27 rows"):
+        short.close()
+    with pytest.raises(ValueError, match="do not fit"):
+        short.rows(img)

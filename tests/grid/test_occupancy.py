@@ -552,3 +552,53 @@ def test_growth_past_max_extent_is_refused_and_changes_nothing():
         big.integrate_scan([0.0, 0.0, 0.0], [1e9] * 3, angles)
     with pytest.raises(ValueError, match="max_extent"):
         OccupancyGrid(0.1, max_extent=0.0)
+
+
+# ------------------------------------------------------------------ lazily resident arrays
+@pytest.mark.parametrize("lazy_bytes", [1 << 22, 1])
+def test_filled_equals_np_full_bit_for_bit(monkeypatch, lazy_bytes):
+    # all-zero fills from lazy_bytes on are anonymous memory maps (pages no scan writes stay
+    # unresident); the values, dtype and sign bits are those of np.full, including a negative
+    # zero (not all-zero bits), and the arrays are writable
+    from probmap.grid import _storage
+
+    monkeypatch.setattr(_storage, "LAZY_BYTES", lazy_bytes)
+    for fill in (np.float32(0.0), np.float32(-0.0), np.float32(0.4), np.uint8(0), np.uint8(3)):
+        got = _storage.filled((5, 7), fill)
+        want = np.full((5, 7), fill, dtype=fill.dtype)
+        assert got.dtype == want.dtype and got.shape == want.shape
+        assert got.tobytes() == want.tobytes()
+        got[2, 3] = want[2, 3] = 1
+        assert got.tobytes() == want.tobytes()
+
+
+def test_grid_on_lazy_zero_pages_integrates_like_np_full(monkeypatch):
+    # the same scans into a grid whose arrays are memory maps and into one built on np.full
+    from probmap.grid import _storage
+
+    spec = GridSpec(0.1, (-6.0, -6.0), (120, 120))
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 91)
+    ranges = 2.0 + np.random.default_rng(1).random((300, 91))
+    poses = np.column_stack([np.linspace(-1, 1, 300), np.zeros(300), np.linspace(0, 3, 300)])
+    grids = []
+    for lazy in (1, 1 << 62):
+        monkeypatch.setattr(_storage, "LAZY_BYTES", lazy)
+        g = OccupancyGrid(0.1, spec=spec)
+        for p, r in zip(poses, ranges, strict=True):  # past a stamp epoch (254 scans)
+            g.integrate_scan(p, r, angles, max_range=4.0)
+        grids.append(g)
+    # the first grid's arrays live on a memory map, the second's are numpy's own
+    assert not grids[0].log_odds.flags.owndata and grids[1].log_odds.flags.owndata
+    np.testing.assert_array_equal(grids[0].log_odds, grids[1].log_odds)
+    np.testing.assert_array_equal(grids[0].observed, grids[1].observed)
+
+
+def test_reset_stamps_equals_np_minimum():
+    # a new stamp epoch, written block of rows by block of rows (a ragged last block)
+    from probmap.grid._storage import reset_stamps
+
+    stamp = np.random.default_rng(2).integers(0, 256, (11, 13)).astype(np.uint8)
+    want = np.minimum(stamp, 1)
+    reset_stamps(stamp, rows=4)
+    np.testing.assert_array_equal(stamp, want)
+    assert stamp.dtype == np.uint8

@@ -8,6 +8,7 @@ from stored values. Private: the grids' public classes are its interface.
 from __future__ import annotations
 
 import math
+import mmap
 from collections.abc import Callable
 from typing import Any
 
@@ -80,13 +81,52 @@ def plan_growth(
     return new, (off_x, off_y)
 
 
+def filled(shape: tuple[int, ...], fill: Any) -> NDArray[Any]:
+    """An array of ``shape`` and ``fill``'s dtype holding ``fill`` everywhere.
+
+    A fill of all zero bits (the log odds of p0 = 0.5, an unset stamp) of at least
+    ``LAZY_BYTES`` is an anonymous memory map: the OS makes a page resident only when a scan
+    writes it, so the unseen parts of a building's bounding box cost no memory. (numpy's own
+    large arrays ask for transparent huge pages, which the first write makes resident 2 MiB
+    at a time: all of a map's rows.) The values are those of ``np.full``.
+    """
+    v = np.asarray(fill)
+    size = math.prod(shape) * v.dtype.itemsize
+    if v.ndim == 0 and size >= LAZY_BYTES and not v.tobytes().strip(b"\x00"):
+        return np.frombuffer(_anonymous_map(size), dtype=v.dtype).reshape(shape)
+    out = np.empty(shape, dtype=v.dtype)
+    out[...] = v
+    return out
+
+
+#: smallest zero-filled array (bytes) that :func:`filled` maps lazily
+LAZY_BYTES = 1 << 22
+
+
+def _anonymous_map(size: int) -> mmap.mmap:
+    """``size`` zero bytes of private anonymous memory. Private, not the module's default
+    shared mapping: a page that is only read then stays the kernel's zero page instead of
+    becoming resident (a map writer reads every cell)."""
+    if hasattr(mmap, "MAP_PRIVATE"):
+        return mmap.mmap(-1, size, flags=mmap.MAP_PRIVATE)
+    return mmap.mmap(-1, size)  # pragma: no cover - Windows: no flags
+
+
+def reset_stamps(stamp: NDArray[np.uint8], rows: int = 256) -> None:
+    """``np.minimum(stamp, 1, out=stamp)`` (a new stamp epoch), writing only the cells it
+    changes, block of rows by block of rows: pages of never-updated cells stay untouched
+    (see :func:`filled`) and no whole-grid temporary is made."""
+    for r0 in range(0, stamp.shape[0], rows):
+        block = stamp[r0 : r0 + rows]
+        block[block > 1] = 1
+
+
 def regrid(
     old: NDArray[Any], shape: tuple[int, int], offset: tuple[int, int] | None, fill: Any
 ) -> NDArray[Any]:
     """A ``shape`` (H, W, ...) array filled with ``fill`` holding ``old`` at ``offset`` (column,
     row) — the cells of a grown grid; ``offset=None`` gives a fresh array."""
-    new = np.empty((*shape, *old.shape[2:]), dtype=old.dtype)
-    new[...] = fill
+    new = filled((*shape, *old.shape[2:]), np.asarray(fill, dtype=old.dtype))
     if offset is not None:
         off_x, off_y = offset
         h, w = old.shape[:2]
@@ -161,6 +201,10 @@ class _ScanGrid:
     def observed(self) -> NDArray[np.bool_]:
         """Cells updated by at least one scan, shape (H, W)."""
         return self._stamp != 0
+
+    def observed_rows(self, r0: int, r1: int) -> NDArray[np.bool_]:
+        """``observed[r0:r1]`` without the whole mask (writers stream large maps by rows)."""
+        return self._stamp[r0:r1] != 0
 
     @property
     def scans_integrated(self) -> int:

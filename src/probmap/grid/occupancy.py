@@ -24,11 +24,13 @@ from probmap.grid._storage import (
     _EPOCH,
     MAX_EXTENT_M,
     _ScanGrid,
+    filled,
     grid_resolution,
     observed_mask,
     observed_window,
     plan_growth,
     regrid,
+    reset_stamps,
 )
 from probmap.grid.logodds import logit, prob
 from probmap.grid.spec import GridSpec
@@ -297,12 +299,12 @@ class OccupancyGrid(_ScanGrid):
         if spec is None:
             spec = GridSpec(res, (0.0, 0.0), (0, 0))
         self._spec = spec
-        self._lo = np.full(spec.shape, self.l0, dtype=np.float32)
+        self._lo = filled(spec.shape, np.float32(self.l0))
         # stamp[iy, ix]: 0 = never updated, otherwise the epoch-relative id (1..255) of the last
         # scan that updated the cell. One byte per cell: when the ids run out every nonzero
         # stamp is set back to 1 and ids restart at 2 (see _next_ids), so a cell is still
         # changed at most once per scan and ``observed`` is still ``stamp != 0``.
-        self._stamp = np.zeros(spec.shape, dtype=np.uint8)
+        self._stamp = filled(spec.shape, np.uint8(0))
         self._sid = 1  # last scan id handed out in the current epoch
         self._fast: tuple[tuple[Any, ...], NDArray[np.float64]] | None = None
 
@@ -406,7 +408,7 @@ class OccupancyGrid(_ScanGrid):
         scans and keeps the stamp at one byte per cell.
         """
         if self._sid + n > 255:
-            np.minimum(self._stamp, 1, out=self._stamp)
+            reset_stamps(self._stamp)
             self._sid = 1
         first = self._sid + 1
         self._sid += n

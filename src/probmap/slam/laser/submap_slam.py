@@ -849,13 +849,18 @@ class SubmapSlam:
         from probmap.grid._kernels import scan_bounds
 
         box = np.empty(4)
-        rows = []
-        for i, p in enumerate(poses):
+
+        def readings(i: int) -> NDArray[np.float64]:
+            # scan i's ranges as the map takes them, rebuilt per pass rather than kept for
+            # every scan at once (8 bytes a beam)
             r = self._ranges[i].astype(np.float64)
             with np.errstate(invalid="ignore"):
                 far = r >= usable
             r[far] = self.max_range
-            rows.append(r)
+            return r
+
+        for i, p in enumerate(poses):
+            r = readings(i)
             with np.errstate(invalid="ignore"):
                 hit = np.isfinite(r) & (r > 0) & (r < self.max_range)
             # the layout reaches every endpoint and the clear range along every other beam
@@ -872,7 +877,7 @@ class SubmapSlam:
         spec = GridSpec.around(cfg.submaps.resolution, lo[0], hi[0], lo[1], hi[1], margin=4)
         grid = OccupancyGrid(cfg.submaps.resolution, model=model, spec=spec)
         for i, p in enumerate(poses):
-            grid.integrate_scan(p, rows[i], self._angles[i], max_range=self.max_range)
+            grid.integrate_scan(p, readings(i), self._angles[i], max_range=self.max_range)
         return grid  # laid out on the endpoints: cropping would only copy it
 
     def closure_edges(self) -> NDArray[np.int64]:

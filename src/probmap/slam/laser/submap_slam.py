@@ -382,12 +382,14 @@ class SubmapSlam:
                     offsets.append(rel)
                 else:
                     offsets.append(self._offset_between_nodes(r, a, u))
-                self._track(float(time_s), compose(self.local[-1], offsets[-1]))
+                if lidar_only:  # the constant-velocity model serves lidar-only SLAM alone
+                    self._track(float(time_s), compose(self.local[-1], offsets[-1]))
                 return False
         self._add_node(scan, r, a, odo)
         self.scan_node.append(len(self.local) - 1)
         offsets.append(np.zeros(3))
-        self._track(float(time_s), self.local[-1])
+        if lidar_only:
+            self._track(float(time_s), self.local[-1])
         return True
 
     def _constant_velocity(self, time_s: float) -> NDArray[np.float64] | None:
@@ -625,22 +627,10 @@ class SubmapSlam:
         and under ``min_distance`` of odometry, so this is the match in nearly every case
         (9,643 of 9,655 on the Intel log) at a fraction of the correlative search's cost; an
         odometry glitch moves it beyond the window or lowers its score."""
-        cfg = self.config
-        m = cfg.local.matcher
-        frame = self._match_frame(pts, predicted)
-        if frame is None:
+        got = self._refine_scored(pts, predicted)
+        if got is None or got[1] < self.config.local.recover_score:
             return None
-        anchor, guess, fld = frame
-        pose, _, _ = refine(fld, pts, guess, m.iterations, (m.linear_step, m.angular_step))
-        score, _, _ = normal_equations(fld, pts, pose)
-        d = between(guess, pose)
-        if (
-            score / pts.shape[0] < cfg.local.recover_score
-            or math.hypot(d[0], d[1]) > m.linear_window
-            or abs(float(wrap_angle(d[2]))) > m.angular_window
-        ):
-            return None
-        return _in_local(anchor, pose)
+        return got[0]
 
     def _match_frame(self, pts: NDArray, predicted: NDArray) -> tuple[Any, Any, Any] | None:
         """The oldest active submap's anchor pose, ``predicted`` in its frame and its match

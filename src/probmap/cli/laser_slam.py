@@ -330,7 +330,8 @@ def _check_rows(report: dict[str, Any] | None) -> list[tuple[str, str]]:
             "closures rejected",
             f"{rejected['not_confirmed_by_earlier_nodes']:,} not confirmed, "
             f"{rejected['correction_beyond_drift_bound']:,} beyond the drift bound, "
-            f"{rejected['ambiguous_place']:,} ambiguous",
+            f"{rejected['ambiguous_place']:,} ambiguous, "
+            f"{rejected.get('inconsistent_with_other_closures', 0):,} inconsistent",
         ),
         ("consistency", f"{share:.2%} of the walls seen were open space to other visits"),
         ("doubtful places", _doubt_row(report.get("doubts", []))),

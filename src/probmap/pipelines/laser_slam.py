@@ -498,7 +498,8 @@ def write_submap_slam(
     title: str | None = None,
 ) -> list[Path]:
     """Write ``PREFIX.yaml/.pgm/.npz/.png`` (the map), ``PREFIX.trajectory.csv`` (robot pose
-    at every scan time), ``PREFIX.g2o`` (the optimized pose graph, laser poses) and
+    at every scan time), ``PREFIX.g2o`` (the optimized pose graph, laser poses, without the
+    closures the pairwise check left out) and
     ``PREFIX.plot.png`` (map, trajectory and accepted closures, axes in metres), and with
     ``report`` (:func:`closure_report`, :func:`consistency_report`) ``PREFIX.report.json``
     and red boxes in the picture at its ``doubts``; all-or-nothing (a missing folder is
@@ -513,8 +514,12 @@ def write_submap_slam(
         files = list(save_map(prefix, run.grid))
         files.append(write_trajectory(f"{prefix}.trajectory.csv", run.times, run.poses))
         g = run.slam.graph
+        info = g.information
+        used = info.reshape(len(info), -1).any(axis=1)  # closures left out have none
         files.append(
-            write_pose_graph_g2o(f"{prefix}.g2o", g.poses, g.edges, g.measurements, g.information)
+            write_pose_graph_g2o(
+                f"{prefix}.g2o", g.poses, g.edges[used], g.measurements[used], info[used]
+            )
         )
         files.append(
             save_graph_slam_figure(
@@ -810,29 +815,34 @@ def local_report(slam: SubmapSlam, times: ArrayLike) -> dict[str, Any]:
 def closure_report(slam: SubmapSlam) -> dict[str, Any]:
     """What the loop-closure search did and how the accepted closures sit in the optimized
     graph: counts (searched, accepted near and far, a far closure's confirmations counted as
-    far too; rejected and why, trusted, down-weighted by the robust cost) and the distribution
-    of the closure edges' residuals (metres, radians)."""
+    far too; rejected and why, the pairwise check's closures left out among them; trusted,
+    down-weighted by the robust cost; pairs of closures compared and found inconsistent) and
+    the distribution of the accepted closure edges' residuals (metres, radians)."""
     from probmap.slam.posegraph.optimize import edge_residuals
 
     loops = slam.loops
-    far = sum(c.far for c in loops.closures)
-    edges = loops.edge_indices()
+    kept = ~loops.left_out  # closures the pairwise check left out are rejected
+    far = sum(c.far for c, k in zip(loops.closures, kept, strict=True) if k)
+    edges = loops.edge_indices()[kept]
     g = slam.graph
     if len(edges):
         res = edge_residuals(g.poses, g.edges[edges], g.measurements[edges])
     else:
         res = np.zeros((0, 3))
-    weights = slam.closure_weights()
+    weights = slam.closure_weights()[kept]
     return {
         "searched": loops.searched,
-        "accepted": {"near": len(loops.closures) - far, "far": far},
+        "accepted": {"near": int(kept.sum()) - far, "far": far},
         "far_searches": loops.far_searched,
         "far_matches": loops.far_found,
         "rejected": {
             "not_confirmed_by_earlier_nodes": loops.rejected,
             "correction_beyond_drift_bound": loops.drift_rejected,
             "ambiguous_place": loops.ambiguous,
+            "inconsistent_with_other_closures": int((~kept).sum()),
         },
+        "pairs_compared": loops.pairs_checked,
+        "pairs_inconsistent": loops.conflicts,
         "trusted": loops.trusted,
         "down_weighted": int((weights < 0.5).sum()),
         "residual_m": _quantiles(np.hypot(res[:, 0], res[:, 1])),

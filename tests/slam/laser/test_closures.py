@@ -71,26 +71,155 @@ def test_config_checks_the_ambiguity_settings():
         ClosureConfig(ambiguity_distance=0.0)
 
 
-def _wrong_closures(config: SubmapSlamConfig, seed: int) -> tuple[int, int]:
-    """(closures accepted, of them further than 1 m from the true relative pose)."""
+def _office_run(config: SubmapSlamConfig, seed: int) -> tuple[int, int, int, float]:
+    """Graph SLAM on the simulated office floor: (closures accepted, of them further than 1 m
+    from the true relative pose, of those still in the graph (not left out by the pairwise
+    check), and the fold: the largest error (metres) of the relative pose between a node of
+    the way out and the node of the way back level with it)."""
     w = simulate_office_floor(seed=seed, pose_noise=(0.05, 0.02))
     slam = SubmapSlam(config, max_range=w.max_range)
     for i in range(len(w.poses)):
         slam.add_scan(w.times[i], w.ranges[i], w.angles, w.odometry[i])
     slam.finish()
-    wrong = 0
-    for c in slam.closures:
+    wrong = np.zeros(len(slam.closures), dtype=bool)
+    for i, c in enumerate(slam.closures):
         a, k = slam.node_scan[c.anchor], slam.node_scan[c.node]
         truth = between(w.poses[a], w.poses[k])
-        wrong += bool(np.hypot(*(truth[:2] - np.asarray(c.pose)[:2])) > 1.0)
-    return len(slam.closures), wrong
+        wrong[i] = np.hypot(*(truth[:2] - np.asarray(c.pose)[:2])) > 1.0
+    truth = w.poses[np.asarray(slam.node_scan)]
+    est = slam.graph.poses
+    out = np.flatnonzero(np.cos(truth[:, 2]) > 0.9)
+    back = np.flatnonzero(np.cos(truth[:, 2]) < -0.9)
+    fold = 0.0
+    for i in out:
+        j = back[np.argmin(np.abs(truth[back, 0] - truth[i, 0]))]
+        if abs(truth[j, 0] - truth[i, 0]) <= 0.1:
+            d = between(between(est[i], est[j]), between(truth[i], truth[j]))
+            fold = max(fold, float(np.hypot(d[0], d[1])))
+    in_graph = int((wrong & ~slam.loops.left_out).sum())
+    return len(slam.closures), int(wrong.sum()), in_graph, fold
 
 
 def test_identical_offices_fool_no_closure():
     default = SubmapSlamConfig()
-    accepted, wrong = _wrong_closures(default, seed=0)
+    accepted, wrong, _, _ = _office_run(default, seed=0)
     assert accepted > 200 and wrong == 0
     # the same run without the ambiguity test (the code before it) accepts wrong ones
-    closures = dataclasses.replace(default.closures, ambiguity=0.0)
-    _, wrong_before = _wrong_closures(dataclasses.replace(default, closures=closures), seed=0)
+    closures = dataclasses.replace(default.closures, ambiguity=0.0, pairwise_reach=0.0)
+    _, wrong_before, _, _ = _office_run(dataclasses.replace(default, closures=closures), seed=0)
     assert wrong_before >= 20
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_no_look_alike_closure_stays_in_the_graph(seed):
+    """Seeds 1, 3, 4 and 5 each get 2-9 look-alike matches past the ambiguity test and
+    consensus (the commit before the pairwise check kept them all in the graph, where only
+    the robust cost held them back); the pairwise check leaves every one out, and the way
+    back lies on the way out within a few centimetres."""
+    _, _, in_graph, fold = _office_run(SubmapSlamConfig(), seed)
+    assert in_graph == 0
+    assert fold < 0.08
+
+
+# ---------------------------------------------------------------- pairwise consistency (PCM)
+def _corridor_run(pairwise_reach: float = 30.0) -> tuple[LoopClosing, list[np.ndarray]]:
+    """A loop closing over a corridor driven out (nodes 0-39 along +x, 0.5 m apart) and back
+    (nodes 40-79, 1 m to the side, heading -x), its local chain exact; no closures yet."""
+    from probmap.slam.posegraph.optimize import PoseGraph2D
+
+    out = [np.array([0.5 * i, 0.0, 0.0]) for i in range(40)]
+    back = [np.array([0.5 * (39 - i), 1.0, np.pi]) for i in range(40)]
+    local = out + back
+    graph = PoseGraph2D()
+    for p in local:
+        graph.add_node(p)
+    for i in range(1, len(local)):
+        graph.add_edge(i - 1, i, between(local[i - 1], local[i]), np.eye(3) * 100.0)
+    loops = LoopClosing(
+        ClosureConfig(pairwise_reach=pairwise_reach), graph=graph, submaps=[], active=[],
+        travel=[0.5 * i for i in range(len(local))], matcher=laser_slam_matcher(),
+        min_match_score=0.25, grid_cache=1, full_points=lambda k: np.zeros((0, 2)), local=local,
+    )  # fmt: skip
+    return loops, local
+
+
+def _close(loops: LoopClosing, local: list[np.ndarray], k: int, shift: float = 0.0) -> None:
+    """Accept a closure of back-pass node ``k`` to the out-pass node level with it, its pose
+    moved ``shift`` metres along the corridor (a look-alike office further on)."""
+    from types import SimpleNamespace
+
+    a = 79 - k
+    z = between(local[a], local[k]) + np.array([shift, 0.0, 0.0])
+    loops._accept(k, SimpleNamespace(index=0, anchor=a), z, 0.8, False, link=False)
+
+
+def test_a_group_of_look_alike_closures_is_left_out_of_the_graph():
+    loops, local = _corridor_run()
+    for k in range(45, 75, 3):  # ten right closures
+        _close(loops, local, k)
+    for k in (60, 61, 62):  # three that agree with one another, one office (4 m) off
+        _close(loops, local, k, shift=4.0)
+    loops.select_consistent()
+    assert loops.left_out.tolist() == [False] * 10 + [True] * 3
+    assert loops.conflicts > 0
+    info = loops.graph.information
+    edges = loops.edge_indices()
+    assert np.all(info[edges[10:]] == 0.0)  # left out: no pull on the graph
+    assert np.allclose(info[edges[:10]], loops._closure_info)
+    # optimized, the corridor stays as the local chain has it
+    loops.graph.optimize(20)
+    assert np.allclose(loops.graph.poses, np.asarray(local), atol=1e-6)
+
+
+def test_the_larger_consistent_set_wins_and_a_closure_can_rejoin():
+    loops, local = _corridor_run()
+    for k in (60, 61, 62):  # first three wrong ones: nothing disagrees yet, all kept
+        _close(loops, local, k, shift=4.0)
+    loops.select_consistent()
+    assert not loops.left_out.any()
+    for k in range(45, 75, 3):  # then ten right ones outvote them
+        _close(loops, local, k)
+    loops.select_consistent()
+    assert loops.left_out.tolist() == [True] * 3 + [False] * 10
+    # a group that outnumbers the right one would win: the check is a vote, and the
+    # ambiguity test and consensus come before it
+
+
+def test_closures_within_the_drift_the_chains_allow_agree():
+    loops, local = _corridor_run()
+    # 0.2 m apart: within the 0.3 m tolerance of a short pair of chains
+    _close(loops, local, 60)
+    _close(loops, local, 61, shift=0.2)
+    # 0.9 m off, 15 m of chains (7.5 m each side) from the first: tolerance 0.3 + 0.05 * 15
+    _close(loops, local, 45, shift=0.9)
+    loops.select_consistent()
+    assert not loops.left_out.any() and loops.conflicts == 0 and loops.pairs_checked == 3
+    # 1.2 m off there is beyond it
+    _close(loops, local, 45, shift=1.2)
+    loops.select_consistent()
+    assert loops.left_out.tolist() == [False, False, False, True]
+
+
+def test_chains_longer_than_the_reach_are_not_compared():
+    loops, local = _corridor_run()
+    _close(loops, local, 75)
+    _close(loops, local, 45, shift=4.0)  # 15 m back along each pass: 30 m of chains
+    loops.select_consistent()
+    assert loops.pairs_checked == 0 and not loops.left_out.any()
+
+
+def test_the_check_off_compares_nothing():
+    loops, local = _corridor_run(pairwise_reach=0.0)
+    _close(loops, local, 60)
+    _close(loops, local, 61, shift=4.0)
+    loops.select_consistent()
+    assert not loops.left_out.any() and loops.pairs_checked == 0
+
+
+def test_config_checks_the_pairwise_settings():
+    with pytest.raises(ValueError, match="pairwise must be"):
+        ClosureConfig(pairwise=(0.3,))  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="pairwise_growth must be"):
+        ClosureConfig(pairwise_growth=(-0.1, 0.0))
+    with pytest.raises(ValueError, match="pairwise_reach"):
+        ClosureConfig(pairwise_reach=-1.0)

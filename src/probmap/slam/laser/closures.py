@@ -143,6 +143,23 @@ class ClosureConfig:
         test off.
     ambiguity_distance : float
         Metres between two poses for them to be distinct places.
+    pairwise : tuple of float
+        ``(metres, radians)``: pairwise consistency (PCM, Mangelson et al., ICRA 2018). Two
+        accepted closures agree when the loop they close with the local-SLAM chains between
+        their two submap anchors and between their two nodes (chains that never saw a
+        closure) closes within this tolerance plus ``pairwise_growth`` times the chains'
+        length. Before each optimization the largest set of closures without a disagreeing
+        pair is kept (greedily: the closure in the most disagreements leaves first, ties the
+        one with the fewest agreements, then the newer) and the others are left out of the
+        graph, so that a group of matches that fit one another but not the trajectory, the
+        look-alike place, cannot bend it unless it outnumbers the right ones. 0.3 m is the
+        consensus window; 0.05 rad five closure deviations.
+    pairwise_growth : tuple of float
+        Growth of that tolerance per metre of the two chains together: the drift local SLAM
+        plausibly accumulates (the metres as ``trust_drift``).
+    pairwise_reach : float
+        Longest pair of chains compared, metres (longer ones tolerate nearly anything and are
+        skipped). 0 turns the check off.
     """
 
     sd: tuple[float, float] = (0.05, 0.01)
@@ -165,8 +182,12 @@ class ClosureConfig:
     points: int = 90
     ambiguity: float = 0.9
     ambiguity_distance: float = 0.5
+    pairwise: tuple[float, float] = (0.3, 0.05)
+    pairwise_growth: tuple[float, float] = (0.05, 0.003)
+    pairwise_reach: float = 30.0
 
     def __post_init__(self) -> None:
+        require_nonnegative_finite("pairwise_reach", self.pairwise_reach)
         require_positive_finite("near_window", self.near_window)
         require_positive_finite("ambiguity_distance", self.ambiguity_distance)
         if not 0.0 <= self.ambiguity <= 1.0:
@@ -177,7 +198,10 @@ class ClosureConfig:
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"{name} must lie in [0, 1], got {v}")
         require_pair("sd", self.sd, positive=True)
-        for name in ("window", "window_growth", "max_window", "wide_window", "consensus"):
+        for name in (
+            "window", "window_growth", "max_window", "wide_window", "consensus", "pairwise",
+            "pairwise_growth",
+        ):  # fmt: skip
             require_pair(name, getattr(self, name), positive=False)
         require_at_least("wide_search_every", self.wide_search_every, 0)
         for name in (
@@ -220,6 +244,9 @@ class LoopClosing:
         Finished submaps whose match field and max-grids stay in memory.
     full_points : callable
         ``full_points(k)``: node ``k``'s scan endpoints (M, 2), sensor frame.
+    local : list of ndarray, optional
+        Each node's local-SLAM pose (3,), the chain the pairwise check compares closures
+        along (the run appends to it); without it the check is off.
     """
 
     def __init__(
@@ -234,8 +261,10 @@ class LoopClosing:
         min_match_score: float,
         grid_cache: int,
         full_points: Callable[[int], NDArray[np.float64]],
+        local: list[NDArray[np.float64]] | None = None,
     ) -> None:
         self.config = config
+        self._local = local if local is not None else []
         self.graph = graph
         self.submaps = submaps
         self.active = active
@@ -269,6 +298,14 @@ class LoopClosing:
         self._unguarded: list[int] = []  # confirmed closures awaiting their first optimization
         self._closure_edges: list[int] = []  # edge index of each accepted closure
         self.pending_correction = False  # a closure moved the estimate: optimize now
+        # pairwise consistency (ClosureConfig.pairwise): disagreeing pairs of closures (their
+        # indices in self.closures), agreements per closure, and the closures left out
+        self._conflict_a: list[int] = []
+        self._conflict_b: list[int] = []
+        self._agreements: list[int] = []
+        self._left_out: set[int] = set()
+        self._conflicts_checked = 0  # conflicts the last selection saw
+        self.pairs_checked = 0  # pairs of closures compared
         self._cache: OrderedDict[int, Any] = OrderedDict()
         self._finished: list[Submap] = []
         self._fin_anchor: list[int] = []
@@ -628,6 +665,7 @@ class LoopClosing:
                 k, sm.index, sm.anchor, (float(pose[0]), float(pose[1]), float(pose[2])), score, far
             )
         )
+        self._compare_pairs()
         for other in self.submaps[-2:] if link else ():
             if k in other.nodes:
                 self._link(
@@ -645,3 +683,90 @@ class LoopClosing:
         if moved > 0.5 * cfg.window[0] or turned > 0.5 * cfg.window[1]:
             self.pending_correction = True
         return edge
+
+    # ------------------------------------------------------------------ pairwise consistency
+    def _compare_pairs(self) -> None:
+        """Compare the newest closure with every earlier one whose chains to it are shorter
+        than ``pairwise_reach`` (:class:`ClosureConfig` ``pairwise``) and record the pairs
+        that disagree."""
+        cfg = self.config
+        c = len(self.closures) - 1
+        self._agreements.append(0)
+        if cfg.pairwise_reach <= 0 or c == 0 or len(self._local) <= self.closures[c].node:
+            return
+        tr = self._travel
+        new = self.closures[c]
+        anchors = np.fromiter((q.anchor for q in self.closures[:c]), np.int64, c)
+        nodes = np.fromiter((q.node for q in self.closures[:c]), np.int64, c)
+        t = np.asarray(tr, dtype=np.float64)
+        length = np.abs(t[new.anchor] - t[anchors]) + np.abs(t[new.node] - t[nodes])
+        near = np.flatnonzero(length < cfg.pairwise_reach)
+        if near.size == 0:
+            return
+        self.pairs_checked += int(near.size)
+        local = self._local
+        da = np.asarray([local[i] for i in anchors[near]])
+        dk = np.asarray([local[i] for i in nodes[near]])
+        z = np.asarray([self.closures[i].pose for i in near], dtype=np.float64)
+        m = len(near)
+        # node `new.node` in the frame of `new.anchor`, through the other closure and the two
+        # local chains: anchor -> other anchor -> (other closure) -> other node -> node
+        via = compose(
+            compose(between(np.broadcast_to(local[new.anchor], (m, 3)), da), z),
+            between(dk, np.broadcast_to(local[new.node], (m, 3))),
+        )
+        e = between(np.broadcast_to(np.asarray(new.pose), (m, 3)), via)
+        tol_m = cfg.pairwise[0] + cfg.pairwise_growth[0] * length[near]
+        tol_r = cfg.pairwise[1] + cfg.pairwise_growth[1] * length[near]
+        bad = (np.hypot(e[:, 0], e[:, 1]) > tol_m) | (np.abs(wrap_angle(e[:, 2])) > tol_r)
+        for i in near[bad]:
+            self._conflict_a.append(int(i))
+            self._conflict_b.append(c)
+        good = near[~bad]
+        self._agreements[c] += int(good.size)
+        for i in good:
+            self._agreements[int(i)] += 1
+
+    def select_consistent(self) -> None:
+        """Keep the largest set of closures without a disagreeing pair (greedy, see
+        :class:`ClosureConfig` ``pairwise``) and leave the others out of the pose graph (their
+        edges' information is set to zero; one that rejoins the set gets it back). Called
+        before each optimization; cheap when no new disagreement was recorded."""
+        n_conf = len(self._conflict_a)
+        if n_conf == self._conflicts_checked:
+            return
+        self._conflicts_checked = n_conf
+        n = len(self.closures)
+        ca = np.asarray(self._conflict_a, dtype=np.int64)
+        cb = np.asarray(self._conflict_b, dtype=np.int64)
+        agree = np.asarray(self._agreements, dtype=np.int64)
+        alive = np.ones(n, dtype=bool)
+        while True:
+            live = alive[ca] & alive[cb]
+            if not live.any():
+                break
+            deg = np.bincount(ca[live], minlength=n) + np.bincount(cb[live], minlength=n)
+            # most disagreements, then fewest agreements, then the newest
+            worst = np.lexsort((np.arange(n), -agree, deg))[-1]
+            alive[worst] = False
+        out = set(np.flatnonzero(~alive).tolist())
+        edges = np.asarray(self._closure_edges, dtype=np.int64)
+        leave = sorted(out - self._left_out)
+        back = sorted(self._left_out - out)
+        if leave:
+            self.graph.set_information(edges[leave], np.zeros((3, 3)))
+        if back:
+            self.graph.set_information(edges[back], self._closure_info)
+        self._left_out = out
+
+    @property
+    def left_out(self) -> NDArray[np.bool_]:
+        """Per accepted closure, whether the pairwise check leaves it out of the graph."""
+        mask = np.zeros(len(self.closures), dtype=bool)
+        mask[sorted(self._left_out)] = True
+        return mask
+
+    @property
+    def conflicts(self) -> int:
+        """Pairs of closures found to disagree."""
+        return len(self._conflict_a)

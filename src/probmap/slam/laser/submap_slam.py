@@ -302,6 +302,7 @@ class SubmapSlam:
             min_match_score=cfg.local.min_match_score,
             grid_cache=cfg.submaps.grid_cache,
             full_points=self._full_points,
+            local=self.local,
         )
 
     # ------------------------------------------------------------------ properties
@@ -747,6 +748,7 @@ class SubmapSlam:
         if self.graph.num_edges == 0:
             return None
         t0 = time.perf_counter()
+        self.loops.select_consistent()
         result = self.graph.optimize(max_iterations if not self.loops.unguarded else 20)
         self.loops.reguard()
         self._weights = result.weights
@@ -757,11 +759,13 @@ class SubmapSlam:
         return result
 
     def closure_weights(self) -> NDArray[np.float64]:
-        """Robust weight (0..1] of every accepted closure after the last optimization (1 for a
-        closure taken quadratically)."""
+        """Robust weight [0..1] of every accepted closure after the last optimization (1 for a
+        closure taken quadratically, 0 for one the pairwise check leaves out)."""
         w = np.ones(self.graph.num_edges)
         w[: len(self._weights)] = self._weights
-        return w[self.loops.edge_indices()]
+        out = w[self.loops.edge_indices()]
+        out[self.loops.left_out] = 0.0
+        return out
 
     # ------------------------------------------------------------------ sessions
     @property

@@ -798,6 +798,18 @@ class PoseGraph2D:
             raise ValueError(f"edge indices must lie in 0..{self._m - 1}")
         self._robust[idx] = bool(robust)
 
+    def set_information(self, edges: ArrayLike, information: ArrayLike) -> None:
+        """Set the information matrix (3, 3) of edges ``edges`` (indices); a zero matrix
+        leaves an edge in the graph without effect (a loop closure found inconsistent), a
+        later call can restore it."""
+        idx = np.asarray(edges, dtype=np.int64).reshape(-1)
+        if idx.size and (idx.min() < 0 or idx.max() >= self._m):
+            raise ValueError(f"edge indices must lie in 0..{self._m - 1}")
+        om = np.asarray(information, dtype=np.float64)
+        if om.shape != (3, 3) or not np.isfinite(om).all():
+            raise ValueError(f"information must be a finite (3, 3) matrix, got shape {om.shape}")
+        self._info[idx] = 0.5 * (om + om.T)
+
     def add_edges(
         self,
         edges: ArrayLike,

@@ -60,6 +60,34 @@ def require_pair(name: str, value: Any, *, positive: bool) -> None:
         raise ValueError(f"{name} must be {kind}, got {value}")
 
 
+def _loop_errors(
+    la: NDArray[np.float64],
+    lk: NDArray[np.float64],
+    zc: NDArray[np.float64],
+    da: NDArray[np.float64],
+    dk: NDArray[np.float64],
+    z: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """Errors (m, 3) of the loops a closure ``zc`` (its node's pose in its anchor's frame; the
+    local poses of both ``la``, ``lk``, each (3,)) closes with each of ``m`` others (``z``,
+    their anchors' and nodes' local poses ``da``, ``dk``, each (m, 3)):
+    ``zc^-1 (la^-1 da) z (dk^-1 lk)``, the SE(2) algebra of :mod:`probmap.geometry.se2`
+    written out for the closure search's inner loop."""
+
+    def rel(p: NDArray, q: NDArray) -> tuple[NDArray, NDArray, NDArray]:  # p^-1 q
+        c, s = np.cos(p[..., 2]), np.sin(p[..., 2])
+        dx, dy = q[..., 0] - p[..., 0], q[..., 1] - p[..., 1]
+        return c * dx + s * dy, -s * dx + c * dy, q[..., 2] - p[..., 2]
+
+    def comp(a: tuple, b: tuple) -> tuple[NDArray, NDArray, NDArray]:  # a b
+        c, s = np.cos(a[2]), np.sin(a[2])
+        return a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2]
+
+    via = comp(comp(rel(la, da), (z[:, 0], z[:, 1], z[:, 2])), rel(dk, lk))
+    ex, ey, et = rel(zc, np.stack(via, axis=1))
+    return np.stack([ex, ey, np.arctan2(np.sin(et), np.cos(et))], axis=1)
+
+
 @dataclass(frozen=True)
 class ClosureConfig:
     """Loop-closure search and verification of :class:`~probmap.slam.laser.submap_slam.
@@ -303,6 +331,7 @@ class LoopClosing:
         self._conflict_a: list[int] = []
         self._conflict_b: list[int] = []
         self._agreements: list[int] = []
+        self._pc = np.zeros((0, 11))  # per closure: what the comparison needs (_compare_pairs)
         self._left_out: set[int] = set()
         self._conflicts_checked = 0  # conflicts the last selection saw
         self.pairs_checked = 0  # pairs of closures compared
@@ -691,41 +720,42 @@ class LoopClosing:
         that disagree."""
         cfg = self.config
         c = len(self.closures) - 1
-        self._agreements.append(0)
-        if cfg.pairwise_reach <= 0 or c == 0 or len(self._local) <= self.closures[c].node:
-            return
-        tr = self._travel
         new = self.closures[c]
-        anchors = np.fromiter((q.anchor for q in self.closures[:c]), np.int64, c)
-        nodes = np.fromiter((q.node for q in self.closures[:c]), np.int64, c)
-        t = np.asarray(tr, dtype=np.float64)
-        length = np.abs(t[new.anchor] - t[anchors]) + np.abs(t[new.node] - t[nodes])
+        self._agreements.append(0)
+        if cfg.pairwise_reach <= 0 or len(self._local) <= new.node:
+            return
+        # per closure: travel at its anchor and at its node, their local poses, its pose
+        if c >= len(self._pc):
+            grown = np.zeros((max(64, 2 * len(self._pc)), 11))
+            grown[: len(self._pc)] = self._pc
+            self._pc = grown
+        row = self._pc[c]
+        row[0], row[1] = self._travel[new.anchor], self._travel[new.node]
+        row[2:5], row[5:8], row[8:11] = self._local[new.anchor], self._local[new.node], new.pose
+        if c == 0:
+            return
+        length = np.abs(row[0] - self._pc[:c, 0]) + np.abs(row[1] - self._pc[:c, 1])
         near = np.flatnonzero(length < cfg.pairwise_reach)
         if near.size == 0:
             return
         self.pairs_checked += int(near.size)
-        local = self._local
-        da = np.asarray([local[i] for i in anchors[near]])
-        dk = np.asarray([local[i] for i in nodes[near]])
-        z = np.asarray([self.closures[i].pose for i in near], dtype=np.float64)
-        m = len(near)
+        other = self._pc[near]
+        da, dk, z = other[:, 2:5], other[:, 5:8], other[:, 8:11]
         # node `new.node` in the frame of `new.anchor`, through the other closure and the two
-        # local chains: anchor -> other anchor -> (other closure) -> other node -> node
-        via = compose(
-            compose(between(np.broadcast_to(local[new.anchor], (m, 3)), da), z),
-            between(dk, np.broadcast_to(local[new.node], (m, 3))),
-        )
-        e = between(np.broadcast_to(np.asarray(new.pose), (m, 3)), via)
+        # local chains (anchor -> other anchor -> other closure -> other node -> node), against
+        # the new closure's own pose
+        e = _loop_errors(row[2:5], row[5:8], row[8:11], da, dk, z)
         tol_m = cfg.pairwise[0] + cfg.pairwise_growth[0] * length[near]
         tol_r = cfg.pairwise[1] + cfg.pairwise_growth[1] * length[near]
         bad = (np.hypot(e[:, 0], e[:, 1]) > tol_m) | (np.abs(wrap_angle(e[:, 2])) > tol_r)
-        for i in near[bad]:
-            self._conflict_a.append(int(i))
-            self._conflict_b.append(c)
-        good = near[~bad]
-        self._agreements[c] += int(good.size)
+        if bad.any():
+            self._conflict_a.extend(near[bad].tolist())
+            self._conflict_b.extend([c] * int(bad.sum()))
+        good = near[~bad].tolist()
+        self._agreements[c] += len(good)
+        agreements = self._agreements
         for i in good:
-            self._agreements[int(i)] += 1
+            agreements[i] += 1
 
     def select_consistent(self) -> None:
         """Keep the largest set of closures without a disagreeing pair (greedy, see

@@ -72,6 +72,9 @@ def test_slam_grid_graph_on_intel_writes_every_file(shared_data, tmp_path):
     assert closures["searched"] == searched
     assert closures["accepted"]["near"] + closures["accepted"]["far"] == accepted
     assert 0 <= closures["down_weighted"] <= accepted
+    # the pairwise check: closures it left out are rejected, not accepted
+    assert 0 <= closures["pairs_inconsistent"] <= closures["pairs_compared"]
+    assert closures["rejected"]["inconsistent_with_other_closures"] >= 0
     res_m = closures["residual_m"]
     assert 0 <= res_m["median"] <= res_m["p90"] <= res_m["p99"] <= res_m["max"]
     # Intel's odometry never glitches, but at some nodes the scan refutes it (a match

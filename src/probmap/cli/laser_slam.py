@@ -282,7 +282,8 @@ def _graph_summary(
         ("submaps", f"{run.submaps:,}"),
         (
             "loop closures",
-            f"{len(weights):,} accepted of {run.searched:,} searched "
+            f"{len(weights) - int(run.slam.loops.left_out.sum()):,} accepted of "
+            f"{run.searched:,} searched "
             f"({int((weights >= 0.5).sum()):,} kept by the robust cost)",
         ),
         *_check_rows(out.report),

@@ -902,3 +902,34 @@ def test_core_module_does_not_import_datasets_pipelines_or_cli():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_an_edge_with_zero_information_pulls_nothing_and_can_be_restored():
+    """set_information: a loop closure left out (zero information) leaves the optimum of the
+    rest of the graph; given its information back, it pulls again."""
+    from probmap.slam.posegraph.optimize import PoseGraph2D
+
+    def square(wrong_closure: bool) -> PoseGraph2D:
+        g = PoseGraph2D()
+        truth = [(0.0, 0.0, 0.0), (1.0, 0.0, np.pi / 2), (1.0, 1.0, np.pi), (0.0, 1.0, -np.pi / 2)]
+        for p in truth:
+            g.add_node(np.asarray(p) + 0.05)
+        for i in range(3):
+            g.add_edge(i, i + 1, (1.0, 0.0, np.pi / 2), np.eye(3) * 100.0)
+        if wrong_closure:  # the closure 3 -> 0 measured 0.5 m off
+            g.add_edge(3, 0, (1.5, 0.0, np.pi / 2), np.eye(3) * 100.0)
+        return g
+
+    chain = square(False)
+    chain.optimize(20)
+    g = square(True)
+    g.set_information([3], np.zeros((3, 3)))
+    g.optimize(20)
+    np.testing.assert_allclose(g.poses, chain.poses, atol=1e-9)
+    g.set_information([3], np.eye(3) * 100.0)
+    g.optimize(20)
+    assert np.abs(g.poses - chain.poses).max() > 0.05  # the closure pulls again
+    with pytest.raises(ValueError, match="edge indices"):
+        g.set_information([4], np.eye(3))
+    with pytest.raises(ValueError, match="finite"):
+        g.set_information([0], np.full((3, 3), np.nan))

@@ -202,7 +202,10 @@ def map_consistency(
     occ_count = np.zeros(shape, np.int16)  # visits that saw each cell occupied
     free_count = np.zeros(shape, np.int16)  # ... and free
     occupied: list[tuple[NDArray[np.int64], NDArray[np.int64]]] = []
-    frees: list[NDArray[np.int64]] = []  # each visit's free cells, sorted flat indices
+    # each visit's free cells, sorted flat indices (32-bit where they fit: a large building's
+    # visits hold millions of them)
+    frees: list[NDArray[np.signedinteger]] = []
+    index_type = np.int32 if shape[0] * shape[1] < 2**31 else np.int64
     spans: list[tuple[int, int]] = []
     n_visits = int(visit.max()) + 1 if len(visit) else 0
     for v in range(n_visits):
@@ -217,7 +220,8 @@ def map_consistency(
         gy, gx = occ_iy + oy, occ_ix + ox
         occ_count[gy, gx] += 1
         free_count[free_iy + oy, free_ix + ox] += 1
-        frees.append(np.sort((free_iy + oy).astype(np.int64) * shape[1] + (free_ix + ox)))
+        flat_free = (free_iy + oy).astype(np.int64) * shape[1] + (free_ix + ox)
+        frees.append(np.sort(flat_free.astype(index_type)))
         occupied.append((gy, gx))
         spans.append((int(idx[0]), int(idx[-1])))
     k = max(int(math.ceil(tolerance / resolution)), 0)

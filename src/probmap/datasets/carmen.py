@@ -604,8 +604,9 @@ def load_scans(
         a corrected log). ``"odometry"``: the robot pose fields (``odom_*``) composed with the
         laser mounting offset, ``laser = robot (+) (d, 0, 0)`` where ``d`` is PARAM
         ``robot_frontlaser_offset`` in metres along the robot's x axis (0 when absent).
-    start_angle, angle_step, max_range, skip_bad_lines, pose_limits
-        As for :class:`CarmenLog`.
+    **log_options
+        ``start_angle``, ``angle_step``, ``max_range``, ``skip_bad_lines``, ``pose_limits``:
+        as for :class:`CarmenLog`.
     sources : sequence of str
         Message types to keep. Default: the front laser (``FLASER``, ``ROBOTLASER1``).
     dtype : numpy floating type

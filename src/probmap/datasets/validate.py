@@ -469,6 +469,8 @@ class PoseLimits:
     max_turn_step : float
         Radians allowed between two consecutive poses whatever their timestamps (default 2).
 
+    Notes
+    -----
     Any limit may be ``math.inf`` (no limit); none may be NaN, zero or negative.
     """
 

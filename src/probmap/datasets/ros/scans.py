@@ -657,8 +657,11 @@ def load_bag_scans(
 
     Parameters
     ----------
-    path, scan_topic, odom_topic, fixed_frame, laser_frame, echo
+    path
         As for :class:`RosBag`.
+    **bag_options
+        ``scan_topic``, ``odom_topic``, ``fixed_frame``, ``laser_frame``, ``echo``: as for
+        :class:`RosBag`.
     dtype : numpy floating type
         dtype of ``ranges``.
     pose_limits, skip_bad_lines

@@ -67,4 +67,6 @@ def info_command(
 
 def register(app: typer.Typer) -> None:
     """Attach ``probmap info``."""
-    app.command("info")(info_command)
+    app.command("info", short_help="A ROS bag's topics, types, counts, frames and times.")(
+        info_command
+    )

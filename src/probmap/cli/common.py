@@ -216,6 +216,25 @@ def readings_row(report: Any) -> tuple[str, str]:
     return ("readings", report.describe())
 
 
+def pose_source_warning(log: Path | str, pose_source: str, *, chosen: bool = False) -> None:
+    """One ``warning:`` line on stderr when a map was built from poses nothing corrected:
+    raw odometry (``pose_source == "odometry"``, unless the user ``chosen`` it with
+    ``--poses odometry``) or none at all (``"laser"``: a bag read in the laser's frame);
+    it names ``probmap slam grid``, which corrects them."""
+    name = Path(log).name
+    if pose_source == "odometry" and not chosen:
+        why = "raw odometry (its poses are uncorrected), so it drifts and smears"
+    elif pose_source == "laser":
+        why = "scans that have no poses (all at the laser's origin)"
+    else:
+        return
+    typer.echo(
+        f"warning: the map of {name} is built from {why}; "
+        f"'probmap slam grid {name} -o PREFIX' corrects the poses first",
+        err=True,
+    )
+
+
 def input_rows(report: Any, skipped_lines: int = 0) -> list[tuple[str, str]]:
     """:func:`readings_row` (when there is a report) and the skipped bad lines (when any): the
     input part of every laser command's summary."""

@@ -29,7 +29,7 @@ from probmap.cli.watch import (
 )
 
 
-@slam_app.command("grid")
+@slam_app.command("grid", short_help="Grid SLAM of a laser log or bag: graph (default) or RBPF.")
 @opt.with_option_groups
 def grid_command(
     log: Path = typer.Argument(
@@ -499,4 +499,4 @@ def match_command(
 
 def register(app: typer.Typer) -> None:
     """Add ``match`` to ``app`` (``slam grid`` is on :data:`slam_app`)."""
-    app.command("match")(match_command)
+    app.command("match", short_help="Match one scan of a log against a map.")(match_command)

@@ -398,4 +398,6 @@ def localize_command(
 
 def register(app: typer.Typer) -> None:
     """Attach ``probmap localize``."""
-    app.command("localize")(localize_command)
+    app.command("localize", short_help="Localize the robot of a laser log on a map with MCL.")(
+        localize_command
+    )

@@ -90,6 +90,9 @@ def run_map_method(
     for f in result.files:
         rows.append(("wrote", str(f)))
     print_summary(f"probmap map --method map {log.name}", rows)
+    from probmap.cli.common import pose_source_warning
+
+    pose_source_warning(log, result.pose_source, chosen=config.poses == "odometry")
     return result
 
 
@@ -176,4 +179,6 @@ def fit_sensor_model_command(
 
 def register(app: typer.Typer) -> None:
     """Attach ``fit-sensor-model``."""
-    app.command("fit-sensor-model")(fit_sensor_model_command)
+    app.command("fit-sensor-model", short_help="Fit the beam model's parameters to a log by EM.")(
+        fit_sensor_model_command
+    )

@@ -18,6 +18,7 @@ from probmap.cli.common import (
     cli_errors,
     laser_input,
     mapping_rows,
+    pose_source_warning,
     print_summary,
     resolve_config,
 )
@@ -251,6 +252,7 @@ def _map_one(
     if result.interrupted or asked:
         rows.insert(0, ("interrupted", f"at scan {result.stats.scans:,} of {result.scans_total:,}"))
     print_summary(f"probmap map {log.name}", rows)
+    pose_source_warning(log, result.pose_source, chosen=cfg.poses == "odometry")
     if result.interrupted or asked:
         interrupted_exit(result.stats.scans, result.scans_total, "scans", wrote=True)
 
@@ -325,5 +327,9 @@ def demo_command(
 
 def register(app: typer.Typer) -> None:
     """Attach the mapping commands."""
-    app.command("map")(map_command)
-    app.command("demo")(demo_command)
+    app.command("map", short_help="Occupancy grid map from a laser log with known poses.")(
+        map_command
+    )
+    app.command("demo", short_help="Map a simulated floor plan and score it (no download).")(
+        demo_command
+    )

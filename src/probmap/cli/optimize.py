@@ -128,4 +128,6 @@ def optimize_command(
 
 def register(app: typer.Typer) -> None:
     """Attach ``probmap optimize``."""
-    app.command("optimize")(optimize_command)
+    app.command("optimize", short_help="Optimize a pose graph (g2o) by Levenberg-Marquardt.")(
+        optimize_command
+    )

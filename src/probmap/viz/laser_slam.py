@@ -26,8 +26,8 @@ from probmap.viz.maps import (
 __all__ = ["graph_slam_subtitle", "plot_graph_slam", "save_graph_slam_figure"]
 
 # the closures' layer: light and thin, so that thousands of them leave the trajectory readable
-_CLOSURE_ALPHA = 0.12
-_CLOSURE_LW = 0.3
+_CLOSURE_ALPHA = 0.06
+_CLOSURE_LW = 0.25
 
 
 def graph_slam_subtitle(run: Any) -> str:
@@ -102,13 +102,19 @@ def plot_graph_slam(
         )
     )  # fmt: skip
     ax.add_collection(
-        LineCollection(segments[~kept], colors="tab:red", linewidths=0.5, alpha=0.5, zorder=2)
+        LineCollection(
+            segments[~kept],
+            colors="tab:red",
+            linewidths=_CLOSURE_LW,
+            alpha=4 * _CLOSURE_ALPHA,
+            zorder=2,
+        )
     )
     poses = np.asarray(run.poses, dtype=np.float64).reshape(-1, 3)
     handles: list[Any] = []
     if len(poses):
         handles += ax.plot(
-            poses[:, 0], poses[:, 1], color="tab:blue", lw=0.7, zorder=3, label="trajectory"
+            poses[:, 0], poses[:, 1], color="tab:blue", lw=0.9, zorder=3, label="trajectory"
         )
         handles += _start_end(ax, poses)
     handles.append(
@@ -133,14 +139,14 @@ def plot_graph_slam(
     add_scale_bar(ax, _extent(grid))
     label_metric_axes(ax)
     legend_below(ax, handles + map_legend_handles(), ncol=4)
-    ax.set_title(title or "", fontsize=10, loc="left", pad=16)
+    ax.set_title(title or "", fontsize=10, loc="left", pad=14)  # the pad is every title's
     ax.text(
         0.0, 1.01, graph_slam_subtitle(run), transform=ax.transAxes, fontsize=8, va="bottom",
         ha="left",
     )  # fmt: skip
     r = grid.spec.resolution
     h, w = grid.spec.shape
-    ax.set_title(f"{w} x {h} cells at {r:g} m", fontsize=8, loc="right")
+    ax.set_title(f"{w} x {h} cells at {r:g} m", fontsize=8, loc="right", pad=14)
     return ax
 
 

@@ -14,7 +14,7 @@ datasets_app = typer.Typer(
 )
 
 
-@datasets_app.command("list")
+@datasets_app.command("list", short_help="The registered datasets and whether they are present.")
 def list_command(
     data_dir: Path | None = typer.Option(
         None, "--data-dir", "--dir", help="Data directory (default $PROBMAP_DATA)."
@@ -56,7 +56,7 @@ def list_command(
         console.print(remote)
 
 
-@datasets_app.command("fetch")
+@datasets_app.command("fetch", short_help="Download the public datasets, checking their checksums.")
 def fetch_command(
     names: list[str] = typer.Argument(
         ...,

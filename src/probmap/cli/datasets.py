@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -97,7 +98,14 @@ def fetch_command(
         root = Path(os.path.abspath(os.path.expanduser(fetch.default_directory(directory))))
         fetched: list[fetch.FetchedFile] = []
         columns = (TextColumn("{task.description}"), DownloadColumn(), TransferSpeedColumn())
-        with Progress(*columns, console=Console(stderr=True), transient=True) as bar:
+        console = Console(stderr=True)
+        if console.is_terminal:
+            bar: Any = Progress(*columns, console=console, transient=True)
+        else:  # a log: a line every 10 % of each file
+            from probmap.cli.common import LineProgress
+
+            bar = LineProgress(unit="bytes", file=console.file)
+        with bar:
             tasks: dict[str, TaskID] = {}
 
             def progress(place: str, done: int, total: int) -> None:

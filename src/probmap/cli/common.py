@@ -170,13 +170,14 @@ def note_first_compile(*modules: str) -> None:
     )
 
 
-def laser_input(path: Path | str) -> Path:
+def laser_input(path: Path | str, data_dir: Path | str | None = None) -> Path:
     """The file a laser-log argument names: the path, or a registered laser dataset's file
-    under the data directory (``$PROBMAP_DATA``, else ``../shared/data``). A name that is
-    neither is a one-line error listing the close registry names."""
+    under the data directory (``data_dir``, the ``--data-dir`` option; else
+    ``$PROBMAP_DATA``, else ``../shared/data``). A name that is neither is a one-line error
+    listing the close registry names."""
     from probmap.datasets.registry import resolve_input
 
-    return resolve_input(path, kind="laser")
+    return resolve_input(path, data_dir, kind="laser")
 
 
 def print_summary(

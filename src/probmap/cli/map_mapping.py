@@ -124,6 +124,7 @@ def fit_sensor_model_command(
     ),
     skip_bad_lines: bool = opt.skip_bad_lines_option(),
     bag_options: dict[str, Any] = opt.ros_bag_options(),
+    data_dir: Path | None = opt.data_dir_option(),
 ) -> None:
     """Fit the beam model's parameters to a log by EM (Probabilistic Robotics Table 6.2).
 
@@ -143,7 +144,7 @@ def fit_sensor_model_command(
         from probmap.pipelines.fit import FitConfig, fit_scans, read_fit_scans
 
         watch = Stopwatch()
-        log = laser_input(log)
+        log = laser_input(log, data_dir)
         target = None if output is None else check_output_prefix(output, "beam_model.yaml")
         overrides = {"resolution": resolution, "every": every, "max_range": max_range}
         cfg = resolve_config(FitConfig, config, {**overrides, "poses": poses})

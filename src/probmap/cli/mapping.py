@@ -70,6 +70,7 @@ def map_command(
         help="log-odds: per-cell Bayes filter; map: MAP mapping with the beam model (Table 9.3).",
     ),
     bag_options: dict[str, Any] = opt.ros_bag_options(),
+    data_dir: Path | None = opt.data_dir_option(),
     to_bag: Path | None = typer.Option(
         None,
         "--to-bag",
@@ -98,7 +99,7 @@ def map_command(
 
         # registry names become their files; a missing file is an error (--allow-partial: the
         # run reports it)
-        logs = [laser_input(p) if p.exists() or not allow_partial else p for p in logs]
+        logs = [laser_input(p, data_dir) if p.exists() or not allow_partial else p for p in logs]
         log = logs[0]
         prefix = check_output_prefix(output, "map")
         if to_bag is not None:

@@ -722,7 +722,9 @@ def _stack(
         readings=report,
         max_range_stated=not log.max_range_defaulted,
         pose_source=_pose_source(
-            poses, odom is not None, drift,
+            poses,
+            odom is not None,
+            drift,
             gmapping=log._done is not None and log._done.neff > 0,
             rigid=_rigid(np.array(laser, dtype=np.float64).reshape(-1, 3), robot_poses),
         ),  # fmt: skip

@@ -1,6 +1,7 @@
 """Pictures of grid-SLAM results: the map with the trajectory on top, the accepted loop
 closures as a light layer under it, start and end markers, a scale bar, the doubtful places,
-axes in metres (axes first; the caller owns the figure)."""
+axes in metres (axes first; the caller owns the figure); and the before-and-after picture of
+a pose graph that ``probmap optimize`` writes."""
 
 from __future__ import annotations
 
@@ -23,7 +24,12 @@ from probmap.viz.maps import (
     save_picture,
 )
 
-__all__ = ["graph_slam_subtitle", "plot_graph_slam", "save_graph_slam_figure"]
+__all__ = [
+    "graph_slam_subtitle",
+    "plot_graph_slam",
+    "save_graph_slam_figure",
+    "save_pose_graph_figure",
+]
 
 # the closures' layer: light and thin, so that thousands of them leave the trajectory readable
 _CLOSURE_ALPHA = 0.06
@@ -163,3 +169,100 @@ def save_graph_slam_figure(
     ax = fig.add_subplot()
     plot_graph_slam(ax, run, title=title, doubts=doubts)
     return save_picture(fig, ax, path)
+
+
+def _graph_layer(
+    ax: Any, poses: np.ndarray, ids: np.ndarray, edges: np.ndarray, weights: Any = None
+) -> None:
+    """A pose graph on ``ax``: the chain of odometry edges (consecutive ids) as the robot's
+    path on top, every other edge (a loop closure) as a light thin line under it (red where
+    ``weights`` < 0.5), the first node marked; limits, metres and a scale bar."""
+    from matplotlib.collections import LineCollection
+
+    xy = poses[:, :2]
+    pairs = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    seg = np.stack([xy[pairs[:, 0]], xy[pairs[:, 1]]], axis=1)
+    chain = np.abs(ids[pairs[:, 1]] - ids[pairs[:, 0]]) == 1
+    low = np.zeros(len(pairs), bool) if weights is None else np.asarray(weights) < 0.5
+    ax.add_collection(
+        LineCollection(seg[~chain & ~low], colors="tab:green", linewidths=0.3, alpha=0.25,
+                       zorder=2)
+    )  # fmt: skip
+    ax.add_collection(
+        LineCollection(seg[~chain & low], colors="tab:red", linewidths=0.3, alpha=0.5, zorder=2)
+    )
+    ax.add_collection(LineCollection(seg[chain], colors="tab:blue", linewidths=0.6, zorder=3))
+    ax.plot(xy[:1, 0], xy[:1, 1], "o", color="tab:blue", mec="white", mew=0.6, ms=6, zorder=4)
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    pad = 0.05 * max(float(np.max(hi - lo)), 1e-6)
+    x0, y0, x1, y1 = lo[0] - pad, lo[1] - pad, hi[0] + pad, hi[1] + pad
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    add_scale_bar(ax, (x0, y0, x1, y1))
+    label_metric_axes(ax)
+
+
+def save_pose_graph_figure(
+    path: str | os.PathLike[str],
+    ids: Any,
+    edges: Any,
+    before: Any,
+    after: Any,
+    *,
+    title: str | None = None,
+    before_label: str = "before: the file's poses",
+    after_label: str = "after: optimized",
+    weights: Any = None,
+) -> Path:
+    """Write a before-and-after picture of a pose graph (``probmap optimize``): two panels
+    side by side, each with its own metres and scale bar; the odometry chain (edges between
+    consecutive ids) drawn as the robot's path on top of a light layer of loop closures
+    (red: down-weighted below 0.5 by a robust kernel, in ``weights``).
+
+    Parameters
+    ----------
+    path : path-like
+        The PNG (written atomically).
+    ids : (N,) array_like
+        Vertex ids, row order of the poses.
+    edges : (E, 2) array_like
+        Row indices of each edge's two vertices.
+    before, after : (N, 3) array_like
+        Poses before and after the optimization.
+    title : str, optional
+        Usually the graph file's name.
+    before_label, after_label : str
+        The panels' titles (the errors, the iterations).
+    weights : (E,) array_like, optional
+        The robust kernel's final weights.
+    """
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+
+    ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+    b = np.asarray(before, dtype=np.float64).reshape(-1, 3)
+    a = np.asarray(after, dtype=np.float64).reshape(-1, 3)
+    if not (len(ids) == len(b) == len(a)):
+        raise ValueError(f"ids {ids.shape}, before {b.shape} and after {a.shape} disagree")
+    fig = Figure(figsize=(13, 5.5))
+    axes = fig.subplots(1, 2)
+    _graph_layer(axes[0], b, ids, edges)
+    _graph_layer(axes[1], a, ids, edges, weights)
+    axes[0].set_title(before_label, fontsize=9, loc="left")
+    axes[1].set_title(after_label, fontsize=9, loc="left")
+    if title:
+        fig.suptitle(title, fontsize=11, x=0.07, ha="left")
+    pairs = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    chain = int(np.sum(np.abs(ids[pairs[:, 1]] - ids[pairs[:, 0]]) == 1))
+    handles = [
+        Line2D([], [], color="tab:blue", lw=1.0, label=f"odometry chain ({chain:,} edges)"),
+        Line2D([], [], color="tab:green", lw=1.0,
+               label=f"loop closures ({len(pairs) - chain:,})"),
+        Line2D([], [], color="tab:blue", marker="o", ls="", label="first node"),
+    ]  # fmt: skip
+    if weights is not None and np.any(np.asarray(weights) < 0.5):
+        n = int(np.sum(np.asarray(weights) < 0.5))
+        handles.append(Line2D([], [], color="tab:red", lw=1.0, label=f"down-weighted ({n:,})"))
+    fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8, frameon=False)
+    fig.subplots_adjust(bottom=0.14)
+    return save_picture(fig, axes[1], path, dpi=150)

@@ -223,17 +223,20 @@ def pose_source_warning(log: Path | str, pose_source: str, *, chosen: bool = Fal
     ``--poses odometry``) or none at all (``"laser"``: a bag read in the laser's frame);
     it names ``probmap slam grid``, which corrects them."""
     name = Path(log).name
+    slam = f"'probmap slam grid {name} -o PREFIX'"
     if pose_source == "odometry" and not chosen:
-        why = "raw odometry (its poses are uncorrected), so it drifts and smears"
+        text = (
+            f"the map of {name} is built from raw odometry (its poses are uncorrected), so it "
+            f"drifts and smears; {slam} corrects the poses first"
+        )
     elif pose_source == "laser":
-        why = "scans that have no poses (all at the laser's origin)"
+        text = (
+            f"the map of {name} is built from scans without poses (all at the laser's "
+            f"origin); {slam} estimates them"
+        )
     else:
         return
-    typer.echo(
-        f"warning: the map of {name} is built from {why}; "
-        f"'probmap slam grid {name} -o PREFIX' corrects the poses first",
-        err=True,
-    )
+    typer.echo(f"warning: {text}", err=True)
 
 
 def input_rows(report: Any, skipped_lines: int = 0) -> list[tuple[str, str]]:

@@ -677,7 +677,7 @@ def _stack(
     robot: list[NDArray[np.float64]] = []
     max_ranges: list[float] = []
     odom: NDArray[np.float64] | None = None
-    drift = [0.0, 0.0]  # largest distance (m) and turn (rad) of a scan's pose from the odometry
+    drift = [0.0, 0.0]  # largest distance (m), turn (rad) of a laser pose from the odometry
     for scan in log.records():
         if isinstance(scan, Odometry):
             odom = scan.pose
@@ -685,7 +685,7 @@ def _stack(
         if scan.source not in keep:
             continue
         if odom is not None:
-            d = scan.robot_pose - odom
+            d = scan.laser_pose - odom  # a mounting offset (< 1 m) counts as none
             drift[0] = max(drift[0], math.hypot(d[0], d[1]))
             drift[1] = max(drift[1], abs(math.remainder(d[2], math.tau)))
         times.append(scan.time)

@@ -67,3 +67,13 @@ def test_the_eta_follows_the_recent_pace_and_one_step_tasks_are_silent():
     # the rate is over the window's oldest sample (51 s, 60 steps) to (112 s, 70 steps):
     # 10 steps in 61 s, 30 steps left: 183 s (the rate since the start would say 48 s)
     assert last == "run: 70% (70/100 steps), 1 min 52 s so far, eta 3 min 03 s", last
+
+
+def test_a_quick_task_prints_nothing():
+    out, clock = io.StringIO(), Clock()
+    bar = LineProgress(file=out, clock=clock)
+    task = bar.add_task("download", total=8)
+    for i in range(1, 9):
+        clock.t = 0.1 * i  # done in under QUIET_S
+        bar.update(task, completed=i)
+    assert out.getvalue() == ""

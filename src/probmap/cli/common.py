@@ -349,6 +349,10 @@ def _duration(seconds: float) -> str:
     return f"{s // 3600} h {s % 3600 // 60:02d} min"
 
 
+# Seconds a task runs before LineProgress prints its lines (a quick one prints none).
+QUIET_S = 2.0
+
+
 class LineProgress:
     """The progress of :func:`progress_bar` where the output is not a terminal (a log file,
     CI, a Slurm job): one line about every 10 % of each task, with the time so far and the
@@ -357,7 +361,8 @@ class LineProgress:
         graph SLAM intel.clf.bz2: 30% (4,090/13,631 scans), 14 s so far, eta 33 s
 
     The same calls as rich's ``Progress`` that the commands make (``add_task``, ``update``,
-    ``advance``, a context manager). Tasks of one step (``total <= 1``) print nothing.
+    ``advance``, a context manager). Tasks of one step (``total <= 1``) print nothing, nor
+    does a task before it has run :data:`QUIET_S` seconds (a quick one prints no line).
 
     Parameters
     ----------
@@ -442,7 +447,8 @@ class LineProgress:
         if tenth < t["next"]:
             return
         t["next"] = tenth + 1
-        self._say(t, now)
+        if now - t["start"] >= QUIET_S:  # a task done in a moment says nothing
+            self._say(t, now)
 
     def _say(self, t: dict[str, Any], now: float) -> None:
         done, total = t["completed"], float(t["total"])

@@ -685,9 +685,9 @@ def _stack(
         if scan.source not in keep:
             continue
         if odom is not None:
-            d = scan.laser_pose - odom  # a mounting offset (< 1 m) counts as none
-            drift[0] = max(drift[0], math.hypot(d[0], d[1]))
-            drift[1] = max(drift[1], abs(math.remainder(d[2], math.tau)))
+            gap = scan.laser_pose - odom  # a mounting offset (< 1 m) counts as none
+            drift[0] = max(drift[0], math.hypot(gap[0], gap[1]))
+            drift[1] = max(drift[1], abs(math.remainder(gap[2], math.tau)))
         times.append(scan.time)
         rows.append(scan.ranges)
         angle_rows.append(scan.angles)

@@ -103,13 +103,13 @@ def plot_graph_slam(
     # one collection per colour: fast for thousands of closures, and under the trajectory
     ax.add_collection(
         LineCollection(
-            segments[kept], colors="tab:green", linewidths=_CLOSURE_LW, alpha=_CLOSURE_ALPHA,
+            list(segments[kept]), colors="tab:green", linewidths=_CLOSURE_LW, alpha=_CLOSURE_ALPHA,
             zorder=2,
         )
     )  # fmt: skip
     ax.add_collection(
         LineCollection(
-            segments[~kept],
+            list(segments[~kept]),
             colors="tab:red",
             linewidths=_CLOSURE_LW,
             alpha=4 * _CLOSURE_ALPHA,

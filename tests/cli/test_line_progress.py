@@ -6,9 +6,16 @@ from __future__ import annotations
 import io
 import re
 
+import pytest
 from rich.console import Console
 
+import probmap.cli.common as common
 from probmap.cli.common import LineProgress, progress_bar
+
+
+@pytest.fixture(autouse=True)
+def _lines_after_two_seconds(monkeypatch):
+    monkeypatch.setattr(common, "QUIET_S", 2.0)  # conftest silences them elsewhere
 
 
 class Clock:

@@ -120,7 +120,7 @@ def plot_graph_slam(
     handles: list[Any] = []
     if len(poses):
         handles += ax.plot(
-            poses[:, 0], poses[:, 1], color="tab:blue", lw=0.9, zorder=3, label="trajectory"
+            poses[:, 0], poses[:, 1], color="tab:blue", lw=0.7, zorder=3, label="trajectory"
         )
         handles += _start_end(ax, poses)
     handles.append(

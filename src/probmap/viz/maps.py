@@ -43,9 +43,10 @@ FREE_RGB = (1.0, 1.0, 1.0)
 OCCUPIED_RGB = (0.0, 0.0, 0.0)
 UNKNOWN_RGB = (0.72, 0.78, 0.87)
 
-#: The most pixels a picture gives the map's longer side (a 460 m building at 0.05 m is
-#: drawn at 3 cells a pixel). An RGB image this size takes about 70 MB while it is drawn.
-MAX_PICTURE_PIXELS = 4800
+#: The most pixels a picture gives the map's longer side: a 460 m building at 0.05 m (9,159
+#: cells) is drawn at 3 cells a pixel, 3,053 pixels; its picture adds about 12 MB to the
+#: peak memory of the run that writes it.
+MAX_PICTURE_PIXELS = 4000
 
 # the resolution of a small map's picture (the longer side of the axes about 1,000 pixels)
 _MIN_DPI = 150.0

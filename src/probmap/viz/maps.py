@@ -51,7 +51,7 @@ MAX_PICTURE_PIXELS = 4000
 # the resolution of a small map's picture (the longer side of the axes about 1,000 pixels)
 _MIN_DPI = 150.0
 # rows of cells pooled at once: bounds the temporary memory of a large map's picture
-_STRIP_CELLS = 4_000_000
+_STRIP_CELLS = 1_000_000
 # pixels of the map image matplotlib draws at once (see draw_grid)
 _STRIP_PIXELS = 1_000_000
 
@@ -121,7 +121,7 @@ def pooled_cells(grid: Any, step: int) -> tuple[NDArray[np.float32], NDArray[np.
     blocks of the last row and column may be smaller) and whether the block holds an observed
     cell. A wall one cell thick darkens its block; stride sampling would miss it two times in
     three at ``step = 3``. Works through the rows a strip at a time (the temporary memory is
-    a few tens of MB whatever the map's size)."""
+    about 10 MB whatever the map's size)."""
     lo_all = np.asarray(grid.log_odds)
     seen_all = np.asarray(grid.observed)
     h, w = lo_all.shape

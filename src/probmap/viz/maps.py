@@ -108,7 +108,7 @@ def picture_step(grid: Any, max_pixels: int = MAX_PICTURE_PIXELS) -> int:
 
     >>> from types import SimpleNamespace as NS
     >>> picture_step(NS(spec=NS(shape=(5000, 9200)))), picture_step(NS(spec=NS(shape=(700, 600))))
-    (2, 1)
+    (3, 1)
     """
     h, w = grid.spec.shape
     if max_pixels < 1:

@@ -69,3 +69,13 @@ def read_only_dir(tmp_path):
     ro.chmod(0o500)
     yield ro
     ro.chmod(0o700)
+
+
+@pytest.fixture(autouse=True)
+def _no_progress_lines(monkeypatch):
+    """Commands run in tests write to a non-terminal, where progress is a line every 10 % of
+    a task that runs over ``QUIET_S`` seconds: on a loaded machine that would add lines to
+    outputs the tests read. tests/cli/test_line_progress.py sets it back."""
+    import probmap.cli.common as common
+
+    monkeypatch.setattr(common, "QUIET_S", float("inf"))

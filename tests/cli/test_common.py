@@ -71,7 +71,7 @@ def test_progress_bar_eta_follows_the_recent_rate_not_the_average():
     about 10 s, where the rate since the start (100 steps in 109 s) would say about 109 s."""
     from probmap.cli.common import ETA_WINDOW_S, progress_bar
 
-    console = Console(file=open(__import__("os").devnull, "w"), width=100)  # noqa: SIM115
+    console = Console(file=open(__import__("os").devnull, "w"), width=100, force_terminal=True)  # noqa: SIM115
     clock = [0.0]
     with progress_bar("test", unit="scans", console=console) as bar:
         bar.get_time = lambda: clock[0]

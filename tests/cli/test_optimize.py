@@ -58,7 +58,40 @@ def test_optimize_writes_graph_and_summary(tmp_path, toro):
     a = pose_graph_arrays(read_pose_graph(out))
     assert np.allclose(a.poses[:, :2], truth[:, :2], atol=1e-6)
     written = sorted(x.name for x in tmp_path.iterdir())
-    assert written == sorted([src.name, "out.g2o", "out.config.yaml"])
+    assert written == sorted([src.name, "out.g2o", "out.config.yaml", "out.plot.png"])
+    assert "wrote" + str(tmp_path / "out.plot.png") in "".join(res.output.split())
+    assert (tmp_path / "out.plot.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    (tmp_path / "out.plot.png").unlink()
+    res = run("optimize", str(src), "-o", str(out), "--init", "given", "--no-plot")
+    assert res.exit_code == 0 and not (tmp_path / "out.plot.png").exists()
+
+
+def test_the_picture_shows_the_graph_before_and_after(tmp_path, monkeypatch):
+    """The two panels draw the file's poses and the optimized ones: the odometry chain (16
+    edges) in blue on top, the closure (1 edge) light under it, the false closure red."""
+    from matplotlib.figure import Figure
+
+    drawn = []
+    real = Figure.savefig
+    monkeypatch.setattr(
+        Figure, "savefig", lambda self, *a, **k: (drawn.append(self), real(self, *a, **k))[1]
+    )
+    src = tmp_path / "square.g2o"
+    truth = _square_graph(src, false_closure=True)
+    start = pose_graph_arrays(read_pose_graph(src)).poses
+    res = run("optimize", str(src), "-o", str(tmp_path / "o.g2o"), "--robust", "dcs",
+              "--robust-edges", "closures")  # fmt: skip
+    assert res.exit_code == 0, res.output
+    before, after = drawn[0].axes
+    for ax, poses in ((before, start), (after, truth)):
+        green, red, blue = ax.collections
+        chain = np.stack([poses[:-1, :2], poses[1:, :2]], axis=1)
+        np.testing.assert_allclose(np.array(blue.get_segments()), chain, atol=0.05)
+        assert blue.get_zorder() > green.get_zorder()
+    assert [len(c.get_segments()) for c in before.collections] == [2, 0, 16]
+    assert [len(c.get_segments()) for c in after.collections] == [1, 1, 16]  # one down-weighted
+    assert "before: the file's poses" in before.get_title(loc="left")
+    assert "after: " in after.get_title(loc="left") and "iterations" in after.get_title(loc="left")
 
 
 def test_robust_closures_only(tmp_path):

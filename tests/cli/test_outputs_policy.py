@@ -210,7 +210,7 @@ COMMANDS = [
         default="beam_model.yaml",
         explicit="beam.yaml",
     ),
-    Command(  # FILE.g2o and FILE.config.yaml beside it: the explicit name gets its .g2o here
+    Command(  # FILE.g2o, FILE.config.yaml and FILE.plot.png: the explicit name gets its .g2o
         "optimize",
         lambda i, o, f: [
             "optimize",
@@ -218,7 +218,7 @@ COMMANDS = [
             "-o",
             o + ".g2o" if o.endswith("/out") else o,
         ],
-        (".g2o", ".config.yaml"),
+        (".g2o", ".config.yaml", ".plot.png"),
         default="optimized",
         explicit="out",
     ),

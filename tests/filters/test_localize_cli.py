@@ -161,3 +161,21 @@ def test_standing_still_and_a_reference_change_nothing(sim):
     res = run("localize", d / "map.yaml", log, "-o", d / "stop9", "--particles", "500",
               "--reference", truth)  # fmt: skip
     assert "position" in res.output
+
+
+def test_reference_on_another_clock_is_lined_up_by_itself(sim, tmp_path):
+    """A reference stamped 12,345.6 s off the log's clock: localize finds the offset from
+    the motion, says it, and scores against it; --reference-offset overrides it."""
+    d, world = sim
+    ref = tmp_path / "shifted.csv"
+    rows = np.column_stack([100.0 - 12345.6 + 0.2 * np.arange(150), world.poses[:150]])
+    np.savetxt(ref, rows[::3], delimiter=",", header="time,x,y,theta", comments="")
+    out = tmp_path / "o"
+    res = run("localize", d / "map.yaml", d / "sim.log", "-o", out, "-n", "500",
+              "--reference", ref)  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert "note: reference time offset +12345.600000 s" in res.output
+    assert "position" in res.output and "median" in res.output
+    res = run("localize", d / "map.yaml", d / "sim.log", "-o", out, "-n", "500",
+              "--reference", ref, "--reference-offset", "0")  # fmt: skip
+    assert res.exit_code == 1 and "reference-offset" in res.output

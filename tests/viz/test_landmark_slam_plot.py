@@ -43,3 +43,33 @@ def test_estimate_is_drawn_in_the_reference_frame():
     raw = Figure().add_subplot()
     plot_slam(raw, result)
     assert "estimate" in [ln.get_label() for ln in raw.get_lines()]
+
+
+def test_the_picture_names_the_dataset_robot_and_figures(tmp_path, monkeypatch):
+    from matplotlib.figure import Figure
+
+    from probmap.viz.landmark_slam import metrics_caption, save_slam_figure
+
+    drawn = []
+    real = Figure.savefig
+    monkeypatch.setattr(
+        Figure, "savefig", lambda self, *a, **k: (drawn.append(self), real(self, *a, **k))[1]
+    )
+    est = np.column_stack([np.arange(5.0), np.arange(5.0), np.zeros(5), np.zeros(5)])
+    result = SimpleNamespace(
+        trajectory=est, landmark_xy=np.zeros((1, 2)), landmark_cov=np.eye(2)[None] * 0.01
+    )
+    metrics = {
+        "dataset": "mrclam-MRCLAM_Dataset7-robot3", "steps": 5, "landmarks_mapped": 1,
+        "ate": {"translation_m": {"rmse": 1.5}}, "landmarks": {"error_m": {"rmse": 0.25}},
+    }  # fmt: skip
+    save_slam_figure(tmp_path / "slam.png", result, title="EKF SLAM", metrics=metrics)
+    (ax,) = drawn[0].axes
+    assert ax.get_title(loc="left") == "EKF SLAM on mrclam-MRCLAM_Dataset7-robot3"
+    assert "5 steps, 1 landmarks; ATE 1.500 m, landmarks 0.250 m" in [
+        t.get_text() for t in ax.texts
+    ]
+    # Victoria Park: no truth, GPS
+    gps = {"gps": {"rmse_m": 4.123}, "dead_reckoning_gps": {"rmse_m": 40.0}, "steps": 7}
+    assert metrics_caption(gps) == "7 steps; GPS RMSE 4.12 m; dead reckoning 40.00 m"
+    assert metrics_caption(None) == ""

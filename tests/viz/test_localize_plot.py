@@ -153,3 +153,27 @@ def _grid(world):
     return SimpleNamespace(
         spec=world.spec, log_odds=np.where(occ, 5.0, -5.0), observed=np.ones_like(occ)
     )
+
+
+def test_legend_is_below_the_map_in_readable_type():
+    """The legend names every layer and the map's colours, in 8 pt or more, and lies under
+    the axes: it hides no part of the map."""
+    grid = OccupancyGrid(0.1, spec=GridSpec.around(0.1, 0.0, 5.0, 0.0, 5.0))
+    poses = np.column_stack([np.linspace(1, 4, 10), np.full(10, 2.0), np.zeros(10)])
+    fig = Figure()
+    ax = fig.add_subplot()
+    plot_localization(
+        ax, grid, np.arange(10.0), poses, np.r_[np.full(3, 5.0), np.full(7, 0.1)],
+        particles=poses, converged=3,
+    )  # fmt: skip
+    leg = ax.get_legend()
+    labels = [t.get_text() for t in leg.get_texts()]
+    assert labels[:3] == ["particles", "before convergence (3 updates)", "MCL"]
+    assert {"start", "end", "free", "occupied", "unknown (never observed)"} <= set(labels)
+    assert min(t.get_fontsize() for t in leg.get_texts()) >= 8
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    r = canvas.get_renderer()
+    assert leg.get_window_extent(r).y1 < ax.get_window_extent(r).y0

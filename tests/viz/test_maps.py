@@ -9,7 +9,15 @@ import pytest
 from probmap.grid.io import preview_image
 from probmap.grid.occupancy import OccupancyGrid
 from probmap.grid.spec import GridSpec
-from probmap.viz.maps import map_image, nice_length, plot_map, save_map_figure
+from probmap.viz.maps import (
+    UNKNOWN_RGB,
+    map_image,
+    nice_length,
+    picture_step,
+    plot_map,
+    pooled_cells,
+    save_map_figure,
+)
 
 
 def grid(seed: int = 0) -> OccupancyGrid:
@@ -20,12 +28,80 @@ def grid(seed: int = 0) -> OccupancyGrid:
     return OccupancyGrid.from_log_odds(spec, lo, observed=seen)
 
 
-def test_palette_is_the_png_previews():
+def test_palette_is_the_png_previews_grey_and_unknown_stands_out():
+    """Observed cells: the PNG preview's grey ramp; never-observed cells: UNKNOWN_RGB, a
+    colour off the grey ramp (no observed cell can be mistaken for unknown)."""
     g = grid()
     img, step = map_image(g)
-    assert step == 1
-    png = preview_image(g)[::-1] / 255.0  # row 0 at the smallest y, as the picture draws it
-    np.testing.assert_allclose(img, png, atol=0.5 / 255 + 1e-12)
+    assert step == 1 and img.dtype == np.uint8 and img.shape == (30, 50, 3)
+    png = preview_image(g)[::-1]  # row 0 at the smallest y, as the picture draws it
+    seen = np.asarray(g.observed)
+    for c in range(3):
+        np.testing.assert_allclose(img[..., c][seen], png[seen], atol=1)
+    want = np.rint(255 * np.asarray(UNKNOWN_RGB))
+    assert (img[~seen] == want).all()
+    assert want[2] - want[0] >= 30  # blue-grey: not on the white-black ramp
+    grey = img[seen]
+    assert (grey[:, 0] == grey[:, 2]).all()
+
+
+def reference_pool(lo, seen, step):
+    """Obviously correct: loop over the blocks."""
+    h, w = lo.shape
+    out_lo = np.zeros((-(-h // step), -(-w // step)), np.float32)
+    out_seen = np.zeros(out_lo.shape, bool)
+    for i in range(out_lo.shape[0]):
+        for j in range(out_lo.shape[1]):
+            block_lo = lo[i * step : (i + 1) * step, j * step : (j + 1) * step]
+            block_seen = seen[i * step : (i + 1) * step, j * step : (j + 1) * step]
+            if block_seen.any():
+                out_seen[i, j] = True
+                out_lo[i, j] = block_lo[block_seen].max()
+    return out_lo, out_seen
+
+
+@pytest.mark.parametrize("step", [1, 2, 3, 7])
+def test_pooled_cells_keep_the_most_occupied_observed_cell(step, monkeypatch):
+    import probmap.viz.maps as maps
+
+    monkeypatch.setattr(maps, "_STRIP_CELLS", 150)  # several strips, one of them partial
+    g = grid(3)
+    got_lo, got_seen = pooled_cells(g, step)
+    want_lo, want_seen = reference_pool(np.asarray(g.log_odds), np.asarray(g.observed), step)
+    np.testing.assert_array_equal(got_seen, want_seen)
+    np.testing.assert_allclose(got_lo, want_lo)
+
+
+def test_a_wall_one_cell_thick_survives_a_large_maps_picture():
+    spec = GridSpec(0.05, (0.0, 0.0), (400, 1300))
+    lo = np.full(spec.shape, -3.0, np.float32)  # free everywhere
+    lo[:, 601] = 3.0  # one wall, one cell thick, in a column stride-3 sampling skips
+    g = OccupancyGrid.from_log_odds(spec, lo, observed=np.ones(spec.shape, bool))
+    assert picture_step(g, 500) == 3
+    img, step = map_image(g, 500)
+    assert step == 3 and img.shape == (134, 434, 3)
+    dark = np.flatnonzero((img[..., 0] < 10).all(axis=0))
+    np.testing.assert_array_equal(dark, [601 // 3])
+    assert (img[:, : 601 // 3] == 255).all()
+
+
+def test_large_map_picture_has_a_pixel_per_image_pixel(tmp_path):
+    """A map of 3,000 x 1,300 cells with at most 1,500 pixels a side: step 2, and the file's
+    map area is 1,500 x 650 pixels (the old pictures gave any map about 930)."""
+    from PIL import Image
+
+    spec = GridSpec(0.05, (0.0, 0.0), (1300, 3000))
+    g = OccupancyGrid.from_log_odds(
+        spec, np.zeros(spec.shape, np.float32), observed=np.zeros(spec.shape, bool)
+    )
+    out = save_map_figure(tmp_path / "big.plot.png", g, title="big", max_pixels=1500)
+    with Image.open(out) as im:
+        rgb = np.asarray(im.convert("RGB"))
+    unknown = np.abs(rgb.astype(int) - np.rint(255 * np.asarray(UNKNOWN_RGB))).sum(-1) <= 3
+    cols = np.flatnonzero(unknown.sum(axis=0) > 100)
+    rows = np.flatnonzero(unknown.sum(axis=1) > 100)
+    assert abs((cols[-1] - cols[0] + 1) - 1500) <= 3  # one file pixel per image pixel
+    assert abs((rows[-1] - rows[0] + 1) - 650) <= 3
 
 
 def test_nice_length_is_round_and_about_a_fifth():
@@ -48,8 +124,12 @@ def test_plot_axes_trajectory_and_scale_bar():
     assert ax.get_xlim() == pytest.approx((-2.0, 3.0)) and ax.get_ylim() == pytest.approx(
         (1.0, 4.0)
     )
-    (line, start) = ax.get_lines()
+    (line, start, end) = ax.get_lines()
     np.testing.assert_allclose(line.get_xydata(), traj[:, :2])
+    np.testing.assert_allclose(start.get_xydata(), traj[:1, :2])
+    np.testing.assert_allclose(end.get_xydata(), traj[-1:, :2])
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert labels == ["trajectory", "start", "end", "free", "occupied", "unknown (never observed)"]
     assert "1 m" in [t.get_text() for t in ax.texts]  # 5 m span: a 1 m bar
     assert "robot.log" in ax.get_title(loc="left")
     with pytest.raises(ValueError, match=r"\(T, 2\) or \(T, 3\)"):

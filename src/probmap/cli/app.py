@@ -16,10 +16,15 @@ from probmap import __version__
 
 app = typer.Typer(
     name="probmap",
-    help="Probabilistic robot mapping and SLAM: occupancy grids, localization, EKF/SEIF SLAM.",
+    help="Probabilistic robot mapping and SLAM: occupancy grids, grid and landmark SLAM, "
+    "localization, pose graphs.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    # click's plain help: paragraphs reflowed to the terminal (COLUMNS), options in two
+    # columns with the help 45 or more characters wide at 80 columns, defaults shown
+    rich_markup_mode=None,
+    context_settings={"max_content_width": 100},
 )
 
 

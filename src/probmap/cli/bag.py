@@ -7,6 +7,7 @@ from pathlib import Path
 
 import typer
 
+from probmap.cli import options as opt
 from probmap.cli.common import cli_errors, laser_input, print_summary
 
 
@@ -20,6 +21,7 @@ def info_command(
         help="A ROS 1 .bag file, or a ROS 2 bag folder (.db3 or .mcap storage), or a dataset "
         "name (intel-bag).",
     ),
+    data_dir: Path | None = opt.data_dir_option(),
 ) -> None:
     """List a ROS bag's topics, message types, counts, frames and time spans."""
     with cli_errors():
@@ -29,7 +31,7 @@ def info_command(
         from probmap.datasets.ros.scans import SCAN_TYPES
         from probmap.datasets.ros.summary import summarize_bag
 
-        bag = laser_input(bag)
+        bag = laser_input(bag, data_dir)
         s = summarize_bag(bag)
         console = Console()
         table = Table(title=f"{bag.name}: ROS {s.ros_version} bag")
@@ -67,4 +69,6 @@ def info_command(
 
 def register(app: typer.Typer) -> None:
     """Attach ``probmap info``."""
-    app.command("info")(info_command)
+    app.command("info", short_help="A ROS bag's topics, types, counts, frames and times.")(
+        info_command
+    )

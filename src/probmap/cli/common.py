@@ -170,13 +170,14 @@ def note_first_compile(*modules: str) -> None:
     )
 
 
-def laser_input(path: Path | str) -> Path:
+def laser_input(path: Path | str, data_dir: Path | str | None = None) -> Path:
     """The file a laser-log argument names: the path, or a registered laser dataset's file
-    under the data directory (``$PROBMAP_DATA``, else ``../shared/data``). A name that is
-    neither is a one-line error listing the close registry names."""
+    under the data directory (``data_dir``, the ``--data-dir`` option; else
+    ``$PROBMAP_DATA``, else ``../shared/data``). A name that is neither is a one-line error
+    listing the close registry names."""
     from probmap.datasets.registry import resolve_input
 
-    return resolve_input(path, kind="laser")
+    return resolve_input(path, data_dir, kind="laser")
 
 
 def print_summary(
@@ -214,6 +215,28 @@ def readings_row(report: Any) -> tuple[str, str]:
     """The one summary row every command that reads laser scans prints: how the readings of
     the log were classified (:class:`probmap.datasets.validate.ReadingReport`)."""
     return ("readings", report.describe())
+
+
+def pose_source_warning(log: Path | str, pose_source: str, *, chosen: bool = False) -> None:
+    """One ``warning:`` line on stderr when a map was built from poses nothing corrected:
+    raw odometry (``pose_source == "odometry"``, unless the user ``chosen`` it with
+    ``--poses odometry``) or none at all (``"laser"``: a bag read in the laser's frame);
+    it names ``probmap slam grid``, which corrects them."""
+    name = Path(log).name
+    slam = f"'probmap slam grid {name} -o PREFIX'"
+    if pose_source == "odometry" and not chosen:
+        text = (
+            f"the map of {name} is built from raw odometry (its poses are uncorrected), so it "
+            f"drifts and smears; {slam} corrects the poses first"
+        )
+    elif pose_source == "laser":
+        text = (
+            f"the map of {name} is built from scans without poses (all at the laser's "
+            f"origin); {slam} estimates them"
+        )
+    else:
+        return
+    typer.echo(f"warning: {text}", err=True)
 
 
 def input_rows(report: Any, skipped_lines: int = 0) -> list[tuple[str, str]]:
@@ -296,6 +319,9 @@ def progress_bar(
         TimeRemainingColumn,
     )
 
+    console = console or Console(stderr=True)
+    if not console.is_terminal:  # a log file, CI, Slurm: lines, not a bar
+        return LineProgress(description, unit=unit, file=console.file)
     return Progress(
         TextColumn(description or "{task.description}"),
         BarColumn(),
@@ -303,10 +329,140 @@ def progress_bar(
         TimeElapsedColumn(),
         TextColumn("eta"),
         TimeRemainingColumn(),
-        console=console or Console(stderr=True),
+        console=console,
         transient=True,
         speed_estimate_period=ETA_WINDOW_S,
     )
+
+
+def _duration(seconds: float) -> str:
+    """``42 s``, ``3 min 07 s``, ``1 h 02 min``.
+
+    >>> _duration(41.6), _duration(187.0), _duration(3720.0)
+    ('42 s', '3 min 07 s', '1 h 02 min')
+    """
+    s = int(round(max(seconds, 0.0)))
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60:02d} s"
+    return f"{s // 3600} h {s % 3600 // 60:02d} min"
+
+
+# Seconds a task runs before LineProgress prints its lines (a quick one prints none).
+QUIET_S = 2.0
+
+
+class LineProgress:
+    """The progress of :func:`progress_bar` where the output is not a terminal (a log file,
+    CI, a Slurm job): one line about every 10 % of each task, with the time so far and the
+    time left (the work still to do over the rate of the last :data:`ETA_WINDOW_S` seconds)::
+
+        graph SLAM intel.clf.bz2: 30% (4,090/13,631 scans), 14 s so far, eta 33 s
+
+    The same calls as rich's ``Progress`` that the commands make (``add_task``, ``update``,
+    ``advance``, a context manager). Tasks of one step (``total <= 1``) print nothing, nor
+    does a task before it has run :data:`QUIET_S` seconds (a quick one prints no line).
+
+    Parameters
+    ----------
+    description : str
+        The lines' prefix (each task's own description when empty).
+    unit : str
+        What the counts count.
+    file : text stream, optional
+        Where the lines go (default: ``sys.stderr``).
+    clock : callable
+        Seconds, monotonic (``time.monotonic``; a test passes its own).
+    """
+
+    def __init__(
+        self,
+        description: str = "",
+        *,
+        unit: str = "steps",
+        file: Any = None,
+        clock: Any = None,
+    ) -> None:
+        import sys
+        import time
+
+        self.description = description
+        self.unit = unit
+        self.file = file if file is not None else sys.stderr
+        self.clock = clock or time.monotonic
+        self.tasks: dict[int, dict[str, Any]] = {}
+
+    def __enter__(self) -> LineProgress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def add_task(self, description: str, total: float | None = 100.0, **_: Any) -> int:
+        """A new task; returns its id."""
+        now = self.clock()
+        tid = len(self.tasks)
+        self.tasks[tid] = {
+            "description": description, "total": total, "completed": 0.0, "start": now,
+            "samples": [(now, 0.0)], "next": 1,
+        }  # fmt: skip
+        return tid
+
+    def advance(self, task: int, advance: float = 1.0) -> None:
+        """Add ``advance`` steps to ``task``."""
+        self.update(task, advance=advance)
+
+    def update(
+        self,
+        task: int,
+        *,
+        completed: float | None = None,
+        total: float | None = None,
+        advance: float | None = None,
+        description: str | None = None,
+        **_: Any,
+    ) -> None:
+        """Set what ``task`` has done (``completed``, or ``advance`` more), its ``total`` and
+        ``description``; print a line when it passed the next tenth of its total."""
+        t = self.tasks[task]
+        if description is not None:
+            t["description"] = description
+        if total is not None and total != t["total"]:  # a new phase: its own pace
+            t["total"] = total
+            t["samples"] = [(self.clock(), t["completed"])]
+        if completed is not None:
+            t["completed"] = float(completed)
+        if advance is not None:
+            t["completed"] += float(advance)
+        now = self.clock()
+        samples = t["samples"]
+        samples.append((now, t["completed"]))
+        while len(samples) > 2 and now - samples[1][0] >= ETA_WINDOW_S:
+            samples.pop(0)  # keep one sample at least the window old
+        total_ = t["total"]
+        if not total_ or total_ <= 1:
+            return
+        tenth = int(10 * min(t["completed"] / total_, 1.0) + 1e-9)
+        if tenth < t["next"]:
+            return
+        t["next"] = tenth + 1
+        if now - t["start"] >= QUIET_S:  # a task done in a moment says nothing
+            self._say(t, now)
+
+    def _say(self, t: dict[str, Any], now: float) -> None:
+        done, total = t["completed"], float(t["total"])
+        (t0, c0) = t["samples"][0]
+        rate = (done - c0) / (now - t0) if now > t0 and done > c0 else 0.0
+        left = total - done
+        eta = "0 s" if left <= 0 else (_duration(left / rate) if rate > 0 else "unknown")
+        name = self.description or t["description"]
+        print(
+            f"{name}: {100 * done / total:.0f}% ({done:,.0f}/{total:,.0f} {self.unit}), "
+            f"{_duration(now - t['start'])} so far, eta {eta}",
+            file=self.file,
+            flush=True,
+        )
 
 
 _PROCESS_START: list[float] = []

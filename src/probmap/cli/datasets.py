@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -14,7 +15,7 @@ datasets_app = typer.Typer(
 )
 
 
-@datasets_app.command("list")
+@datasets_app.command("list", short_help="The registered datasets and whether they are present.")
 def list_command(
     data_dir: Path | None = typer.Option(
         None, "--data-dir", "--dir", help="Data directory (default $PROBMAP_DATA)."
@@ -56,7 +57,7 @@ def list_command(
         console.print(remote)
 
 
-@datasets_app.command("fetch")
+@datasets_app.command("fetch", short_help="Download the public datasets, checking their checksums.")
 def fetch_command(
     names: list[str] = typer.Argument(
         ...,
@@ -97,7 +98,14 @@ def fetch_command(
         root = Path(os.path.abspath(os.path.expanduser(fetch.default_directory(directory))))
         fetched: list[fetch.FetchedFile] = []
         columns = (TextColumn("{task.description}"), DownloadColumn(), TransferSpeedColumn())
-        with Progress(*columns, console=Console(stderr=True), transient=True) as bar:
+        console = Console(stderr=True)
+        if console.is_terminal:
+            bar: Any = Progress(*columns, console=console, transient=True)
+        else:  # a log: a line every 10 % of each file
+            from probmap.cli.common import LineProgress
+
+            bar = LineProgress(unit="bytes", file=console.file)
+        with bar:
             tasks: dict[str, TaskID] = {}
 
             def progress(place: str, done: int, total: int) -> None:

@@ -14,7 +14,9 @@ evaluate_app = typer.Typer(
 )
 
 
-@evaluate_app.command("relations")
+@evaluate_app.command(
+    "relations", short_help="Relation error of a trajectory against a .relations file."
+)
 def relations_command(
     trajectory: Path = typer.Argument(..., help="Trajectory CSV (time,x,y,theta) or a CARMEN log."),
     relations: Path = typer.Argument(

@@ -29,8 +29,14 @@ from probmap.cli.watch import (
 )
 
 slam_app = typer.Typer(
-    help="SLAM: laser logs and bags (grid), landmark datasets (ekf, seif, graphslam, fastslam, "
-    "compare).",
+    help="Simultaneous localization and mapping, of two kinds.\n\n"
+    "Grid SLAM (grid) builds an occupancy grid map and the trajectory from a raw laser log or "
+    "ROS bag: graph SLAM with submaps and loop closure (default) or a Rao-Blackwellized "
+    "particle filter (--method rbpf).\n\n"
+    "Landmark SLAM (ekf, seif, graphslam, fastslam, compare) estimates landmark positions and "
+    "the trajectory from a landmark dataset (UTIAS MRCLAM, Victoria Park; probmap datasets "
+    "list).",
+    short_help="Grid SLAM of laser logs and bags; landmark SLAM.",
     no_args_is_help=True,
 )
 
@@ -348,7 +354,7 @@ def run_and_report(
     return metrics
 
 
-@slam_app.command("ekf")
+@slam_app.command("ekf", short_help="EKF SLAM of a landmark dataset (Table 10.1/10.2).")
 @opt.with_option_groups
 def ekf_command(
     dataset: str = dataset_argument(),
@@ -375,7 +381,9 @@ def ekf_command(
         run_and_report(ekf, ds, output, "EKF SLAM", watch=watch, **report)
 
 
-@slam_app.command("graphslam")
+@slam_app.command(
+    "graphslam", short_help="GraphSLAM of a whole landmark dataset (Tables 11.1-11.5)."
+)
 @opt.with_option_groups
 def graphslam_command(
     dataset: str = dataset_argument(),
@@ -411,7 +419,7 @@ def graphslam_command(
         run_and_report(build_graphslam(ds, gcfg), ds, output, "GraphSLAM", watch=watch, **report)
 
 
-@slam_app.command("fastslam")
+@slam_app.command("fastslam", short_help="FastSLAM 1.0 or 2.0 of a landmark dataset.")
 @opt.with_option_groups
 def fastslam_command(
     dataset: str = dataset_argument(),
@@ -551,7 +559,7 @@ def _label(cfg: Any) -> str:
     return text + (f", context_hops={cfg.context_hops}" if cfg.context_hops else "")
 
 
-@slam_app.command("seif")
+@slam_app.command("seif", short_help="SEIF SLAM of a landmark dataset (Tables 12.1-12.5).")
 @opt.with_option_groups
 def seif_command(
     dataset: str = dataset_argument(),
@@ -589,7 +597,9 @@ def _state_bytes(estimator: Any) -> int:
     return 8 * (d * d + d)
 
 
-@slam_app.command("compare")
+@slam_app.command(
+    "compare", short_help="Run several landmark-SLAM methods on a dataset and compare."
+)
 @opt.with_option_groups
 def compare_command(
     dataset: str = dataset_argument(),

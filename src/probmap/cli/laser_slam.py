@@ -29,7 +29,7 @@ from probmap.cli.watch import (
 )
 
 
-@slam_app.command("grid")
+@slam_app.command("grid", short_help="Grid SLAM of a laser log or bag: graph (default) or RBPF.")
 @opt.with_option_groups
 def grid_command(
     log: Path = typer.Argument(
@@ -49,6 +49,7 @@ def grid_command(
         None, "--end-time", help="Use only the first this many seconds of the log."
     ),
     bag_options: dict[str, Any] = opt.ros_bag_options(),
+    data_dir: Path | None = opt.data_dir_option(),
     config: Path | None = opt.config_option(
         "A YAML configuration: SubmapSlamConfig fields (graph) or RbpfConfig fields "
         "(rbpf; the options below override it). Fields left out keep their defaults."
@@ -114,7 +115,7 @@ def grid_command(
     watch = Stopwatch()  # the summary time covers the whole command
     with cli_errors():
         check_choice("--method", method, ("graph", "rbpf"))
-        log = laser_input(log)
+        log = laser_input(log, data_dir)
         from probmap.pipelines import check_output_prefix
 
         prefix = check_output_prefix(output, "slam")
@@ -407,6 +408,7 @@ def match_command(
     ),
     skip_bad_lines: bool = opt.skip_bad_lines_option(),
     bag_options: dict[str, Any] = opt.ros_bag_options(),
+    data_dir: Path | None = opt.data_dir_option(),
 ) -> None:
     """Match one scan of a log against a map: prints the pose, its standard deviations and
     the match score (correlative search refined by Gauss-Newton)."""
@@ -426,7 +428,7 @@ def match_command(
         watch = Stopwatch()
         if not map_file.exists():
             raise FileNotFoundError(f"{map_file}: no such file")
-        log = laser_input(log)
+        log = laser_input(log, data_dir)
         # the command's own search window is wider than MatcherConfig's (one scan, no motion)
         base = MatcherConfig(sigma=0.05, linear_window=0.3, angular_window=0.2)
         options = {"sigma": sigma, "linear_window": window, "angular_window": angular_window}
@@ -501,4 +503,4 @@ def match_command(
 
 def register(app: typer.Typer) -> None:
     """Add ``match`` to ``app`` (``slam grid`` is on :data:`slam_app`)."""
-    app.command("match")(match_command)
+    app.command("match", short_help="Match one scan of a log against a map.")(match_command)

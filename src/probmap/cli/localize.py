@@ -22,18 +22,36 @@ from probmap.cli.common import (
 from probmap.cli.watch import recorded_rows, viz_option, viz_save_option
 
 
+def _found_offset(batch: Any, ref_t: Any, ref_p: Any) -> tuple[Any, tuple[str, str]]:
+    """The reference's times on the log's clock (:func:`probmap.geometry.timesync.
+    find_time_offset` of the log's odometry and the reference), and the summary row that
+    states the offset found; one ``note:`` line on stderr says it at once."""
+    from probmap.geometry.timesync import find_time_offset
+
+    found = find_time_offset(batch.times, batch.robot_poses, ref_t, ref_p)
+    typer.echo(
+        f"note: reference time offset {found.offset:+.6f} s, found by lining up the motion "
+        f"(correlation {found.correlation:.2f}, {100 * found.matched:.0f}% of its stamps on a "
+        "scan's); --reference-offset overrides it",
+        err=True,
+    )
+    text = f"{found.offset:+.6f} s (found)"
+    return ref_t + found.offset, ("reference offset", text)
+
+
 def _read_reference(
     path: Path,
     offset: float,
     skip_bad_lines: bool = False,
     bag_options: dict[str, Any] | None = None,
+    data_dir: Path | None = None,
 ) -> tuple[Any, Any]:
     """Reference (times (M,), poses (M, 3)) from a CSV (time,x,y,theta), or the laser poses
     of a laser log (CARMEN, ROS 1/2 bag, registry name; ``bag_options`` apply to a bag)."""
     import numpy as np
 
     if path.suffix.lower() != ".csv" or not path.exists():
-        path = laser_input(path)
+        path = laser_input(path, data_dir)
     if path.suffix.lower() == ".csv":
         try:
             data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=(0, 1, 2, 3), ndmin=2)
@@ -156,10 +174,11 @@ def localize_command(
         "slam grid's trajectory.csv), or the laser poses of a CARMEN log, ROS bag or dataset "
         "name.",
     ),
-    reference_offset: float = typer.Option(
-        0.0,
+    reference_offset: float | None = typer.Option(
+        None,
         "--reference-offset",
-        help="Seconds added to the reference times (Intel corrected log: 976052857.337284).",
+        help="Seconds added to the reference times [default: found by lining up the "
+        "reference's motion with the log's odometry, and printed].",
     ),
     tum: bool = opt.tum_option(),
     seed: int | None = opt.seed_option(),
@@ -179,6 +198,7 @@ def localize_command(
     stop: int | None = typer.Option(None, "--stop", help="Scan to stop before."),
     skip_bad_lines: bool = opt.skip_bad_lines_option(),
     bag_options: dict[str, Any] = opt.ros_bag_options(),
+    data_dir: Path | None = opt.data_dir_option(),
     viz: bool = viz_option(),
     viz_save: Path | None = viz_save_option(
         "Record the live view (map, particles, estimate and trajectory, scan, reference) "
@@ -231,7 +251,7 @@ def localize_command(
         cfg = resolve_config(LocalizeConfig, config, overrides)
         if viz_save is not None and viz_save.suffix != ".rrd":
             raise CliError(f"--viz-save {viz_save}: a recording is saved as FILE.rrd")
-        log = laser_input(log)
+        log = laser_input(log, data_dir)
         check_output_folder(output)
         if viz_save is not None:
             check_output_folder(viz_save.parent if str(viz_save.parent) else Path("."))
@@ -252,11 +272,14 @@ def localize_command(
             mount = _laser_offset(log, batch, m, skip_bad_lines, bag_options)
             ref_t = ref_p = None
             ref_name = None
+            offset_row: tuple[str, str] | None = None
             if reference is not None:
                 with bad_lines_quiet():
                     ref_t, ref_p = _read_reference(
-                        reference, reference_offset, skip_bad_lines, bag_options
+                        reference, reference_offset or 0.0, skip_bad_lines, bag_options, data_dir
                     )
+                if reference_offset is None:  # the two logs' clocks, lined up by their motion
+                    ref_t, offset_row = _found_offset(batch, ref_t, ref_p)
                 # the reference is compared at its own times, interpolated between the
                 # filter's updates: it never makes the filter update (trajectory_errors)
                 if match_times(batch.times, ref_t)[0].size == 0:
@@ -370,6 +393,7 @@ def localize_command(
             ("map", f"{m.source} ({m.kind}, {m.spec.shape[1]} x {m.spec.shape[0]} cells)"),
             *input_rows(batch.readings, batch.skipped_lines),
             ("laser offset", _describe_offset(mount)),
+            *([offset_row] if offset_row is not None else []),
             ("updates", f"{run.times.size:,}"),
             ("final spread", f"{run.spread[-1]:.3f} m" if run.spread.size else "-"),
             *_convergence_rows(run, cfg.global_localization),
@@ -398,4 +422,6 @@ def localize_command(
 
 def register(app: typer.Typer) -> None:
     """Attach ``probmap localize``."""
-    app.command("localize")(localize_command)
+    app.command("localize", short_help="Localize the robot of a laser log on a map with MCL.")(
+        localize_command
+    )

@@ -90,6 +90,9 @@ def run_map_method(
     for f in result.files:
         rows.append(("wrote", str(f)))
     print_summary(f"probmap map --method map {log.name}", rows)
+    from probmap.cli.common import pose_source_warning
+
+    pose_source_warning(log, result.pose_source, chosen=config.poses == "odometry")
     return result
 
 
@@ -121,6 +124,7 @@ def fit_sensor_model_command(
     ),
     skip_bad_lines: bool = opt.skip_bad_lines_option(),
     bag_options: dict[str, Any] = opt.ros_bag_options(),
+    data_dir: Path | None = opt.data_dir_option(),
 ) -> None:
     """Fit the beam model's parameters to a log by EM (Probabilistic Robotics Table 6.2).
 
@@ -140,7 +144,7 @@ def fit_sensor_model_command(
         from probmap.pipelines.fit import FitConfig, fit_scans, read_fit_scans
 
         watch = Stopwatch()
-        log = laser_input(log)
+        log = laser_input(log, data_dir)
         target = None if output is None else check_output_prefix(output, "beam_model.yaml")
         overrides = {"resolution": resolution, "every": every, "max_range": max_range}
         cfg = resolve_config(FitConfig, config, {**overrides, "poses": poses})
@@ -176,4 +180,6 @@ def fit_sensor_model_command(
 
 def register(app: typer.Typer) -> None:
     """Attach ``fit-sensor-model``."""
-    app.command("fit-sensor-model")(fit_sensor_model_command)
+    app.command("fit-sensor-model", short_help="Fit the beam model's parameters to a log by EM.")(
+        fit_sensor_model_command
+    )

@@ -18,6 +18,7 @@ from probmap.cli.common import (
     cli_errors,
     laser_input,
     mapping_rows,
+    pose_source_warning,
     print_summary,
     resolve_config,
 )
@@ -69,6 +70,7 @@ def map_command(
         help="log-odds: per-cell Bayes filter; map: MAP mapping with the beam model (Table 9.3).",
     ),
     bag_options: dict[str, Any] = opt.ros_bag_options(),
+    data_dir: Path | None = opt.data_dir_option(),
     to_bag: Path | None = typer.Option(
         None,
         "--to-bag",
@@ -97,7 +99,7 @@ def map_command(
 
         # registry names become their files; a missing file is an error (--allow-partial: the
         # run reports it)
-        logs = [laser_input(p) if p.exists() or not allow_partial else p for p in logs]
+        logs = [laser_input(p, data_dir) if p.exists() or not allow_partial else p for p in logs]
         log = logs[0]
         prefix = check_output_prefix(output, "map")
         if to_bag is not None:
@@ -251,6 +253,7 @@ def _map_one(
     if result.interrupted or asked:
         rows.insert(0, ("interrupted", f"at scan {result.stats.scans:,} of {result.scans_total:,}"))
     print_summary(f"probmap map {log.name}", rows)
+    pose_source_warning(log, result.pose_source, chosen=cfg.poses == "odometry")
     if result.interrupted or asked:
         interrupted_exit(result.stats.scans, result.scans_total, "scans", wrote=True)
 
@@ -325,5 +328,9 @@ def demo_command(
 
 def register(app: typer.Typer) -> None:
     """Attach the mapping commands."""
-    app.command("map")(map_command)
-    app.command("demo")(demo_command)
+    app.command("map", short_help="Occupancy grid map from a laser log with known poses.")(
+        map_command
+    )
+    app.command("demo", short_help="Map a simulated floor plan and score it (no download).")(
+        demo_command
+    )

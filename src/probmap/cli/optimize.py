@@ -53,10 +53,18 @@ def optimize_command(
         "kernel and scale, chart, robust_edges, init), as PREFIX.config.yaml records it; the "
         "options given here override it."
     ),
+    plot: bool = typer.Option(
+        True,
+        "--plot/--no-plot",
+        help="Also write PREFIX.plot.png: the graph before (the file's poses) and after the "
+        "optimization, side by side.",
+    ),
 ) -> None:
-    """Levenberg-Marquardt on GRAPH; writes the optimized graph and, beside it, the settings
-    used (PREFIX.config.yaml: with the command line and the probmap version), and prints the
-    errors (GTSAM's convention: 0.5 * sum e' Omega e, the first pose held fixed)."""
+    """Levenberg-Marquardt on GRAPH; writes the optimized graph, beside it the settings used
+    (PREFIX.config.yaml: with the command line and the probmap version) and a before-and-after
+    picture (PREFIX.plot.png: the odometry chain over a light layer of loop closures), and
+    prints the errors (GTSAM's convention: 0.5 * sum e' Omega e, the first pose held
+    fixed)."""
     with cli_errors():
         from rich.console import Console
         from rich.table import Table
@@ -72,6 +80,7 @@ def optimize_command(
         target = check_output_prefix(output, "optimized.g2o")
         stem = target.name[: -len(".g2o")] if target.name.endswith(".g2o") else target.name
         config_path = target.with_name(f"{stem}.config.yaml")
+        plot_path = target.with_name(f"{stem}.plot.png")
         check_choice("--init", init, ("auto", "given", "lago"))
         check_choice("--robust", robust, ("none", "huber", "cauchy", "dcs"))
         check_choice("--robust-edges", robust_edges, ("all", "closures"))
@@ -92,9 +101,20 @@ def optimize_command(
             except ValueError as exc:
                 raise ValueError(f"{graph}: {exc}") from None
         a, r, opt = run.arrays, run.result, cfg.optimizer()
-        with watch("write"), atomic_outputs():  # both files or none; a missing folder is made
+        with watch("write"), atomic_outputs():  # every file or none; a missing folder is made
             write_g2o(target, with_poses(g, a.ids, r.poses))
             write_run_config(config_path, cfg)
+            if plot:
+                from probmap.viz.laser_slam import save_pose_graph_figure
+
+                save_pose_graph_figure(
+                    plot_path, a.ids, a.edges, a.poses, r.poses, title=graph.name,
+                    before_label=f"before: the file's poses (error {r.initial_error:.6g})",
+                    after_label=(
+                        f"after: {r.iterations} iterations (error {r.final_error:.6g})"
+                    ),
+                    weights=r.weights if opt.robust != "none" else None,
+                )  # fmt: skip
 
         table = Table(title=f"pose-graph optimization of {graph.name}")
         table.add_column("")
@@ -122,10 +142,14 @@ def optimize_command(
         console.print(table)
         console.print(f"wrote {target}")
         console.print(f"wrote {config_path}")
+        if plot:
+            console.print(f"wrote {plot_path}")
         if not r.converged:
             typer.echo(f"warning: {graph}: not converged: {r.message}", err=True)
 
 
 def register(app: typer.Typer) -> None:
     """Attach ``probmap optimize``."""
-    app.command("optimize")(optimize_command)
+    app.command("optimize", short_help="Optimize a pose graph (g2o) by Levenberg-Marquardt.")(
+        optimize_command
+    )

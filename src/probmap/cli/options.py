@@ -118,6 +118,16 @@ def output_option(help: str, default: Any = ...) -> Any:
     return typer.Option(default, "-o", "--output", help=help)
 
 
+def data_dir_option() -> Any:
+    """``--data-dir DIR``: where a dataset name given as the input is found, on every command
+    that takes one (``$PROBMAP_DATA`` when not given, else ``../shared/data``)."""
+    return typer.Option(
+        None,
+        "--data-dir",
+        help="Where dataset names are found [default: $PROBMAP_DATA, else ../shared/data].",
+    )
+
+
 def skip_bad_lines_option() -> Any:
     """``--skip-bad-lines``: the same option, with the same meaning, on every command that
     reads a laser log."""

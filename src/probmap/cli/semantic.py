@@ -152,4 +152,4 @@ def semantic_command(
 
 def register(app: typer.Typer) -> None:
     """Attach the semantic mapping command."""
-    app.command("semantic")(semantic_command)
+    app.command("semantic", short_help="Semantic map from labelled scans.")(semantic_command)

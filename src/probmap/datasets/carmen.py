@@ -232,6 +232,7 @@ class _PassState:
     scans: int = 0
     odometry: int = 0
     messages: int = 0
+    neff: int = 0  # GMapping's NEFF lines: the log is its corrected output
 
 
 class CarmenLogOptions(TypedDict, total=False):
@@ -410,6 +411,8 @@ class CarmenLog:
                         yield scan
                 elif kind == "PARAM":
                     self._parse_param(fields, state.params)
+                elif kind == "NEFF":
+                    state.neff += 1
             except _LineError as exc:
                 if not self.skip_bad_lines:
                     raise DatasetError(
@@ -674,9 +677,18 @@ def _stack(
     laser: list[NDArray[np.float64]] = []
     robot: list[NDArray[np.float64]] = []
     max_ranges: list[float] = []
-    for scan in log:
+    odom: NDArray[np.float64] | None = None
+    drift = [0.0, 0.0]  # largest distance (m), turn (rad) of a laser pose from the odometry
+    for scan in log.records():
+        if isinstance(scan, Odometry):
+            odom = scan.pose
+            continue
         if scan.source not in keep:
             continue
+        if odom is not None:
+            gap = scan.laser_pose - odom  # a mounting offset (< 1 m) counts as none
+            drift[0] = max(drift[0], math.hypot(gap[0], gap[1]))
+            drift[1] = max(drift[1], abs(math.remainder(gap[2], math.tau)))
         times.append(scan.time)
         rows.append(scan.ranges)
         angle_rows.append(scan.angles)
@@ -710,7 +722,54 @@ def _stack(
         skipped_lines=log.skipped_lines,
         readings=report,
         max_range_stated=not log.max_range_defaulted,
+        pose_source=_pose_source(
+            poses,
+            odom is not None,
+            drift,
+            gmapping=log._done is not None and log._done.neff > 0,
+            rigid=_rigid(np.array(laser, dtype=np.float64).reshape(-1, 3), robot_poses),
+        ),  # fmt: skip
     )
+
+
+# A scan pose this far from the last ODOM message (metres, radians) was corrected: between
+# two odometry messages a robot moves centimetres; a SLAM correction grows to metres.
+CORRECTED_DRIFT = (1.0, 0.2)
+
+
+def _rigid(laser: NDArray[np.float64], robot: NDArray[np.float64]) -> bool:
+    """Whether every laser pose is the robot pose of its scan moved by one fixed offset
+    along the heading (how a raw log states both; a SLAM system corrects the laser's only)."""
+    if len(laser) == 0:
+        return False
+    turn = np.abs(np.remainder(laser[:, 2] - robot[:, 2] + np.pi, 2 * np.pi) - np.pi)
+    d = laser[:, :2] - robot[:, :2]
+    ahead = d[:, 0] * np.cos(robot[:, 2]) + d[:, 1] * np.sin(robot[:, 2])
+    side = -d[:, 0] * np.sin(robot[:, 2]) + d[:, 1] * np.cos(robot[:, 2])
+    return bool(turn.max() < 1e-3 and np.ptp(ahead) < 1e-3 and np.abs(side).max() < 1e-3)
+
+
+def _pose_source(
+    poses: str,
+    has_odometry: bool,
+    drift: Sequence[float],
+    *,
+    gmapping: bool = False,
+    rigid: bool = False,
+) -> str:
+    """``"odometry"`` when the scans are placed by raw odometry (``poses="odometry"``, or laser
+    poses that never leave the log's ``ODOM`` messages), ``"corrected"`` when they do or the
+    log is GMapping's output (``gmapping``: it has ``NEFF`` lines; GMapping rewrites the
+    ``ODOM`` lines too). Without ``ODOM`` messages: ``"odometry"`` when the laser poses are
+    the scans' own odometry fields moved by a fixed offset (``rigid``), else ``""``."""
+    if poses == "odometry":
+        return "odometry"
+    if gmapping:
+        return "corrected"
+    if not has_odometry:  # the scans' own odometry fields: a rigid offset from the laser's
+        return "odometry" if rigid else ""
+    far = drift[0] > CORRECTED_DRIFT[0] or drift[1] > CORRECTED_DRIFT[1]
+    return "corrected" if far else "odometry"
 
 
 # ---------------------------------------------------------------------------- shares of a log

@@ -132,6 +132,11 @@ class ScanBatch:
     max_range_stated : bool
         False when the log stated no maximum range (a CARMEN log without ``ROBOTLASER1``
         ranges or PARAM): ``max_range`` is then the default or inferred from the data.
+    pose_source : str
+        What placed the scans: ``"odometry"`` (raw wheel odometry: a map built from it
+        drifts), ``"corrected"`` (a SLAM system's estimate, e.g. a GMapping-corrected log or a
+        bag's ``map`` frame), ``"laser"`` (a bag read in the laser's own frame: every scan at
+        the origin) or ``""`` (unknown).
     """
 
     times: FloatArray
@@ -144,6 +149,7 @@ class ScanBatch:
     skipped_lines: int = 0
     readings: ReadingReport | None = None
     max_range_stated: bool = True
+    pose_source: str = ""
 
     def __len__(self) -> int:
         return int(self.times.shape[0])

@@ -108,6 +108,9 @@ class MappingResult:
     before it (``stats.scans`` of ``scans_total``)."""
     scans_total: int = 0
     """Scans of the log (0: not recorded)."""
+    pose_source: str = ""
+    """What placed the scans (:attr:`probmap.datasets.records.ScanBatch.pose_source`):
+    ``"odometry"`` means the map is built from raw odometry and drifts."""
 
 
 def map_log(
@@ -193,6 +196,7 @@ def map_log(
         source=Path(path).name,
         interrupted=done < n,
         scans_total=n,
+        pose_source=str(getattr(batch, "pose_source", "")),
     )
 
 
@@ -380,4 +384,5 @@ def map_log_map(
         readings=report,
         trajectory=np.asarray(batch.laser_poses),
         source=f"{Path(path).name} (MAP mapping)",
+        pose_source=str(getattr(batch, "pose_source", "")),
     )

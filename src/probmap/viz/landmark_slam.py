@@ -9,9 +9,15 @@ from typing import Any
 import numpy as np
 
 from probmap._atomic import atomic_path
-from probmap.viz.maps import label_metric_axes
+from probmap.viz.maps import label_metric_axes, legend_below
 
-__all__ = ["alignment_from_metrics", "covariance_ellipse", "plot_slam", "save_slam_figure"]
+__all__ = [
+    "alignment_from_metrics",
+    "covariance_ellipse",
+    "metrics_caption",
+    "plot_slam",
+    "save_slam_figure",
+]
 
 
 def covariance_ellipse(
@@ -34,6 +40,68 @@ def alignment_from_metrics(metrics: dict[str, Any] | None) -> tuple[np.ndarray |
         if isinstance(entry, dict) and entry.get("alignment") is not None:
             return np.asarray(entry["alignment"], dtype=np.float64).reshape(3), name
     return None, ""
+
+
+def _rmse(metrics: dict[str, Any], key: str, sub: str) -> float | None:
+    entry = metrics.get(key)
+    if isinstance(entry, dict) and isinstance(entry.get(sub), dict):
+        value = entry[sub].get("rmse")
+        return None if value is None else float(value)
+    return None
+
+
+def _wrapped(text: str, width: int) -> str:
+    """``text``'s ``; ``-separated parts on lines of about ``width`` characters."""
+    lines: list[str] = []
+    for part in text.split("; ") if text else []:
+        if lines and len(lines[-1]) + 2 + len(part) <= width:
+            lines[-1] += "; " + part
+        else:
+            lines.append(part)
+    return "\n".join(lines)
+
+
+def metrics_caption(metrics: dict[str, Any] | None) -> str:
+    """The picture's line of figures from ``metrics`` (of
+    :func:`probmap.pipelines.landmark_slam.evaluate`): steps, landmarks, and the errors
+    against the truth (SE(2)-aligned when it was) or GPS, with dead reckoning's beside.
+
+    >>> metrics_caption({"steps": 18444, "landmarks_mapped": 15,
+    ...     "ate_aligned": {"translation_m": {"rmse": 0.266}},
+    ...     "landmarks_aligned": {"error_m": {"rmse": 0.198}},
+    ...     "dead_reckoning_ate_aligned": {"translation_m": {"rmse": 2.347}}})
+    '18,444 steps, 15 landmarks; ATE 0.266 m, landmarks 0.198 m (SE(2)-aligned); dead reckoning ATE 2.347 m'
+    """
+    m = metrics or {}
+    head = []
+    if "steps" in m:
+        head.append(f"{int(m['steps']):,} steps")
+    if "landmarks_mapped" in m:
+        head.append(f"{int(m['landmarks_mapped']):,} landmarks")
+    parts = [", ".join(head)] if head else []
+    aligned = _rmse(m, "ate_aligned", "translation_m")
+    ate = aligned if aligned is not None else _rmse(m, "ate", "translation_m")
+    lm_aligned = _rmse(m, "landmarks_aligned", "error_m")
+    lm = lm_aligned if lm_aligned is not None else _rmse(m, "landmarks", "error_m")
+    errs = []
+    if ate is not None:
+        errs.append(f"ATE {ate:.3f} m")
+    if lm is not None:
+        errs.append(f"landmarks {lm:.3f} m")
+    if errs:
+        how = " (SE(2)-aligned)" if aligned is not None or lm_aligned is not None else ""
+        parts.append(", ".join(errs) + how)
+    dr_key = "dead_reckoning_ate_aligned" if aligned is not None else "dead_reckoning_ate"
+    dr = _rmse(m, dr_key, "translation_m")
+    if dr is not None:
+        parts.append(f"dead reckoning ATE {dr:.3f} m")
+    gps = m.get("gps")
+    if isinstance(gps, dict) and gps.get("rmse_m") is not None:
+        parts.append(f"GPS RMSE {float(gps['rmse_m']):.2f} m")
+        dgps = m.get("dead_reckoning_gps")
+        if isinstance(dgps, dict) and dgps.get("rmse_m") is not None:
+            parts.append(f"dead reckoning {float(dgps['rmse_m']):.2f} m")
+    return "; ".join(parts)
 
 
 def plot_slam(
@@ -107,13 +175,24 @@ def save_slam_figure(
 ) -> Path:
     """Render :func:`plot_slam` to an image file (Agg backend, written atomically), the
     estimate aligned as ``metrics`` (from :func:`probmap.pipelines.landmark_slam.evaluate`)
-    aligned it, when they hold an alignment."""
+    aligned it, when they hold an alignment. The title is ``TITLE on DATASET`` (the
+    metrics' ``dataset``, e.g. ``mrclam-MRCLAM_Dataset7-robot1``, which names the robot),
+    over a line of the metrics' figures (:func:`metrics_caption`)."""
     from matplotlib.figure import Figure
 
     path = Path(path)
     fig = Figure(figsize=(8, 8))
     T, name = alignment_from_metrics(metrics)
-    plot_slam(fig.add_subplot(), result, dataset, title=title, alignment=T, aligned_to=name)
+    ax = fig.add_subplot()
+    plot_slam(ax, result, dataset, alignment=T, aligned_to=name)
+    source = (metrics or {}).get("dataset") or getattr(dataset, "name", "")
+    heading = " on ".join(v for v in (title or "", str(source)) if v)
+    caption = _wrapped(metrics_caption(metrics), 60)
+    ax.set_title(heading, loc="left", fontsize=10, pad=4 + 11 * (caption.count("\n") + 1))
+    ax.text(
+        0.0, 1.01, caption, transform=ax.transAxes, fontsize=8, va="bottom", ha="left",
+    )  # fmt: skip
+    legend_below(ax, ncol=2)  # under the axes: it hides no landmark
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=120, bbox_inches="tight")
     return path

@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from probmap._checks import require_at_least
-from probmap.viz.maps import plot_map
+from probmap.viz.maps import legend_below, map_legend_handles, plot_map
 
 __all__ = ["converged_index", "plot_localization", "save_localization_figure", "split_at_jumps"]
 
@@ -148,25 +148,45 @@ def plot_localization(
             piece[:, 0], piece[:, 1], style, color="tab:red", lw=0.8, ms=2.0,
             label="MCL" if k == 0 else None,
         )  # fmt: skip
-    ax.legend(loc="upper right", fontsize=7)
+    if len(p) > c:  # where the localized estimate starts and ends
+        ax.plot(
+            p[c, 0],
+            p[c, 1],
+            "o",
+            color="tab:red",
+            mec="white",
+            mew=0.6,
+            ms=6,
+            zorder=4,
+            label="start",
+        )
+        ax.plot(
+            p[-1, 0],
+            p[-1, 1],
+            "s",
+            color="tab:red",
+            mec="white",
+            mew=0.6,
+            ms=6,
+            zorder=4,
+            label="end",
+        )
+    handles, _ = ax.get_legend_handles_labels()
+    legend_below(ax, handles + map_legend_handles(), ncol=4)  # outside the map, large type
     return ax
 
 
 def save_localization_figure(
     path: str | os.PathLike[str], grid: Any, times: ArrayLike, poses: ArrayLike,
-    spread: ArrayLike, *, dpi: int = 120, **kwargs: Any,
+    spread: ArrayLike, *, dpi: float | None = None, **kwargs: Any,
 ) -> Path:  # fmt: skip
     """Render :func:`plot_localization` to a PNG (Agg backend, written atomically; inside
-    :func:`probmap._atomic.atomic_outputs` it is renamed with the command's other files).
-    ``kwargs`` go to :func:`plot_localization`."""
-    from matplotlib.figure import Figure
+    :func:`probmap._atomic.atomic_outputs` it is renamed with the command's other files), by
+    default at the resolution that shows a large map's walls
+    (:func:`probmap.viz.maps.save_picture`). ``kwargs`` go to :func:`plot_localization`."""
+    from probmap.viz.maps import map_figure, save_picture
 
-    from probmap._atomic import atomic_write
-
-    path = Path(path)
-    h, w = grid.spec.shape
-    fig = Figure(figsize=(8, float(np.clip(8 * h / max(w, 1), 3, 12)) + 0.6))
-    plot_localization(fig.add_subplot(), grid, times, poses, spread, **kwargs)
-    with atomic_write(path, "wb") as f:
-        fig.savefig(f, format="png", dpi=dpi, bbox_inches="tight")
-    return path
+    fig = map_figure(grid)
+    ax = fig.add_subplot()
+    plot_localization(ax, grid, times, poses, spread, **kwargs)
+    return save_picture(fig, ax, path, dpi=None if dpi is None else float(dpi))

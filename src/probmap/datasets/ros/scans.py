@@ -625,7 +625,20 @@ class RosBag:
             beams=beams,
             skipped_lines=skipped,
             readings=report,
+            pose_source=self._pose_source(),
         )
+
+    def _pose_source(self) -> str:
+        """What placed the scans of the last read (:attr:`ScanBatch.pose_source`): ``"laser"``
+        in the laser's own frame, ``"corrected"`` in a ``map`` frame (a SLAM system's), else
+        ``"odometry"`` (odom, or the odometry topic's frame)."""
+        frames = getattr(self, "resolved_frames", None)
+        if not frames:
+            return ""
+        fixed, _, laser = frames
+        if fixed == laser:
+            return "laser"
+        return "corrected" if fixed == "map" else "odometry"
 
 
 def _implausible(

@@ -847,7 +847,9 @@ def _follow_scan(
     cfg: LocalizeConfig,
 ) -> bool:
     """Match the scan against the map around the estimate ``pose`` (robot, map frame); when a
-    pose fits better by more than ``cfg.match_gain`` log-likelihood per beam, move the particles
+    pose inside the window (not on its edge) fits better by more than ``cfg.match_gain``
+    log-likelihood per beam, and fits the map as a converged filter must (``converged_matched``
+    of the beams near an obstacle), move the particles
     within ``2 match_window`` of the estimate as the estimate moves to it (odometry that
     contradicts the laser). Returns whether it moved them."""
     from probmap.geometry.se2 import compose, inverse
@@ -855,7 +857,19 @@ def _follow_scan(
     window = float(cfg.match_window or 0.0)
     lx, ly, ok = lf.endpoints(ranges, angles, mount)
     best, gain = lf.local_search(pose, lx[ok], ly[ok], (window, cfg.match_turn))
-    if not gain > cfg.match_gain:
+    d = best - pose
+    turn = abs(math.remainder(float(d[2]), 2 * math.pi))
+    # an optimum on the window's edge is no local optimum: a look-alike further off (Intel, in
+    # a map from its corrected log, where people hide the walls)
+    edge = max(abs(d[0]), abs(d[1])) > 0.99 * window or turn > 0.99 * cfg.match_turn > 0
+    if not gain > cfg.match_gain or edge:
+        return False
+    # and the scan must fit there as a converged filter's does: where it fits no pose well
+    # (people, a part of the map that is off) a better pose is no better evidence
+    if (
+        _matched_fraction(lf, best, mount, ranges, angles, 2.0 * cfg.sigma_hit)
+        < cfg.converged_matched
+    ):
         return False
     step = compose(best, inverse(pose))
     pts = mcl.particles

@@ -146,6 +146,9 @@ class LocalizeConfig:
         (``max_random_fraction`` applies before convergence). The rest keep the place it lost track at: a filter a metre off finds the
         robot again nearby, where a cloud replaced at once by particles over a large building
         (the hospital, 460 x 260 m) wanders.
+    kld_min : int or None
+        KLD-sampling (Table 8.4): resampling draws between this many and ``n_particles``
+        particles, as many as the cloud's spread needs; None: always ``n_particles``.
     match_window, match_turn, match_gain : float
         Odometry that contradicts the laser (Freiburg 079 logs every reversing as forward
         driving): after each update, the scan is matched against the map around the estimate
@@ -186,6 +189,7 @@ class LocalizeConfig:
     lost_jump: float = 2.0
     lost_matched: float = 0.3
     lost_random_fraction: float = 0.1
+    kld_min: int | None = None
     match_window: float | None = 0.5
     match_turn: float = math.radians(6.0)
     match_gain: float = 0.3
@@ -224,6 +228,8 @@ class LocalizeConfig:
         if not (math.isfinite(self.lost_spread) and self.lost_spread > 0):
             raise ValueError(f"lost_spread must be a finite number > 0 m, got {self.lost_spread}")
         require_at_least("lost_updates", self.lost_updates, 1)
+        if self.kld_min is not None:
+            require_at_least("kld_min", self.kld_min, 1)
         for name in ("converged_matched", "lost_matched", "lost_random_fraction"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name} must lie in [0, 1], got {getattr(self, name)}")
@@ -603,6 +609,7 @@ def localize_scans(
     """
     import warnings
 
+    from probmap.filters.kld import KLDConfig
     from probmap.filters.mcl import FreeSpaceSampler, MCLConfig, MonteCarloLocalization
     from probmap.geometry.se2 import between, compose
     from probmap.models.likelihood_field import LikelihoodField
@@ -662,6 +669,11 @@ def localize_scans(
         max_random_fraction=cfg.max_random_fraction,
         independent_measurements=cfg.independent_beams,
         min_ess_fraction=cfg.min_ess_fraction,
+        kld=(
+            KLDConfig(n_min=min(cfg.kld_min, cfg.n_particles), n_max=cfg.n_particles)
+            if cfg.kld_min is not None
+            else None
+        ),
     )
     if cfg.global_localization:
         mcl = MonteCarloLocalization.uniform(lf, motion, rng, free, mcl_cfg)

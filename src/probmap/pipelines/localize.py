@@ -154,10 +154,11 @@ class LocalizeConfig:
         driving): after each update, the scan is matched against the map around the estimate
         (:meth:`~probmap.models.likelihood_field.LikelihoodField.local_search`, positions within
         ``match_window`` m, headings within ``match_turn`` rad); when the best pose fits better
-        by more than ``match_gain`` log-likelihood per beam, the particles near the estimate
-        are moved with it, as if the odometry had said so. None: never. The gain needs the
-        whole scan to fit better, so a corridor, where sliding along it changes nothing, does
-        not move the cloud.
+        by more than ``match_gain`` log-likelihood per beam, lies inside the window (not on its
+        edge) and fits the map there as a converged filter must (``converged_matched``), the
+        particles near the estimate are moved with it, as if the odometry had said so. None:
+        never. The gain needs the whole scan to fit better, so a corridor, where sliding along
+        it changes nothing, does not move the cloud.
     """
 
     n_particles: int = 2000

@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from probmap.cli import register
@@ -45,3 +46,23 @@ def test_localize_config_file_and_record(tmp_path):
     assert res.exit_code == 0, res.output
     got = load_config(LocalizeConfig, tmp_path / "b" / "config.yaml")
     assert got == LocalizeConfig(n_particles=300, seed=4, beam_step=2)
+
+
+def test_kld_sampling_adapts_the_particle_count():
+    import numpy as np
+
+    from probmap.pipelines.localize import localize_scans
+    from probmap.sim.localization import simulate_localization_world
+
+    with pytest.raises(ValueError, match="kld_min"):
+        LocalizeConfig(kld_min=0)
+    w = simulate_localization_world(0)
+    n = 120
+    cfg = LocalizeConfig(n_particles=2000, initial_pose=tuple(w.poses[0]), kld_min=100)
+    run = localize_scans(
+        w.spec, w.occupied.astype(float), 0.2 * np.arange(n), w.ranges[:n], w.angles,
+        w.odometry[:n], w.max_range, cfg,
+    )  # fmt: skip
+    assert run.particles is not None and 100 <= run.particles.shape[0] < 2000  # tight: fewer
+    err = np.hypot(*(run.poses[:, :2] - w.poses[run.scan_index, :2]).T)
+    assert np.median(err) < 0.1

@@ -759,6 +759,9 @@ class MonteCarloLocalization:
         #: filter is lost, since on real logs the scans fit some places of a map worse than
         #: others and ``w_fast`` falls below ``w_slow`` there while the filter tracks well.
         self.augment = self.config.augmented
+        #: While ``augment`` is on, at least this fraction of random particles (a caller that
+        #: knows the filter is lost need not wait for ``w_fast`` to fall below ``w_slow``).
+        self.random_floor = 0.0
         self.w_slow = 0.0
         self.w_fast = 0.0
         self.last_exponent = 1.0  # the exponent the last measurement was taken to
@@ -861,7 +864,8 @@ class MonteCarloLocalization:
         """Probability of a random particle, ``max(0, 1 - w_fast / w_slow)`` (Table 8.3)."""
         if not self.augment or self.free_space is None:
             return 0.0
-        return min(mcl_random_fraction(self.w_slow, self.w_fast), self.config.max_random_fraction)
+        frac = min(mcl_random_fraction(self.w_slow, self.w_fast), self.config.max_random_fraction)
+        return max(frac, self.random_floor)
 
     def resample(self) -> None:
         """Low-variance resampling (Table 4.4), KLD-sampling when configured (Table 8.4),

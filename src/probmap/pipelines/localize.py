@@ -4,9 +4,12 @@ Used by ``probmap localize``; the core algorithm is :class:`~probmap.filters.mcl
 The filter updates when the odometry has moved ``update_distance`` or turned ``update_angle``
 since the last update (between updates scans are skipped, as in ROS amcl), never while the
 robot stands still, using every ``beam_step``-th beam with the likelihood field model, its
-log-likelihood tempered as if a scan held ``independent_beams`` independent beams. A run says
-when it lost track and when it recovered (:class:`LostReport`); while lost, augmented MCL
-injects random particles. A global localization reports the places its particles hold
+log-likelihood tempered as if a scan held ``independent_beams`` independent beams. After each
+update the scan is matched against the map near the estimate, and the cloud follows the scan
+where the odometry contradicts it clearly (``match_window``). A run says when it lost track
+(its cloud spread, left the map, jumped, or its scans stopped fitting the map at a tight
+estimate) and when it recovered (:class:`LostReport`); while lost, augmented MCL injects random
+particles. A global localization reports the places its particles hold
 (:attr:`LocalizationRun.hypotheses`) and claims convergence only for one tight cluster whose
 scans fit the map. A reference trajectory is compared at its own times, the run interpolated
 between its updates (:func:`trajectory_errors`): it never changes the run.
@@ -30,7 +33,7 @@ import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -115,8 +118,11 @@ class LocalizeConfig:
         The filter counts as lost once its particles' spread (metres, ``sqrt(var_x +
         var_y)``) stays above this, or its estimate stays off the map's free space (outside the
         grid, on an unknown or occupied cell), for ``lost_updates`` updates in a row after it
-        had converged (see ``converged_weight``; a tracking run starts converged). It has
-        recovered once both hold again for ``lost_updates`` updates in a row.
+        had converged (see ``converged_weight``; a tracking run starts converged), or its
+        scans stop fitting the map (``lost_matched``). It has recovered once, for
+        ``lost_updates`` updates in a row, the cloud is tight and on free space and its last
+        ``lost_updates`` scans fit the map as a converged global localization's must (a mean
+        :attr:`LocalizationRun.matched` of at least ``converged_matched``).
     lost_updates : int
         Consecutive updates beyond (within) those bounds before the filter counts as lost
         (recovered).
@@ -125,6 +131,34 @@ class LocalizeConfig:
         against the odometry from one update to the next; a jump also breaks a run of good
         updates while lost. Tracking, the estimate follows the odometry between updates:
         a jump means it had lost track, or has.
+    lost_matched : float
+        The filter also counts as lost when its particles are tight but in the wrong place:
+        when, for ``lost_updates`` updates in a row, its last ``lost_updates`` scans fit the map
+        seen from its estimate with on average fewer than this fraction of their beams ending
+        within ``2 sigma_hit`` of an obstacle (:attr:`LocalizationRun.matched`). Tracking
+        right, the 10-update average stays above 0.5 on Intel, Freiburg 079 and the Intel bag
+        (0.9 or more most of the time), but falls to 0.3 for a while in the hospital, whose map
+        is poor in places.
+    lost_random_fraction : float
+        While a filter that had converged is lost, this fraction of its particles is replaced
+        by random ones at each resampling, whatever augmented MCL's averages say (a cloud that
+        never fit gives ``w_fast`` no drop below ``w_slow``), and no more
+        (``max_random_fraction`` applies before convergence). The rest keep the place it lost track at: a filter a metre off finds the
+        robot again nearby, where a cloud replaced at once by particles over a large building
+        (the hospital, 460 x 260 m) wanders.
+    kld_min : int or None
+        KLD-sampling (Table 8.4): resampling draws between this many and ``n_particles``
+        particles, as many as the cloud's spread needs; None: always ``n_particles``.
+    match_window, match_turn, match_gain : float
+        Odometry that contradicts the laser (Freiburg 079 logs every reversing as forward
+        driving): after each update, the scan is matched against the map around the estimate
+        (:meth:`~probmap.models.likelihood_field.LikelihoodField.local_search`, positions within
+        ``match_window`` m, headings within ``match_turn`` rad); when the best pose fits better
+        by more than ``match_gain`` log-likelihood per beam, lies inside the window (not on its
+        edge) and fits the map there as a converged filter must (``converged_matched``), the
+        particles near the estimate are moved with it, as if the odometry had said so. None:
+        never. The gain needs the whole scan to fit better, so a corridor, where sliding along
+        it changes nothing, does not move the cloud.
     """
 
     n_particles: int = 2000
@@ -154,6 +188,12 @@ class LocalizeConfig:
     lost_spread: float = 3.0
     lost_updates: int = 10
     lost_jump: float = 2.0
+    lost_matched: float = 0.3
+    lost_random_fraction: float = 0.1
+    kld_min: int | None = None
+    match_window: float | None = 0.5
+    match_turn: float = math.radians(6.0)
+    match_gain: float = 0.3
 
     def __post_init__(self) -> None:
         if self.n_particles <= 0:
@@ -189,6 +229,21 @@ class LocalizeConfig:
         if not (math.isfinite(self.lost_spread) and self.lost_spread > 0):
             raise ValueError(f"lost_spread must be a finite number > 0 m, got {self.lost_spread}")
         require_at_least("lost_updates", self.lost_updates, 1)
+        if self.kld_min is not None:
+            require_at_least("kld_min", self.kld_min, 1)
+        for name in ("converged_matched", "lost_matched", "lost_random_fraction"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"{name} must lie in [0, 1], got {getattr(self, name)}")
+        if self.match_window is not None and not (
+            math.isfinite(self.match_window) and self.match_window > 0
+        ):
+            raise ValueError(
+                f"match_window must be a number > 0 m or None, got {self.match_window}"
+            )
+        if not (math.isfinite(self.match_turn) and self.match_turn >= 0):
+            raise ValueError(f"match_turn must be a number >= 0 rad, got {self.match_turn}")
+        if not (math.isfinite(self.match_gain) and self.match_gain >= 0):
+            raise ValueError(f"match_gain must be a number >= 0, got {self.match_gain}")
         if not 0 <= self.converged_matched <= 1:
             raise ValueError(f"converged_matched must lie in [0, 1], got {self.converged_matched}")
         if not (0 < self.converged_weight <= 1 and 0 < self.converged_spread < math.inf):
@@ -216,11 +271,13 @@ class LostReport:
         Its timestamp (s).
     reason : str
         ``"off the map"`` (the estimate left the map's free space), ``"spread"`` (the
-        particles spread beyond ``lost_spread``) or ``"jump"`` (the estimate jumped more than
+        particles spread beyond ``lost_spread``), ``"jump"`` (the estimate jumped more than
         ``lost_jump`` against the odometry from this update to the next: the filter had lost
-        track, or has).
+        track, or has) or ``"misfit"`` (the scans stopped fitting the map at the estimate:
+        ``LocalizeConfig.lost_matched``).
     value : float
-        The spread (m) at that update; for ``"jump"``, the jump (m).
+        The spread (m) at that update; for ``"jump"``, the jump (m); for ``"misfit"``, the
+        mean fraction of the beams that ended near an obstacle over the last updates.
     recovered_index : int or None
         The scan of the first update of the run of ``lost_updates`` good ones that followed
         (the filter found the robot again); None when the run ended lost.
@@ -244,6 +301,8 @@ class LostReport:
         what = {
             "off the map": "its estimate left the map's free space",
             "jump": f"its estimate then jumped {self.value:.1f} m against the odometry",
+            "misfit": "its scans stopped fitting the map at its estimate (on average "
+            f"{self.value:.0%} of the beams near an obstacle)",
         }.get(self.reason, f"its particles spread to {self.value:.1f} m")
         text = f"the filter lost track at scan {self.scan_index} (t = {self.time:.2f} s): {what}"
         if self.recovered_index is not None:
@@ -551,6 +610,7 @@ def localize_scans(
     """
     import warnings
 
+    from probmap.filters.kld import KLDConfig
     from probmap.filters.mcl import FreeSpaceSampler, MCLConfig, MonteCarloLocalization
     from probmap.geometry.se2 import between, compose
     from probmap.models.likelihood_field import LikelihoodField
@@ -598,6 +658,7 @@ def localize_scans(
     else:
         free_mask = np.nan_to_num(prob.astype(np.float64), nan=1.0) < cfg.free_threshold
     free = FreeSpaceSampler(spec, free_mask & (lf.distance > 0.15))
+    nearby = _NearbyFreeSpace(spec, free_mask & (lf.distance > 0.15), free)
     augmented = cfg.global_localization  # tracking: only while lost, set below
     rng = np.random.default_rng(cfg.seed)
     motion = OdometryMotionModel(*cfg.alphas)
@@ -609,6 +670,11 @@ def localize_scans(
         max_random_fraction=cfg.max_random_fraction,
         independent_measurements=cfg.independent_beams,
         min_ess_fraction=cfg.min_ess_fraction,
+        kld=(
+            KLDConfig(n_min=min(cfg.kld_min, cfg.n_particles), n_max=cfg.n_particles)
+            if cfg.kld_min is not None
+            else None
+        ),
     )
     if cfg.global_localization:
         mcl = MonteCarloLocalization.uniform(lf, motion, rng, free, mcl_cfg)
@@ -643,6 +709,10 @@ def localize_scans(
         est = mcl.update_scan(odo[last], odo[k], r[k, sel], beams, mount)
         last = k
         p = est.best_cluster
+        if cfg.match_window is not None and converged:
+            if _follow_scan(mcl, lf, p, r[k, sel], beams, mount, cfg):
+                est = mcl.estimate()
+                p = est.best_cluster
         fit = mcl.w_fast / mcl.w_slow if mcl.w_slow > 0 else 1.0
         matched = _matched_fraction(lf, p, mount, r[k, sel], beams, 2.0 * cfg.sigma_hit)
         rows.append((t[k], p[0], p[1], p[2], est.spread, k, fit, matched))
@@ -651,6 +721,9 @@ def localize_scans(
         ix, iy = math.floor((p[0] - x0) / res), math.floor((p[1] - y0) / res)
         on_map = 0 <= ix < w and 0 <= iy < h and bool(free_mask[iy, ix])
         wide = not est.spread <= cfg.lost_spread
+        # a tight cloud in the wrong place: its scans stop fitting the map, over many updates
+        fits = float(np.mean([row[7] for row in rows[-cfg.lost_updates :]]))
+        misfit = len(rows) >= cfg.lost_updates and fits < cfg.lost_matched
         if not converged:  # global localization: one tight cluster that fits, or not yet
             top = mcl.hypotheses()[:1]
             recent = [row[7] for row in rows[-cfg.lost_updates :]]
@@ -672,18 +745,20 @@ def localize_scans(
         if lost is None:
             if converged and jump > cfg.lost_jump:
                 streak = [(k1, "jump", jump)]  # lost at once
-            elif converged and (wide or not on_map):
-                streak.append((k, "spread" if wide else "off the map", float(est.spread)))
+            elif converged and (wide or not on_map or misfit):
+                why = "spread" if wide else "off the map" if not on_map else "misfit"
+                streak.append((k, why, float(est.spread) if why != "misfit" else fits))
             else:
                 streak.clear()
             if streak and (streak[0][1] == "jump" or len(streak) >= cfg.lost_updates):
                 k0, why, val = streak[0]
                 lost = LostReport(int(k0), float(t[k0]), why, val)
+                nearby.start(p)
                 episodes.append(lost)
                 warnings.warn(lost.describe(), FilterLostWarning, stacklevel=2)
                 streak.clear()
                 good = 0
-        elif wide or not on_map or jump > cfg.lost_jump:
+        elif wide or not on_map or fits < cfg.converged_matched or jump > cfg.lost_jump:
             good = 0
         else:
             good += 1
@@ -695,6 +770,14 @@ def localize_scans(
                 )
                 lost = None
         mcl.augment = not converged or (cfg.augmented and lost is not None)
+        mcl.random_floor = cfg.lost_random_fraction if lost is not None else 0.0
+        # random particles: over all free space while a global localization converges; near
+        # where a lost filter lost track, in a disc that doubles every lost_updates updates
+        mcl.free_space = (  # a FreeSpaceSampler by duck typing: sample(n, rng)
+            cast(Any, nearby.widen(cfg.lost_updates)) if lost is not None else free
+        )
+        if converged and mcl.config is mcl_cfg:  # recovery keeps most of its cloud
+            mcl.config = dataclasses.replace(mcl_cfg, max_random_fraction=cfg.lost_random_fraction)
         if progress is not None and len(rows) % 50 == 0:
             progress(k - start, stop - start)
         if max_updates is not None and len(rows) >= max_updates:
@@ -717,6 +800,95 @@ def localize_scans(
     if observer is not None and hasattr(observer, "finish"):
         observer.finish(run)
     return run
+
+
+class _NearbyFreeSpace:
+    """Random poses over the free space within a disc around where the filter lost track (see
+    ``localize_scans``), by rejection; the disc starts at 2 m and doubles every ``per``
+    updates, and once it holds the whole map (or a draw finds no free cell) ``fallback``, the
+    sampler over all free space, draws."""
+
+    def __init__(self, spec: GridGeometry, free: NDArray[np.bool_], fallback: Any) -> None:
+        self.free = free
+        self.res = float(spec.resolution)
+        self.x0, self.y0 = (float(v) for v in spec.origin)
+        h, w = free.shape
+        self.size = math.hypot(h * self.res, w * self.res)
+        self.fallback = fallback
+        self.center = np.zeros(2)
+        self.updates = 0
+
+    def start(self, pose: NDArray[np.float64]) -> None:
+        self.center = np.array(pose[:2], dtype=np.float64)
+        self.updates = 0
+
+    def widen(self, per: int) -> _NearbyFreeSpace:
+        self.radius = 2.0 * 2.0 ** (self.updates / per)
+        self.updates += 1
+        return self
+
+    def sample(self, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
+        if self.radius >= self.size:
+            return np.asarray(self.fallback.sample(n, rng))
+        h, w = self.free.shape
+        got: list[NDArray[np.float64]] = []
+        count = 0
+        for _ in range(20):
+            m = 4 * n
+            rad = self.radius * np.sqrt(rng.uniform(size=m))
+            ang = rng.uniform(-np.pi, np.pi, size=m)
+            x = self.center[0] + rad * np.cos(ang)
+            y = self.center[1] + rad * np.sin(ang)
+            ix = np.floor((x - self.x0) / self.res).astype(np.int64)
+            iy = np.floor((y - self.y0) / self.res).astype(np.int64)
+            ok = (ix >= 0) & (iy >= 0) & (ix < w) & (iy < h)
+            ok[ok] = self.free[iy[ok], ix[ok]]
+            got.append(np.column_stack([x[ok], y[ok], rng.uniform(-np.pi, np.pi, int(ok.sum()))]))
+            count += int(ok.sum())
+            if count >= n:
+                return np.concatenate(got)[:n]
+        return np.asarray(self.fallback.sample(n, rng))
+
+
+def _follow_scan(
+    mcl: Any,
+    lf: Any,
+    pose: NDArray[np.float64],
+    ranges: NDArray[np.float64],
+    angles: NDArray[np.float64],
+    mount: NDArray[np.float64],
+    cfg: LocalizeConfig,
+) -> bool:
+    """Match the scan against the map around the estimate ``pose`` (robot, map frame); when a
+    pose inside the window (not on its edge) fits better by more than ``cfg.match_gain``
+    log-likelihood per beam, and fits the map as a converged filter must (``converged_matched``
+    of the beams near an obstacle), move the particles
+    within ``2 match_window`` of the estimate as the estimate moves to it (odometry that
+    contradicts the laser). Returns whether it moved them."""
+    from probmap.geometry.se2 import compose, inverse
+
+    window = float(cfg.match_window or 0.0)
+    lx, ly, ok = lf.endpoints(ranges, angles, mount)
+    best, gain = lf.local_search(pose, lx[ok], ly[ok], (window, cfg.match_turn))
+    d = best - pose
+    turn = abs(math.remainder(float(d[2]), 2 * math.pi))
+    # an optimum on the window's edge is no local optimum: a look-alike further off (Intel, in
+    # a map from its corrected log, where people hide the walls)
+    edge = max(abs(d[0]), abs(d[1])) > 0.99 * window or turn > 0.99 * cfg.match_turn > 0
+    if not gain > cfg.match_gain or edge:
+        return False
+    # and the scan must fit there as a converged filter's does: where it fits no pose well
+    # (people, a part of the map that is off) a better pose is no better evidence
+    if (
+        _matched_fraction(lf, best, mount, ranges, angles, 2.0 * cfg.sigma_hit)
+        < cfg.converged_matched
+    ):
+        return False
+    step = compose(best, inverse(pose))
+    pts = mcl.particles
+    near = np.hypot(pts[:, 0] - pose[0], pts[:, 1] - pose[1]) <= 2.0 * window
+    pts[near] = compose(step, pts[near])
+    return True
 
 
 def _matched_fraction(

@@ -123,10 +123,17 @@ def pooled_cells(grid: Any, step: int) -> tuple[NDArray[np.float32], NDArray[np.
     three at ``step = 3``. Works through the rows a strip at a time (the temporary memory is
     about 10 MB whatever the map's size)."""
     lo_all = np.asarray(grid.log_odds)
-    seen_all = np.asarray(grid.observed)
     h, w = lo_all.shape
+    rows_of = getattr(grid, "observed_rows", None)  # the mask a strip at a time
+    if rows_of is None:
+        seen_grid = np.asarray(grid.observed)
+
+        def rows_of(r0: int, r1: int) -> NDArray[np.bool_]:
+            return seen_grid[r0:r1]
+
     if step == 1:
-        return np.where(seen_all, lo_all, 0.0).astype(np.float32), seen_all.astype(bool)
+        seen_all = np.asarray(rows_of(0, h), dtype=bool)
+        return np.where(seen_all, lo_all, 0.0).astype(np.float32), seen_all
     ho, wo = -(-h // step), -(-w // step)
     lo_out = np.empty((ho, wo), np.float32)
     seen_out = np.empty((ho, wo), bool)
@@ -134,7 +141,7 @@ def pooled_cells(grid: Any, step: int) -> tuple[NDArray[np.float32], NDArray[np.
     pad_w = wo * step - w
     for r0 in range(0, h, rows):
         r1 = min(h, r0 + rows)
-        lo = np.where(seen_all[r0:r1], lo_all[r0:r1], -np.inf).astype(np.float32)
+        lo = np.where(rows_of(r0, r1), lo_all[r0:r1], -np.inf).astype(np.float32)
         pad_h = -(-(r1 - r0) // step) * step - (r1 - r0)
         if pad_h or pad_w:
             lo = np.pad(lo, ((0, pad_h), (0, pad_w)), constant_values=-np.inf)

@@ -68,8 +68,8 @@ __all__ = [
 #: Header of a saved session.
 SESSION_FORMAT = "probmap.GraphSlam session"
 #: Version 1 was a Python pickle (refused: it could run code); 2 the archive of arrays; 3 the
-#: same archive, with the pairwise closure check's state and the lidar-only prior in the
-#: configuration (a version-2 session would resume a different algorithm: refused).
+#: same archive, with the pairwise closure check's state and settings (a version-2 session
+#: would resume a different algorithm: refused).
 SESSION_VERSION = 3
 
 _HEADER = "header.json"

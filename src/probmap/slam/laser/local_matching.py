@@ -1,10 +1,9 @@
 """Local SLAM's settings for :class:`~probmap.slam.laser.submap_slam.SubmapSlam`: the motion
 filter, the scan-to-submap matcher, when the wide search runs, when the scan refutes the
-odometry, the lidar-only window and prior, and the weights of the local edges."""
+odometry, the lidar-only window, and the weights of the local edges."""
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
@@ -15,7 +14,7 @@ from probmap._checks import require_nonnegative_finite
 from probmap.slam.laser.closures import require_pair
 from probmap.slam.laser.scan_matching import MatcherConfig, laser_slam_matcher
 
-__all__ = ["LocalMatch", "LocalMatchingConfig", "prior_step"]
+__all__ = ["LocalMatch", "LocalMatchingConfig"]
 
 
 def _local_matcher() -> MatcherConfig:
@@ -102,17 +101,6 @@ class LocalMatchingConfig:
         prediction may miss between two scans: a change of speed of 6 m/s or of turn rate of
         3.5 rad/s at 10 scans a second, 0.6 m/s and 0.35 rad/s at 1 scan a second (slow
         scan rates need steady motion).
-    lidar_only_prior : tuple of float
-        ``(per metre, per radian)``: weights ``w`` of the constant-velocity prediction as a
-        prior on a lidar-only scan's match. The match is moved by one Gauss-Newton step of
-        ``sum r^2 / 2 + N/2 (p - p_pred)' diag(w_t^2, w_t^2, w_r^2) (p - p_pred)`` from where it
-        converged (``r_i = 1 - M(q_i)``, ``N`` endpoints; :func:`prior_step`): along a
-        direction the scan pins down, ``J^T J`` is hundreds of times ``N w^2`` and the match
-        stays; along a corridor the laser cannot see the length of, the scan says nothing and
-        the prediction holds the position. Without it the Intel log run lidar-only slid along
-        a corridor at 2,226 s (0.087 m relation error; 0.0177 m with it, and 0.0177 and
-        0.0199 m with half and twice the weights; Freiburg 079 0.0312 and 0.0310 m). ``(0, 0)``
-        turns it off; runs with odometry do not use it (the odometry edges hold corridors).
     local_sd : tuple of float
         Standard deviations ``(metres, radians)`` of the local-SLAM edges (node to previous node
         and node to submap anchor).
@@ -152,7 +140,6 @@ class LocalMatchingConfig:
     recover_window: tuple[float, float] = (0.6, 0.1)
     recover_drop: float = 0.75
     lidar_only_window: tuple[float, float] = (0.6, 0.35)
-    lidar_only_prior: tuple[float, float] = (0.5, 1.0)
     local_sd: tuple[float, float] = (0.02, 0.005)
     anchor_sd_rate: float = 0.1
     odometry_sd: tuple[float, float] = (0.02, 0.005)
@@ -171,28 +158,7 @@ class LocalMatchingConfig:
                 raise ValueError(f"{name} must lie in [0, 1], got {v}")
         for name in ("local_sd", "odometry_sd_rate"):
             require_pair(name, getattr(self, name), positive=True)
-        for name in ("recover_window", "lidar_only_window", "lidar_only_prior", "odometry_sd"):
+        for name in ("recover_window", "lidar_only_window", "odometry_sd"):
             require_pair(name, getattr(self, name), positive=False)
         if self.odometry_sd[0] > 0 and not self.odometry_sd[1] > 0:
             raise ValueError(f"odometry_sd needs a positive rotation part, got {self.odometry_sd}")
-
-
-def prior_step(
-    hessian: NDArray[np.float64],
-    points: int,
-    weights: tuple[float, float],
-    match: NDArray[np.float64],
-    predicted: NDArray[np.float64],
-) -> NDArray[np.float64]:
-    """The match ``match`` (3,) pulled towards ``predicted`` (3,) by one Gauss-Newton step of
-    the prior of :class:`LocalMatchingConfig` ``lidar_only_prior``: ``match + (H + W)^-1 W
-    (predicted - match)``, with ``H`` the scan's ``J^T J`` (3, 3) at the match and ``W = points
-    diag(w_t^2, w_t^2, w_r^2)``; both poses in the frame ``H`` was taken in (a submap's), the
-    heading difference wrapped. Weights of zero return the match."""
-    wt, wr = weights
-    if wt == 0.0 and wr == 0.0:
-        return np.asarray(match, dtype=np.float64).copy()
-    w = points * np.diag([wt * wt, wt * wt, wr * wr])
-    d = np.asarray(predicted, dtype=np.float64) - match
-    d[2] = math.atan2(math.sin(d[2]), math.cos(d[2]))
-    return match + np.linalg.solve(hessian + w + 1e-12 * np.eye(3), w @ d)

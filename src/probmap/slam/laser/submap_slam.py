@@ -56,7 +56,7 @@ from probmap.slam.laser.closures import (
     LoopClosure,
     edge_information,
 )
-from probmap.slam.laser.local_matching import LocalMatch, LocalMatchingConfig, prior_step
+from probmap.slam.laser.local_matching import LocalMatch, LocalMatchingConfig
 from probmap.slam.laser.scan_matching import (
     correlative_search,
     normal_equations,
@@ -433,24 +433,12 @@ class SubmapSlam:
             if got_gn is not None and got_gn[1] >= floor and (best is None or got_gn[1] > best[0]):
                 best = (got_gn[1], got_gn[0])
         if best is not None:
-            return self._with_prior(pts, best[1], predicted)
+            return best[1]
         got = self._match(pts, predicted, wide_window=cfg.local.lidar_only_window)
         self.recovered += got.searched_wide
         if got.failed:
             self.untracked_scans.append(scan)
-            return got.pose
-        return self._with_prior(pts, got.pose, predicted)
-
-    def _with_prior(self, pts: NDArray, pose: NDArray, predicted: NDArray) -> NDArray[np.float64]:
-        """A lidar-only match moved by the constant-velocity prior (``lidar_only_prior``)."""
-        frame = self._match_frame(pts, pose)
-        if frame is None or not any(self.config.local.lidar_only_prior):
-            return pose
-        anchor, match, fld = frame
-        _, _, h = normal_equations(fld, pts, match)
-        pred = between(anchor, predicted)
-        step = prior_step(h, pts.shape[0], self.config.local.lidar_only_prior, match, pred)
-        return _in_local(anchor, step)
+        return got.pose
 
     def _track(self, time_s: float, pose: NDArray[np.float64]) -> None:
         """Update the constant-velocity model with a scan's local-SLAM pose. The velocity is

@@ -109,6 +109,7 @@ class LocalizeConfig:
         Global localization has converged once the particles form one cluster
         (:func:`~probmap.filters.mcl.particle_clusters`) holding at least
         ``converged_weight`` of the weight, with a spread (m) of at most ``converged_spread``,
+        for ``lost_updates`` updates in a row,
         and the last ``lost_updates`` scans fit the map seen from its estimate: on average at
         least ``converged_matched`` of their beams end within ``2 sigma_hit`` of an obstacle
         (:attr:`LocalizationRun.matched`). A cloud that collapsed on a look-alike place fits
@@ -707,6 +708,7 @@ def localize_scans(
     h, w = free_mask.shape
     converged = not cfg.global_localization
     converged_index: int | None = None if cfg.global_localization else 0
+    single = 0  # updates in a row with one tight cluster (a rival alive just before: no claim)
     streak: list[tuple[int, str, float]] = []  # the current run of lost-looking updates
     good, k_good = 0, start  # while lost: good updates in a row, and the first of them
     episodes: list[LostReport] = []
@@ -749,11 +751,10 @@ def localize_scans(
         )
         if not converged:  # global localization: one tight cluster that fits, or not yet
             top = mcl.hypotheses()[:1]
+            one = bool(top) and top[0].weight >= cfg.converged_weight
+            single = single + 1 if one and top[0].spread <= cfg.converged_spread else 0
             converged = (
-                bool(top)
-                and top[0].weight >= cfg.converged_weight
-                and top[0].spread <= cfg.converged_spread
-                and consistent
+                single >= min(cfg.lost_updates, max_updates or cfg.lost_updates) and consistent
             )
             if converged:
                 converged_index = len(rows) - 1

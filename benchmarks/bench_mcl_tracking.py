@@ -24,6 +24,7 @@ Run:  PROBMAP_DATA=/work/shared/data python benchmarks/bench_mcl_tracking.py \\
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import subprocess
 import sys
@@ -99,7 +100,13 @@ def main() -> None:
         log = data_dir() / LOGS[name][0]
         rel = read_relations(data_dir() / LOGS[name][1])
         session = session_for(name, log, args.cache)
-        m = load_localization_map(session)
+        try:
+            m = load_localization_map(session)
+        except ValueError as exc:  # a session of another format: its map_server map, poses
+            print(f"<!-- {name}: {exc}; using slam.yaml and slam.trajectory.csv -->")
+            tr = np.loadtxt(session.parent / "slam.trajectory.csv", delimiter=",", skiprows=1)
+            m = load_localization_map(session.parent / "slam.yaml")
+            m = dataclasses.replace(m, times=tr[:, 0], poses=tr[:, 1:4])
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             batch = open_scans(log, poses="corrected")

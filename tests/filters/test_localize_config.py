@@ -66,3 +66,13 @@ def test_kld_sampling_adapts_the_particle_count():
     assert run.particles is not None and 100 <= run.particles.shape[0] < 2000  # tight: fewer
     err = np.hypot(*(run.poses[:, :2] - w.poses[run.scan_index, :2]).T)
     assert np.median(err) < 0.1
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("converged_see_through", 1.5), ("converged_see_through", -0.1),
+     ("see_through_margin", -0.5), ("see_through_margin", float("nan"))],
+)  # fmt: skip
+def test_see_through_bounds_are_checked(field, value):
+    with pytest.raises(ValueError, match=field):
+        LocalizeConfig(**{field: value})

@@ -110,15 +110,26 @@ def _describe_offset(mount: Any) -> str:
 def _convergence_rows(run: Any, global_: bool) -> list[tuple[str, str]]:
     """Where a global localization converged (or that it did not), and the hypotheses the
     particles hold at the end: one place, or several with their weights and spreads."""
+    import numpy as np
+
     rows = []
     if global_:
         c = run.converged_index
         if c is None:
-            rows.append(("converged", "no: the particles never formed one tight cluster"))
+            rows.append(
+                ("converged", "no: the particles never formed one tight cluster whose scans fit "
+                 "the map (or it stopped fitting)")
+            )  # fmt: skip
         elif not run.localized:
             rows.append(
                 ("converged", "no: at the end its particles hold several places, or the scans "
                  "do not fit the map there")
+            )  # fmt: skip
+        if not run.localized and run.matched.size:
+            fit, through = (float(np.mean(v[-10:])) for v in (run.matched, run.see_through))
+            rows.append(
+                ("scan fit", f"{fit:.0%} of the beams near an obstacle, {through:.0%} through "
+                 "a wall (last 10 updates)")
             )  # fmt: skip
         else:
             k, t = int(run.scan_index[c]), float(run.times[c])

@@ -105,15 +105,22 @@ class LocalizeConfig:
     free_threshold : float
         Cells with occupancy probability below this are free space for random particles.
     seed : int
-    converged_weight, converged_spread, converged_matched : float
+    converged_weight, converged_spread, converged_matched, converged_see_through, see_through_margin : float
         Global localization has converged once the particles form one cluster
         (:func:`~probmap.filters.mcl.particle_clusters`) holding at least
         ``converged_weight`` of the weight, with a spread (m) of at most ``converged_spread``,
+        for ``lost_updates`` updates in a row,
         and the last ``lost_updates`` scans fit the map seen from its estimate: on average at
         least ``converged_matched`` of their beams end within ``2 sigma_hit`` of an obstacle
         (:attr:`LocalizationRun.matched`). A cloud that collapsed on a look-alike place fits
         worse (Intel, 20,000 particles from random scans: 0.65-0.67 there, 0.96-1.00 where it
-        was right). Until then the run reports its hypotheses, not a position.
+        was right), and on average at most ``converged_see_through`` of their beams run
+        through the map's walls there, longer by ``see_through_margin`` m than the ray cast
+        from the estimate (:meth:`~probmap.models.likelihood_field.LikelihoodField.see_through_fraction`):
+        a look-alike place can fit where beams end (Freiburg 079: 0.83-0.87) while a quarter
+        or more of them cross its walls (2-9 % where it was right: people, open doors). Until
+        then the run reports its hypotheses, not a position; a global localization whose scans
+        stop fitting so (not lost yet) had not converged, and searches the whole map again.
     lost_spread : float
         The filter counts as lost once its particles' spread (metres, ``sqrt(var_x +
         var_y)``) stays above this, or its estimate stays off the map's free space (outside the
@@ -185,6 +192,8 @@ class LocalizeConfig:
     converged_weight: float = 0.9
     converged_spread: float = 0.5
     converged_matched: float = 0.8
+    converged_see_through: float = 0.15
+    see_through_margin: float = 0.5
     lost_spread: float = 3.0
     lost_updates: int = 10
     lost_jump: float = 2.0
@@ -231,7 +240,8 @@ class LocalizeConfig:
         require_at_least("lost_updates", self.lost_updates, 1)
         if self.kld_min is not None:
             require_at_least("kld_min", self.kld_min, 1)
-        for name in ("converged_matched", "lost_matched", "lost_random_fraction"):
+        for name in ("converged_matched", "lost_matched", "lost_random_fraction",
+                     "converged_see_through"):  # fmt: skip
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name} must lie in [0, 1], got {getattr(self, name)}")
         if self.match_window is not None and not (
@@ -251,6 +261,8 @@ class LocalizeConfig:
                 "need 0 < converged_weight <= 1 and a finite converged_spread > 0 m, got "
                 f"{self.converged_weight}, {self.converged_spread}"
             )
+        if not (math.isfinite(self.see_through_margin) and self.see_through_margin >= 0):
+            raise ValueError(f"see_through_margin must be >= 0 m, got {self.see_through_margin}")
         if not (math.isfinite(self.lost_jump) and self.lost_jump > 0):
             raise ValueError(f"lost_jump must be a finite number > 0 m, got {self.lost_jump}")
 
@@ -338,7 +350,8 @@ class LocalizationRun:
     localized : bool
         Whether the run knows where the robot is at the end: it converged, its particles form
         one cluster, and its last ``lost_updates`` scans fit the map there (a mean
-        :attr:`matched` of at least ``converged_matched``).
+        :attr:`matched` of at least ``converged_matched``, a mean :attr:`see_through` of at
+        most ``converged_see_through``).
     episodes : tuple of LostReport
         Every time it lost track, in order; only the last one may be unrecovered.
     fit : (T,) ndarray
@@ -347,6 +360,9 @@ class LocalizationRun:
     matched : (T,) ndarray
         The fraction of the update's beams (with a return) that end within ``2 sigma_hit`` of
         an obstacle of the map, seen from the estimate.
+    see_through : (T,) ndarray
+        The fraction of the update's beams (with a return) that run through an obstacle of
+        the map, seen from the estimate (``LocalizeConfig.see_through_margin``).
     particles : (N, 3) ndarray or None
         The particle set (robot poses) after the last update (m, rad), for pictures; None
         when it is not kept.
@@ -367,6 +383,7 @@ class LocalizationRun:
     localized: bool = True
     fit: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     matched: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    see_through: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
 
     @property
     def ended_lost(self) -> bool:
@@ -684,13 +701,14 @@ def localize_scans(
         mcl = MonteCarloLocalization.from_pose(lf, motion, rng, pose0, cov0, mcl_cfg, free)
     sel = slice(None, None, cfg.beam_step)
     shared = np.ascontiguousarray(a[sel]) if a.ndim == 1 else None
-    rows: list[tuple[float, float, float, float, float, int, float, float]] = []
+    rows: list[tuple[float, float, float, float, float, int, float, float, float]] = []
     last = start
     x0, y0 = (float(v) for v in spec.origin)
     res = float(spec.resolution)
     h, w = free_mask.shape
     converged = not cfg.global_localization
     converged_index: int | None = None if cfg.global_localization else 0
+    single = 0  # updates in a row with one tight cluster (a rival alive just before: no claim)
     streak: list[tuple[int, str, float]] = []  # the current run of lost-looking updates
     good, k_good = 0, start  # while lost: good updates in a row, and the first of them
     episodes: list[LostReport] = []
@@ -714,8 +732,9 @@ def localize_scans(
                 est = mcl.estimate()
                 p = est.best_cluster
         fit = mcl.w_fast / mcl.w_slow if mcl.w_slow > 0 else 1.0
-        matched = _matched_fraction(lf, p, mount, r[k, sel], beams, 2.0 * cfg.sigma_hit)
-        rows.append((t[k], p[0], p[1], p[2], est.spread, k, fit, matched))
+        matched = lf.matched_fraction(p, r[k, sel], beams, mount, 2.0 * cfg.sigma_hit)
+        through = lf.see_through_fraction(p, r[k, sel], beams, mount, cfg.see_through_margin)
+        rows.append((t[k], p[0], p[1], p[2], est.spread, k, fit, matched, through))
         if observer is not None:
             observer(k, est, mcl.particles, r[k, sel], beams)
         ix, iy = math.floor((p[0] - x0) / res), math.floor((p[1] - y0) / res)
@@ -724,18 +743,24 @@ def localize_scans(
         # a tight cloud in the wrong place: its scans stop fitting the map, over many updates
         fits = float(np.mean([row[7] for row in rows[-cfg.lost_updates :]]))
         misfit = len(rows) >= cfg.lost_updates and fits < cfg.lost_matched
+        recent = np.array([row[7:] for row in rows[-cfg.lost_updates :]])
+        consistent = bool(
+            recent.shape[0] >= min(cfg.lost_updates, max_updates or cfg.lost_updates)
+            and recent[:, 0].mean() >= cfg.converged_matched
+            and recent[:, 1].mean() <= cfg.converged_see_through
+        )
         if not converged:  # global localization: one tight cluster that fits, or not yet
             top = mcl.hypotheses()[:1]
-            recent = [row[7] for row in rows[-cfg.lost_updates :]]
+            one = bool(top) and top[0].weight >= cfg.converged_weight
+            single = single + 1 if one and top[0].spread <= cfg.converged_spread else 0
             converged = (
-                bool(top)
-                and top[0].weight >= cfg.converged_weight
-                and top[0].spread <= cfg.converged_spread
-                and len(recent) >= min(cfg.lost_updates, max_updates or cfg.lost_updates)
-                and float(np.mean(recent)) >= cfg.converged_matched
+                single >= min(cfg.lost_updates, max_updates or cfg.lost_updates) and consistent
             )
             if converged:
                 converged_index = len(rows) - 1
+        elif cfg.global_localization and lost is None and not consistent:
+            converged, converged_index = False, None  # it was wrong: search the map again
+            mcl.config = mcl_cfg
         jump = 0.0
         if prev is not None:  # the previous update converged too
             k1, pose1 = prev  # where the odometry alone takes the previous estimate
@@ -784,17 +809,19 @@ def localize_scans(
             break
     if progress is not None:
         progress(stop - start, stop - start)
-    arr = np.array(rows, dtype=np.float64).reshape(-1, 8)
+    arr = np.array(rows, dtype=np.float64).reshape(-1, 9)
     hyps = tuple(mcl.hypotheses())
     run = LocalizationRun(
         arr[:, 0], arr[:, 1:4], arr[:, 4], arr[:, 5].astype(np.int64),
         lost=episodes[0] if episodes else None, particles=np.array(mcl.particles),
         laser_offset=mount, episodes=tuple(episodes), fit=arr[:, 6], matched=arr[:, 7],
+        see_through=arr[:, 8],
         converged_index=converged_index, hypotheses=hyps,
         localized=(
             converged_index is not None and len(hyps) == 1 and lost is None
             and arr.shape[0] > 0
             and float(np.mean(arr[-cfg.lost_updates :, 7])) >= cfg.converged_matched
+            and float(np.mean(arr[-cfg.lost_updates :, 8])) <= cfg.converged_see_through
         ),
     )  # fmt: skip
     if observer is not None and hasattr(observer, "finish"):
@@ -879,43 +906,13 @@ def _follow_scan(
         return False
     # and the scan must fit there as a converged filter's does: where it fits no pose well
     # (people, a part of the map that is off) a better pose is no better evidence
-    if (
-        _matched_fraction(lf, best, mount, ranges, angles, 2.0 * cfg.sigma_hit)
-        < cfg.converged_matched
-    ):
+    if lf.matched_fraction(best, ranges, angles, mount, 2 * cfg.sigma_hit) < cfg.converged_matched:
         return False
     step = compose(best, inverse(pose))
     pts = mcl.particles
     near = np.hypot(pts[:, 0] - pose[0], pts[:, 1] - pose[1]) <= 2.0 * window
     pts[near] = compose(step, pts[near])
     return True
-
-
-def _matched_fraction(
-    lf: Any,
-    pose: NDArray[np.float64],
-    mount: NDArray[np.float64],
-    ranges: NDArray[np.float64],
-    angles: NDArray[np.float64],
-    near: float,
-) -> float:
-    """The fraction of the beams with a return that end within ``near`` metres of an
-    obstacle of the likelihood field ``lf``'s map, seen from the robot pose ``pose``; 1.0 for a
-    scan without a return."""
-    lx, ly, valid = lf.endpoints(ranges, angles, mount)
-    if not valid.any():
-        return 1.0
-    c, s = math.cos(pose[2]), math.sin(pose[2])
-    ex = pose[0] + c * lx[valid] - s * ly[valid]
-    ey = pose[1] + s * lx[valid] + c * ly[valid]
-    f = lf.frame
-    ix = np.floor((ex - f.x0) / f.resolution).astype(np.int64)
-    iy = np.floor((ey - f.y0) / f.resolution).astype(np.int64)
-    h, w = lf.distance.shape
-    inside = (ix >= 0) & (iy >= 0) & (ix < w) & (iy < h)
-    d = np.full(ex.shape, np.inf)
-    d[inside] = lf.distance[iy[inside], ix[inside]]
-    return float(np.mean(d <= near))
 
 
 def match_times(

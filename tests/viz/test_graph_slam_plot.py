@@ -76,3 +76,16 @@ def test_no_closures_no_poses(n):
     ax = Figure().add_subplot()
     plot_graph_slam(ax, run)
     assert [ln.get_label() for ln in ax.get_lines()] == []
+
+
+def test_closures_the_pairwise_check_left_out_are_neither_drawn_nor_counted():
+    from types import SimpleNamespace as NS
+
+    from probmap.viz.laser_slam import graph_slam_subtitle
+
+    loops = NS(left_out=np.array([False, True, False, True]))
+    run = NS(times=np.zeros(100), closure_weights=np.array([1.0, 0.0, 0.3, 0.0]),
+             duration=100.0, seconds=10.0, slam=NS(loops=loops))  # fmt: skip
+    assert graph_slam_subtitle(run) == "100 scans, 2 loop closures (1 down-weighted), 10x real time"
+    run.slam = None  # a run without the check: every closure counts
+    assert graph_slam_subtitle(run).startswith("100 scans, 4 loop closures (3 down-weighted)")

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from probmap.viz.maps import (
     _extent,
@@ -36,6 +37,15 @@ _CLOSURE_ALPHA = 0.06
 _CLOSURE_LW = 0.25
 
 
+def _left_out(run: Any, n: int) -> NDArray[np.bool_]:
+    """Per closure of ``run``, whether the pairwise check left it out of the graph (rejected:
+    neither drawn nor counted); all False for a run without the check."""
+    mask = getattr(getattr(getattr(run, "slam", None), "loops", None), "left_out", None)
+    if mask is None or len(mask) != n:
+        return np.zeros(n, dtype=bool)
+    return np.asarray(mask, dtype=bool)
+
+
 def graph_slam_subtitle(run: Any) -> str:
     """The picture's second line: scans, loop closures (and how many the robust cost
     down-weighted), and the real-time factor.
@@ -47,6 +57,7 @@ def graph_slam_subtitle(run: Any) -> str:
     '910 scans, 3 loop closures (1 down-weighted), 90x real time'
     """
     weights = np.asarray(run.closure_weights, dtype=np.float64)
+    weights = weights[~_left_out(run, len(weights))]
     low = int(np.sum(weights < 0.5))
     closures = f"{len(weights):,} loop closures" + (f" ({low:,} down-weighted)" if low else "")
     parts = [f"{len(run.times):,} scans", closures]
@@ -67,7 +78,8 @@ def plot_graph_slam(
 ) -> Any:
     """Draw ``run.grid`` (free white, occupied black, never observed blue-grey), the accepted
     closures as a light layer of thin segments from each node to the anchor of the submap it
-    matched (green: kept by the robust cost, red: down-weighted below 0.5), the robot
+    matched (green: kept by the robust cost, red: down-weighted below 0.5; those the pairwise
+    check left out are rejected and not drawn), the robot
     trajectory ``run.poses`` on top with its start (circle) and end (square), a scale bar, and
     a red box around each doubtful place (``doubts``: the report's entries with a ``box_m``,
     see :func:`probmap.pipelines.laser_slam.doubts_of`). The title is ``title`` over
@@ -98,6 +110,8 @@ def plot_graph_slam(
     nodes = np.asarray(run.node_poses, dtype=np.float64).reshape(-1, 3)
     pairs = np.asarray(run.closures, dtype=np.int64).reshape(-1, 2)
     weights = np.asarray(run.closure_weights, dtype=np.float64).reshape(-1)
+    accepted = ~_left_out(run, len(weights))
+    pairs, weights = pairs[accepted], weights[accepted]
     segments = np.stack([nodes[pairs[:, 0], :2], nodes[pairs[:, 1], :2]], axis=1)
     kept = weights >= 0.5
     # one collection per colour: fast for thousands of closures, and under the trajectory

@@ -69,8 +69,9 @@ __all__ = [
 SESSION_FORMAT = "probmap.GraphSlam session"
 #: Version 1 was a Python pickle (refused: it could run code); 2 the archive of arrays; 3 the
 #: same archive, with the pairwise closure check's state and settings (a version-2 session
-#: would resume a different algorithm: refused).
-SESSION_VERSION = 3
+#: would resume a different algorithm: refused); 4 adds lidar-only SLAM's recent steps (its
+#: motion model).
+SESSION_VERSION = 4
 
 _HEADER = "header.json"
 _STATE = "state.json"

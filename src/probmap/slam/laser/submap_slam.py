@@ -423,11 +423,18 @@ class SubmapSlam:
         # make the velocity times the time since the last scan a poor guess, where the mean
         # of the last scans' steps is a good one (the laser turns at a steady rate):
         # Gauss-Newton from both, the step's kept unless the other scores better, and only
-        # when it scores at least recover_score and recover_drop of the recent level
+        # when it scores at least recover_score and recover_drop of the recent level. The
+        # velocity's guess counts only inside lidar_only_window of the step's: a velocity
+        # measured over stamps 0.05 s apart can put it a radian off.
         assert self._last_scan_pose is not None
         steps = self._recent_steps
         step = steps.mean(axis=0) if len(steps) else np.zeros(3)
-        guesses = [compose(self._last_scan_pose, step), predicted]
+        stepped = compose(self._last_scan_pose, step)
+        guesses = [stepped]
+        off = between(stepped, predicted)
+        lin, ang = cfg.local.lidar_only_window
+        if math.hypot(off[0], off[1]) <= lin and abs(float(wrap_angle(off[2]))) <= ang:
+            guesses.append(predicted)
         level = self._score_level if cfg.local.recover_drop > 0 else None
         floor = cfg.local.recover_score
         if level is not None:
@@ -439,7 +446,7 @@ class SubmapSlam:
                 best = (got_gn[1], got_gn[0])
         if best is not None:
             return best[1]
-        got = self._match(pts, predicted, wide_window=cfg.local.lidar_only_window)
+        got = self._match(pts, stepped, wide_window=cfg.local.lidar_only_window)
         self.recovered += got.searched_wide
         if got.failed:
             self.untracked_scans.append(scan)

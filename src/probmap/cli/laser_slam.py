@@ -319,6 +319,11 @@ def _check_rows(report: dict[str, Any] | None) -> list[tuple[str, str]]:
     if report["local"].get("lidar_only"):
         lost = report["local"]["untracked_s"]
         local = f"no odometry: lidar only, {len(lost):,} scans matched nothing"
+        if report["local"].get("scans_reordered"):
+            local += (
+                f", {report['local']['scans_reordered']:,} scans taken in the order they were "
+                "published"
+            )
         shown_t = lost
     else:
         local = f"overrode the odometry {len(overridden):,} times"

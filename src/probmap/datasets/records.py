@@ -137,6 +137,13 @@ class ScanBatch:
         drifts), ``"corrected"`` (a SLAM system's estimate, e.g. a GMapping-corrected log or a
         bag's ``map`` frame), ``"laser"`` (a bag read in the laser's own frame: every scan at
         the origin) or ``""`` (unknown).
+    published : ndarray, shape (S,), int64, or None
+        The order the laser driver published the scans in, where the file records it: a
+        ROS 1 bag's header sequence numbers (a driver restart, where they begin again, counts
+        on from the last). ``np.argsort(published, kind="stable")`` puts the rows in that
+        order. None where unknown: a CARMEN log is already in arrival order, and ROS 2 has
+        no sequence number. A bag written in stamp order whose stamps jitter (the Intel bag)
+        holds its scans in another order than the one they were taken in.
     """
 
     times: FloatArray
@@ -150,9 +157,28 @@ class ScanBatch:
     readings: ReadingReport | None = None
     max_range_stated: bool = True
     pose_source: str = ""
+    published: NDArray[np.int64] | None = None
 
     def __len__(self) -> int:
         return int(self.times.shape[0])
+
+    def rows(self, index: slice | NDArray[np.integer] | NDArray[np.bool_]) -> ScanBatch:
+        """The batch of the scans ``index`` selects (a slice, a boolean mask or integer
+        indices, in their order), every per-scan array taken alike; ``readings`` is kept as
+        it is."""
+        from dataclasses import replace
+
+        angles = np.asarray(self.angles)
+        return replace(
+            self,
+            times=np.asarray(self.times)[index],
+            ranges=self.ranges[index],
+            angles=angles if angles.ndim == 1 else angles[index],
+            laser_poses=self.laser_poses[index],
+            robot_poses=self.robot_poses[index],
+            beams=self.beams[index],
+            published=None if self.published is None else self.published[index],
+        )
 
 
 def stack_beams(

@@ -31,7 +31,7 @@ from probmap.datasets.validate import (
     validate_ranges,
 )
 
-__all__ = ["BAG_OPTIONS", "open_scans", "resolve_log"]
+__all__ = ["BAG_OPTIONS", "in_publication_order", "open_scans", "resolve_log"]
 
 #: The topic and frame options of a ROS bag (``bag_options=`` keys; the CLI's
 #: ``--scan-topic``, ``--odom-topic``, ``--fixed-frame``, ``--laser-frame``).
@@ -193,17 +193,30 @@ def _first_seconds(batch: ScanBatch, end_time: float) -> ScanBatch:
     keep = t <= t[0] + end_time
     if keep.all():
         return batch
-    angles = np.asarray(batch.angles)
-    ranges = batch.ranges[keep]
-    _, report = validate_ranges(ranges, float(batch.max_range), beams=batch.beams[keep])
+    part = batch.rows(keep)
+    _, report = validate_ranges(part.ranges, float(batch.max_range), beams=part.beams)
     report = replace(report, skipped_lines=int(batch.skipped_lines))
-    return replace(
-        batch,
-        times=t[keep],
-        ranges=ranges,
-        angles=angles if angles.ndim == 1 else angles[keep],
-        laser_poses=batch.laser_poses[keep],
-        robot_poses=batch.robot_poses[keep],
-        beams=batch.beams[keep],
-        readings=report,
-    )
+    return replace(part, readings=report)
+
+
+def in_publication_order(batch: ScanBatch) -> tuple[ScanBatch, int]:
+    """The batch's scans in the order their driver published them
+    (:attr:`~probmap.datasets.records.ScanBatch.published`), and how many scans the file
+    holds after one published later than them; the batch itself when it records no such
+    order or is in it already.
+
+    Lidar-only SLAM predicts each scan from the one before, so it needs the order the scans
+    were taken in. A bag written in stamp order, whose stamps jitter, holds another: the
+    Intel bag's scans stamped up to 0.9 s late put 998 of its 13,630 after a scan published
+    later. With odometry, each scan is placed from the odometry at
+    its stamp, and stamp order serves (the Intel bag maps to 0.0206 m in stamp order,
+    0.0225 m in publication order).
+    """
+    if batch.published is None:
+        return batch, 0
+    keys = np.asarray(batch.published)
+    # the scans the file holds after one published later than them
+    late = int(np.count_nonzero(keys[1:] < np.maximum.accumulate(keys)[:-1]))
+    if late == 0:
+        return batch, 0
+    return batch.rows(np.argsort(keys, kind="stable")), late

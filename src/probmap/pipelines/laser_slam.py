@@ -670,8 +670,19 @@ def slam_grid(
         )
     source = None
     skipped = 0
+    reordered = 0
     if method == "graph":
+        from probmap.datasets.scans import in_publication_order
         from probmap.pipelines.sessions import SessionLog, resume_batch
+
+        if odometry is not None:
+            lidar_only = not odometry
+        elif resume is not None and resume.scan_times:
+            lidar_only = resume.lidar_only
+        else:
+            lidar_only = not has_odometry(batch)
+        if lidar_only:  # each scan is predicted from the one before: take them as taken
+            batch, reordered = in_publication_order(batch)
 
         source = SessionLog.of(log, batch)
         if resume is not None:
@@ -714,7 +725,7 @@ def slam_grid(
                 # this log's scans of the run (a resumed session's earlier ones are not read)
                 earlier = run.scans_total - len(batch.times)
                 report = {
-                    "local": local_report(run.slam, run.times),
+                    "local": {**local_report(run.slam, run.times), "scans_reordered": reordered},
                     "closures": closure_report(run.slam),
                     "consistency": consistency_report(
                         run.times[earlier:], run.sensor_poses[earlier:], batch

@@ -25,7 +25,6 @@ match fields and max-grids of finished submaps are not saved (they are rebuilt o
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import math
@@ -69,8 +68,9 @@ __all__ = [
 SESSION_FORMAT = "probmap.GraphSlam session"
 #: Version 1 was a Python pickle (refused: it could run code); 2 the archive of arrays; 3 the
 #: same archive, with the pairwise closure check's state and settings (a version-2 session
-#: would resume a different algorithm: refused).
-SESSION_VERSION = 3
+#: would resume a different algorithm: refused); 4 adds lidar-only SLAM's recent steps (its
+#: motion model).
+SESSION_VERSION = 4
 
 _HEADER = "header.json"
 _STATE = "state.json"
@@ -500,16 +500,4 @@ def resume_batch(
     k = check_continuation(slam, batch, info, log_name=log_name)
     if k == 0:
         return batch, 0
-    two_d = np.ndim(batch.angles) == 2
-    return (
-        dataclasses.replace(
-            batch,
-            times=batch.times[k:],
-            ranges=batch.ranges[k:],
-            angles=batch.angles[k:] if two_d else batch.angles,
-            laser_poses=batch.laser_poses[k:],
-            robot_poses=batch.robot_poses[k:],
-            beams=batch.beams[k:],
-        ),
-        k,
-    )
+    return batch.rows(slice(k, None)), k

@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
+from numpy.typing import NDArray
 
 from probmap._typing import FloatArray
 from probmap.datasets.records import LaserScan, Odometry, ScanBatch, stack_beams
@@ -141,6 +142,7 @@ class _RawScan:
     source: str
     index: int
     report: ReadingReport | None = None
+    seq: int | None = None  # the ROS 1 header's sequence number (ROS 2 has none)
 
 
 class RosBagOptions(TypedDict, total=False):
@@ -263,12 +265,16 @@ class RosBag:
         angle_cache: dict[tuple[int, float, float], FloatArray] = {}
         for index, (conn, ts, raw) in enumerate(_messages(reader, self.path, conns), start=1):
             multi = conn.msgtype.endswith("MultiEchoLaserScan")
+            seq: int | None = None
             try:
                 if multi and not reader.is2:
                     stamp, frame, geo, r = _ros1_multiecho(raw, self.echo)
+                    seq = struct.unpack_from("<I", raw, 0)[0]
                 else:
                     msg = _deserialize(reader, self.path, conn, raw)
                     stamp, frame = _stamp(msg), str(msg.header.frame_id)
+                    if not reader.is2:
+                        seq = int(msg.header.seq)
                     geo = (
                         msg.angle_min,
                         msg.angle_max,
@@ -315,6 +321,7 @@ class RosBag:
                 conn.msgtype.rsplit("/", 1)[-1],
                 index,
                 report,
+                seq,
             )
 
     def _odometry(self, reader: Any, conns: Sequence[Any]) -> Iterator[tuple[Odometry, str, str]]:
@@ -573,6 +580,7 @@ class RosBag:
         :class:`~probmap.errors.BadLinesWarning`).
         """
         times: list[FloatArray] = []
+        seqs: list[int | None] = []
         rows: list[FloatArray] = []
         angle_rows: list[FloatArray] = []
         laser: list[FloatArray] = []
@@ -599,6 +607,7 @@ class RosBag:
                 scans = [s for s, ok in zip(scans, keep, strict=True) if ok]
                 lp, rp = lp[keep], rp[keep]
             times.append(np.array([s.time for s in scans]))
+            seqs += [s.seq for s in scans]
             rows += [s.ranges for s in scans]
             angle_rows += [s.angles for s in scans]
             max_ranges += [s.max_range for s in scans]
@@ -626,6 +635,7 @@ class RosBag:
             skipped_lines=skipped,
             readings=report,
             pose_source=self._pose_source(),
+            published=publication_keys(seqs),
         )
 
     def _pose_source(self) -> str:
@@ -639,6 +649,33 @@ class RosBag:
         if fixed == laser:
             return "laser"
         return "corrected" if fixed == "map" else "odometry"
+
+
+def publication_keys(seqs: Sequence[int | None]) -> NDArray[np.int64] | None:
+    """Keys that sort scans into the order their driver published them
+    (:attr:`~probmap.datasets.records.ScanBatch.published`), from the ROS 1 header sequence
+    numbers in the bag's order; None when a scan has none or all are equal (a converter that
+    wrote zeros).
+
+    A number more than 100 below the largest so far is taken for a driver that started
+    again: it and those after it count on from that largest number, so that the scans of one
+    run of the driver stay before those of the next, as the bag holds them. (A scan stamped
+    so late that more than 100 later ones precede it stays where the bag has it.)
+    """
+    if not seqs or any(q is None for q in seqs):
+        return None
+    raw = np.asarray(seqs, dtype=np.int64)
+    if (raw == raw[0]).all():
+        return None
+    keys = np.empty_like(raw)
+    offset = 0
+    top = -1
+    for i, q in enumerate(raw):
+        if top >= 0 and q < top - offset - 100:
+            offset = top + 1  # a restart: count on
+        keys[i] = q + offset
+        top = max(top, int(keys[i]))
+    return keys
 
 
 def _implausible(

@@ -283,7 +283,8 @@ class SubmapSlam:
         self._last_scan_pose: NDArray[np.float64] | None = None
         self._last_scan_time = 0.0
         self._velocity = np.zeros(3)
-        self._last_step = np.zeros(3)  # the last scan-to-scan step, local-SLAM frame
+        # the last lidar_only_steps scan-to-scan steps, local-SLAM frame, oldest first
+        self._recent_steps = np.zeros((0, 3))
         self._velocity_base: tuple[float, NDArray[np.float64]] | None = None
         self._score_level: float | None = None  # recent nodes' mean match score
         self.optimizations = 0
@@ -332,8 +333,9 @@ class SubmapSlam:
         odometry : array_like, shape (3,), or None
             The sensor's odometry pose (robot odometry composed with the mounting offset).
             None: there is no odometry (lidar-only SLAM). The scan is then matched against
-            the active submap around where local SLAM's last velocity puts it (constant
-            velocity since the previous scan), by Gauss-Newton and, when that scores poorly or
+            the active submap around where the mean of the last scans' steps puts it
+            (``lidar_only_steps``; or local SLAM's velocity times the time since the last
+            scan, when that scores better), by Gauss-Newton and, when that scores poorly or
             leaves the window, by the correlative search with the wide ``lidar_only_window``.
             A run takes odometry with every scan or with none.
         """
@@ -417,12 +419,22 @@ class SubmapSlam:
         cfg = self.config
         m = cfg.local.matcher
         pts = scan_points(r, a, self.max_range, m.usable_range, m.beam_skip)
-        # stamps that jitter (the Intel bag's by up to 0.9 s) make the velocity times the
-        # time since the last scan a poor guess, where the last scan's step is a good one (the
-        # laser turns at a steady rate): Gauss-Newton from both, the better one kept when it
-        # scores at least recover_score and recover_drop of the recent level
+        # stamps that jitter (the Intel bag's by up to 0.9 s, the Intel log's out of order)
+        # make the velocity times the time since the last scan a poor guess, where the mean
+        # of the last scans' steps is a good one (the laser turns at a steady rate):
+        # Gauss-Newton from both, the step's kept unless the other scores better, and only
+        # when it scores at least recover_score and recover_drop of the recent level. The
+        # velocity's guess counts only inside lidar_only_window of the step's: a velocity
+        # measured over stamps 0.05 s apart can put it a radian off.
         assert self._last_scan_pose is not None
-        guesses = [predicted, compose(self._last_scan_pose, self._last_step)]
+        steps = self._recent_steps
+        step = steps.mean(axis=0) if len(steps) else np.zeros(3)
+        stepped = compose(self._last_scan_pose, step)
+        guesses = [stepped]
+        off = between(stepped, predicted)
+        lin, ang = cfg.local.lidar_only_window
+        if math.hypot(off[0], off[1]) <= lin and abs(float(wrap_angle(off[2]))) <= ang:
+            guesses.append(predicted)
         level = self._score_level if cfg.local.recover_drop > 0 else None
         floor = cfg.local.recover_score
         if level is not None:
@@ -434,7 +446,7 @@ class SubmapSlam:
                 best = (got_gn[1], got_gn[0])
         if best is not None:
             return best[1]
-        got = self._match(pts, predicted, wide_window=cfg.local.lidar_only_window)
+        got = self._match(pts, stepped, wide_window=cfg.local.lidar_only_window)
         self.recovered += got.searched_wide
         if got.failed:
             self.untracked_scans.append(scan)
@@ -454,8 +466,12 @@ class SubmapSlam:
             self._velocity = step / (time_s - base[0])
             self._velocity_base = (time_s, np.asarray(pose, dtype=np.float64).copy())
         if self._last_scan_pose is not None:
-            self._last_step = between(self._last_scan_pose, pose)
-            self._last_step[2] = float(wrap_angle(self._last_step[2]))
+            step = between(self._last_scan_pose, pose)
+            step[2] = float(wrap_angle(step[2]))
+            keep = self.config.local.lidar_only_steps - 1
+            self._recent_steps = np.vstack(
+                [self._recent_steps[len(self._recent_steps) - keep :], step]
+            )
         self._last_scan_pose = np.asarray(pose, dtype=np.float64).copy()
         self._last_scan_time = time_s
 

@@ -106,34 +106,6 @@ class RefinedPose:
     mahalanobis: float
 
 
-def _distance_and_gradient(
-    dist: NDArray[np.float32], x0: float, y0: float, res: float, qx: NDArray, qy: NDArray
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """The distance field at ``(qx, qy)`` (m), bilinear between cell centres, and its gradient;
-    points off the grid get the field's largest value and no gradient."""
-    h, w = dist.shape
-    fx = (qx - x0) / res - 0.5
-    fy = (qy - y0) / res - 0.5
-    ix = np.floor(fx).astype(np.int64)
-    iy = np.floor(fy).astype(np.int64)
-    inside = (ix >= 0) & (iy >= 0) & (ix < w - 1) & (iy < h - 1)
-    far = float(dist.max()) if dist.size else 0.0
-    d = np.full(qx.shape, far)
-    gx = np.zeros(qx.shape)
-    gy = np.zeros(qx.shape)
-    if inside.any():
-        i, j = ix[inside], iy[inside]
-        tx, ty = fx[inside] - i, fy[inside] - j
-        d00 = dist[j, i].astype(np.float64)
-        d10 = dist[j, i + 1].astype(np.float64)
-        d01 = dist[j + 1, i].astype(np.float64)
-        d11 = dist[j + 1, i + 1].astype(np.float64)
-        d[inside] = (d00 * (1 - tx) + d10 * tx) * (1 - ty) + (d01 * (1 - tx) + d11 * tx) * ty
-        gx[inside] = ((d10 - d00) * (1 - ty) + (d11 - d01) * ty) / res
-        gy[inside] = ((d01 - d00) * (1 - tx) + (d11 - d10) * tx) / res
-    return d, gx, gy
-
-
 def refine_pose(
     lf: Any,
     mean: NDArray[np.float64],
@@ -181,13 +153,14 @@ def refine_pose(
     """
     cfg = config or RefineConfig()
     mu = np.asarray(mean, dtype=np.float64).reshape(3)
-    bx = np.asarray(lx, dtype=np.float64)
-    by = np.asarray(ly, dtype=np.float64)
+    bx = np.ascontiguousarray(lx, dtype=np.float64)
+    by = np.ascontiguousarray(ly, dtype=np.float64)
     if bx.size < 3:
         return RefinedPose(mu.copy(), False, 0.0, 0.0)
     f = lf.frame
     x0, y0, res = float(f.x0), float(f.y0), float(f.resolution)
     dist = lf.distance
+    far = float(lf.max_distance)
     fl = np.array([cfg.floor[0] ** 2, cfg.floor[0] ** 2, cfg.floor[1] ** 2])
     sigma = np.asarray(covariance, dtype=np.float64).reshape(3, 3) + np.diag(fl)
     try:
@@ -195,27 +168,26 @@ def refine_pose(
     except np.linalg.LinAlgError:
         return RefinedPose(mu.copy(), False, 0.0, math.inf)
     s2 = cfg.sigma**2
+    from probmap.pipelines import _localize_track_kernels as _k
 
-    def terms(x: NDArray[np.float64]) -> tuple[float, Any, Any, Any]:
-        c, s = math.cos(x[2]), math.sin(x[2])
-        qx = x[0] + c * bx - s * by
-        qy = x[1] + s * bx + c * by
-        d, gx, gy = _distance_and_gradient(dist, x0, y0, res, qx, qy)
-        inl = d <= cfg.outlier
+    g = np.empty(3)
+    hs = np.empty((3, 3))
+
+    def terms(x: NDArray[np.float64]) -> tuple[float, int, NDArray[np.float64]]:
+        """Cost, inliers and ``x - mu`` at ``x``; leaves the scan's gradient and Hessian
+        (unscaled) in ``g`` and ``hs``."""
+        sq, n_in = _k.scan_terms(
+            dist, x0, y0, res, far, cfg.outlier, bx, by, x[0], x[1], x[2], g, hs
+        )
         dx = x - mu
         dx[2] = math.remainder(dx[2], 2 * math.pi)
-        cost = float(np.sum(np.minimum(d, cfg.outlier) ** 2) / s2 + dx @ prior @ dx)
-        return cost, d, inl, (qx - x[0], qy - x[1], gx, gy, dx)
+        return float(sq / s2 + dx @ prior @ dx), int(n_in), dx
 
     x = mu.copy()
-    cost, d, inl, (rx, ry, gx, gy, dx) = terms(x)
+    cost, n_in, dx = terms(x)
     for _ in range(cfg.iterations):
-        # residual d_i, Jacobian (gx, gy, gx * -ry + gy * rx) for the inliers
-        jt = -gx * ry + gy * rx
-        jac = np.column_stack([gx, gy, jt])[inl]
-        r = d[inl]
-        hess = jac.T @ jac / s2 + prior
-        grad = jac.T @ r / s2 + prior @ dx
+        hess = hs / s2 + prior
+        grad = g / s2 + prior @ dx
         try:
             step = -np.linalg.solve(hess, grad)
         except np.linalg.LinAlgError:
@@ -225,14 +197,15 @@ def refine_pose(
         if shrink > 1.0:
             step /= shrink
         cand = x + step
-        c_cost, c_d, c_inl, c_rest = terms(cand)
+        c_cost, c_in, c_dx = terms(cand)
         if not c_cost < cost:
+            terms(x)  # the accepted pose's terms back in g, hs
             break
-        x, cost, d, inl, (rx, ry, gx, gy, dx) = cand, c_cost, c_d, c_inl, c_rest
+        x, cost, n_in, dx = cand, c_cost, c_in, c_dx
         if math.hypot(step[0], step[1]) < 1e-4 and abs(step[2]) < 1e-4:
             break
     x[2] = math.remainder(x[2], 2 * math.pi)
-    fraction = float(np.mean(inl))
+    fraction = n_in / bx.size
     maha = float(math.sqrt(max(dx @ prior @ dx, 0.0)))
     used = fraction >= cfg.min_inliers and maha <= cfg.max_mahalanobis
     return RefinedPose(x if used else mu.copy(), used, fraction, maha)
@@ -386,3 +359,55 @@ def odometry_track(
     track = fwd + alpha * d
     track[:, 2] = np.remainder(track[:, 2] + math.pi, 2 * math.pi) - math.pi
     return scans, track
+
+
+def turned_against_odometry(
+    turns: list[tuple[int, float]],
+    scan: int,
+    pose: NDArray[np.float64],
+    odometry: NDArray[np.float64],
+    prev: tuple[int, NDArray[np.float64]] | None,
+    window: int,
+) -> tuple[int, float]:
+    """How far the estimate has turned against the odometry over the last ``window`` updates.
+
+    A tracking filter corrects the odometry's heading by a few degrees over a few metres; an
+    estimate that turns tens of degrees more (or less) than the odometry within a few seconds
+    has been pulled to a wrong place (Freiburg 079, in the map of its own ``slam grid``: 30-55
+    deg within 5 s at t = 249 s, where the scans see what the map lacks and the likelihood
+    field fits them better to a turned pose whose beams cross walls). The odometry's heading
+    stays right even where it logs reversing as forward driving.
+
+    Parameters
+    ----------
+    turns : list of (int, float)
+        Per update, its scan and the estimate's turn less the odometry's since the update
+        before (rad); updated in place (this update appended, the list cut to ``window``,
+        cleared where ``prev`` is None).
+    scan : int
+        This update's scan.
+    pose : (3,) ndarray
+        This update's estimate (m, rad).
+    odometry : (S, 3) ndarray
+        The odometry of every scan.
+    prev : (int, (3,) ndarray) or None
+        The previous update's scan and estimate, when it had converged.
+    window : int
+        Updates summed.
+
+    Returns
+    -------
+    first : int
+        The scan of the first update summed (this one's when none).
+    turned : float
+        The absolute sum (rad).
+    """
+    if prev is None:
+        turns.clear()
+        return scan, 0.0
+    k1, p1 = prev
+    est = math.remainder(float(pose[2] - p1[2]), 2 * math.pi)
+    odo = math.remainder(float(odometry[scan, 2] - odometry[k1, 2]), 2 * math.pi)
+    turns.append((scan, est - odo))
+    del turns[:-window]
+    return turns[0][0], abs(sum(d for _, d in turns))

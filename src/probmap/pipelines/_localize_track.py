@@ -78,7 +78,7 @@ class RefineConfig:
     outlier: float = 0.2
     iterations: int = 8
     min_inliers: float = 0.6
-    max_mahalanobis: float = 3.0
+    max_mahalanobis: float = 5.0
     floor: tuple[float, float] = (0.02, math.radians(1.0))
 
 

@@ -22,10 +22,11 @@ corridor the scan says nothing and the prior keeps the cloud's mean, so the repo
 slides where the particles would not. The particles are not moved: the cloud and its spread
 stay what the filter made of them.
 
-The refined pose is reported only where it is clearly better evidence than the mean: most of
-the beams end near an obstacle there (``min_inliers``), and it lies within the cloud (a
-Mahalanobis distance of at most ``max_mahalanobis`` under the cloud's covariance, widened by
-``floor``). Otherwise the run reports the mean, as before.
+The refined pose is reported only where it is clearly better evidence than the mean: the
+cloud is tight (``max_spread``), most of the beams end near an obstacle there
+(``min_inliers``), and it lies within the cloud (a Mahalanobis distance of at most
+``max_mahalanobis`` under the cloud's covariance, widened by ``floor``). Otherwise the run
+reports the mean, as before.
 """
 
 from __future__ import annotations
@@ -72,6 +73,12 @@ class RefineConfig:
     floor : (float, float)
         Standard deviations (m, rad) added to the cloud's: a cloud that has collapsed to a
         point still lets the scan move the estimate by about this much.
+    max_spread : float
+        The cloud's mean is reported as it is where the cloud's largest positional standard
+        deviation exceeds this (m): a cloud stretched along a corridor of look-alike doors
+        knows it does not know where along it the robot is, and the scan's best fit there
+        would snap to whichever door of the map fits (``tests/filters/test_mcl_corridor.py``:
+        0.72 m off with 0.15, as the mean's 0.50; Intel: 96 % of the updates refined).
     """
 
     sigma: float = 0.05
@@ -80,6 +87,7 @@ class RefineConfig:
     min_inliers: float = 0.6
     max_mahalanobis: float = 5.0
     floor: tuple[float, float] = (0.02, math.radians(1.0))
+    max_spread: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -155,14 +163,16 @@ def refine_pose(
     mu = np.asarray(mean, dtype=np.float64).reshape(3)
     bx = np.ascontiguousarray(lx, dtype=np.float64)
     by = np.ascontiguousarray(ly, dtype=np.float64)
-    if bx.size < 3:
+    cov = np.asarray(covariance, dtype=np.float64).reshape(3, 3)
+    wide = float(np.linalg.eigvalsh(cov[:2, :2])[-1]) > cfg.max_spread**2
+    if bx.size < 3 or wide:  # a cloud stretched along a corridor: its mean, not a look-alike
         return RefinedPose(mu.copy(), False, 0.0, 0.0)
     f = lf.frame
     x0, y0, res = float(f.x0), float(f.y0), float(f.resolution)
     dist = lf.distance
     far = float(lf.max_distance)
     fl = np.array([cfg.floor[0] ** 2, cfg.floor[0] ** 2, cfg.floor[1] ** 2])
-    sigma = np.asarray(covariance, dtype=np.float64).reshape(3, 3) + np.diag(fl)
+    sigma = cov + np.diag(fl)
     try:
         prior = np.linalg.inv(sigma)
     except np.linalg.LinAlgError:

@@ -216,7 +216,7 @@ def refine_pose(
             break
     x[2] = math.remainder(x[2], 2 * math.pi)
     fraction = n_in / bx.size
-    maha = float(math.sqrt(max(dx @ prior @ dx, 0.0)))
+    maha = float(math.sqrt(max(float(dx @ prior @ dx), 0.0)))
     used = fraction >= cfg.min_inliers and maha <= cfg.max_mahalanobis
     return RefinedPose(x if used else mu.copy(), used, fraction, maha)
 

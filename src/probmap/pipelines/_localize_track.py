@@ -160,11 +160,13 @@ def refine_pose(
     (True, [1.0, 1.5])
     """
     cfg = config or RefineConfig()
-    mu = np.asarray(mean, dtype=np.float64).reshape(3)
+    mu = np.ascontiguousarray(np.asarray(mean, dtype=np.float64).reshape(3))
     bx = np.ascontiguousarray(lx, dtype=np.float64)
     by = np.ascontiguousarray(ly, dtype=np.float64)
     cov = np.asarray(covariance, dtype=np.float64).reshape(3, 3)
-    wide = float(np.linalg.eigvalsh(cov[:2, :2])[-1]) > cfg.max_spread**2
+    half = 0.5 * float(cov[0, 0] - cov[1, 1])  # the largest eigenvalue of the xy block:
+    top = 0.5 * float(cov[0, 0] + cov[1, 1]) + math.hypot(half, float(cov[0, 1]))
+    wide = not top <= cfg.max_spread**2
     if bx.size < 3 or wide:  # a cloud stretched along a corridor: its mean, not a look-alike
         return RefinedPose(mu.copy(), False, 0.0, 0.0)
     f = lf.frame
@@ -172,51 +174,19 @@ def refine_pose(
     dist = lf.distance
     far = float(lf.max_distance)
     fl = np.array([cfg.floor[0] ** 2, cfg.floor[0] ** 2, cfg.floor[1] ** 2])
-    sigma = cov + np.diag(fl)
     try:
-        prior = np.linalg.inv(sigma)
+        prior = np.ascontiguousarray(np.linalg.inv(cov + np.diag(fl)))
     except np.linalg.LinAlgError:
         return RefinedPose(mu.copy(), False, 0.0, math.inf)
-    s2 = cfg.sigma**2
     from probmap.pipelines import _localize_track_kernels as _k
 
-    g = np.empty(3)
-    hs = np.empty((3, 3))
-
-    def terms(x: NDArray[np.float64]) -> tuple[float, int, NDArray[np.float64]]:
-        """Cost, inliers and ``x - mu`` at ``x``; leaves the scan's gradient and Hessian
-        (unscaled) in ``g`` and ``hs``."""
-        sq, n_in = _k.scan_terms(
-            dist, x0, y0, res, far, cfg.outlier, bx, by, x[0], x[1], x[2], g, hs
-        )
-        dx = x - mu
-        dx[2] = math.remainder(dx[2], 2 * math.pi)
-        return float(sq / s2 + dx @ prior @ dx), int(n_in), dx
-
-    x = mu.copy()
-    cost, n_in, dx = terms(x)
-    for _ in range(cfg.iterations):
-        hess = hs / s2 + prior
-        grad = g / s2 + prior @ dx
-        try:
-            step = -np.linalg.solve(hess, grad)
-        except np.linalg.LinAlgError:
-            break
-        # short steps: the field is piecewise linear, and a step beyond a cell may skip a wall
-        shrink = max(math.hypot(step[0], step[1]) / res, abs(step[2]) / math.radians(2.0))
-        if shrink > 1.0:
-            step /= shrink
-        cand = x + step
-        c_cost, c_in, c_dx = terms(cand)
-        if not c_cost < cost:
-            terms(x)  # the accepted pose's terms back in g, hs
-            break
-        x, cost, n_in, dx = cand, c_cost, c_in, c_dx
-        if math.hypot(step[0], step[1]) < 1e-4 and abs(step[2]) < 1e-4:
-            break
-    x[2] = math.remainder(x[2], 2 * math.pi)
+    x = np.empty(3)
+    n_in, q = _k.refine(
+        dist, x0, y0, res, far, cfg.outlier, cfg.sigma**2, bx, by, mu, prior,
+        int(cfg.iterations), x,
+    )  # fmt: skip
     fraction = n_in / bx.size
-    maha = float(math.sqrt(max(float(dx @ prior @ dx), 0.0)))
+    maha = math.sqrt(max(float(q), 0.0))
     used = fraction >= cfg.min_inliers and maha <= cfg.max_mahalanobis
     return RefinedPose(x if used else mu.copy(), used, fraction, maha)
 

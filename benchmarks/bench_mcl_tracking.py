@@ -11,7 +11,9 @@ Intel ROS bag):
    and start). Scored with the relation metric (Kuemmerle et al. 2009) on the robot poses,
    interpolated between the filter's updates at the relations' timestamps; the SLAM
    trajectory's own figure beside it (the map's quality bounds the filter's). "lost" counts the
-   times the run said it lost track; "ended lost" whether it never recovered.
+   times the run said it lost track, with the spans (log time, from where it lost track to
+   where it recovered); "outside lost spans" scores only the relations whose two poses lie
+   outside them; "ended lost" whether it never recovered.
 3. Global localization: ``--starts`` runs from particles over free space, each from a random
    scan (seeded), ``--updates`` updates long; a run *converged* when it says so
    (``LocalizationRun.localized``), and is *right* when its last estimate lies within 0.3 m of
@@ -92,10 +94,11 @@ def main() -> None:
     )
 
     print(
-        "| log | SLAM relation error (m) | MCL relation error (m) | lost | ended lost | updates "
-        "| s | global: converged right / converged wrong / said not | global s |"
+        "| log | SLAM relation error (m) | MCL relation error (m) | lost (spans, log time) "
+        "| outside lost spans (m) | ended lost | updates | s "
+        "| global: converged right / converged wrong / said not | global s |"
     )
-    print("| --- | ---: | ---: | ---: | --- | ---: | ---: | --- | ---: |")
+    print("| --- | ---: | ---: | --- | ---: | --- | ---: | ---: | --- | ---: |")
     for name in args.logs:
         log = data_dir() / LOGS[name][0]
         rel = read_relations(data_dir() / LOGS[name][1])
@@ -125,6 +128,13 @@ def main() -> None:
         est = interpolate_run(run, ts)
         ok = np.all(np.isfinite(est), axis=1)
         mcl_fig = relation_figure(ts[ok], est[ok], rel)
+        # the same, less the relations with a pose inside a span the run reported lost
+        spans = [(e.time, e.recovered_time or np.inf) for e in run.episodes]
+        keep = ok & ~np.any([(ts >= a) & (ts <= b) for a, b in spans] or [ts < -np.inf], axis=0)
+        outside = relation_figure(ts[keep], est[keep], rel) if spans else "same"
+        lost_txt = ", ".join(
+            f"{a:.1f}-{b:.1f} s" if np.isfinite(b) else f"{a:.1f} s-end" for a, b in spans
+        )
         slam_t, slam_p = read_trajectory(session.parent / "slam.trajectory.csv")
         slam_fig = relation_figure(slam_t, slam_p, rel)
 
@@ -153,7 +163,7 @@ def main() -> None:
             right, wrong = (right + 1, wrong) if err <= 0.3 else (right, wrong + 1)
         gwall = time.perf_counter() - g0
         print(
-            f"| {name} | {slam_fig} | {mcl_fig} | {len(run.episodes)} | "
+            f"| {name} | {slam_fig} | {mcl_fig} | {len(run.episodes)} {lost_txt} | {outside} | "
             f"{'yes' if run.ended_lost else 'no'} | {run.times.size:,} | {wall:.0f} | "
             f"{right} / {wrong} / {said} of {args.starts} | {gwall:.0f} |",
             flush=True,

@@ -146,6 +146,20 @@ class LocalizeConfig:
         right, the 10-update average stays above 0.5 on Intel, Freiburg 079 and the Intel bag
         (0.9 or more most of the time), but falls to 0.3 for a while in the hospital, whose map
         is poor in places.
+    lost_turn : float
+        The filter also counts as lost at once when its estimate has turned more than this
+        (rad) against the odometry over the last ``2 lost_updates`` updates while, on average
+        over the last ``lost_updates``, more than ``converged_see_through`` of its beams run
+        through the map's walls (:func:`~probmap.pipelines._localize_track.turned_against_odometry`):
+        a tight cloud pulled to a turned, look-alike pose (Freiburg 079). Tracking right, the
+        estimate turns at most 13-18 deg against the odometry over 20 updates on Intel and
+        the hospital, and its beams cross walls rarely where it does. While lost so, no
+        random particles are drawn: the scans fit a wrong place better than the right one
+        there, and random particles lure the filter further off (Freiburg 079: a relation
+        error of 1.77 m with them, 0.27 m without); the run reports the span. Any run counts
+        as recovered only when, on average, at most ``converged_see_through`` of its beams
+        cross walls again. (Where its scans stop fitting too, ``lost_matched``, or it
+        spreads, random particles search as for any lost filter.)
     lost_random_fraction : float
         While a filter that had converged is lost, this fraction of its particles is replaced
         by random ones at each resampling, whatever augmented MCL's averages say (a cloud that
@@ -166,6 +180,12 @@ class LocalizeConfig:
         particles near the estimate are moved with it, as if the odometry had said so. None:
         never. The gain needs the whole scan to fit better, so a corridor, where sliding along
         it changes nothing, does not move the cloud.
+    refine : bool
+        Report, while tracking, the particle estimate refined against the map on the whole
+        scan (:func:`~probmap.pipelines._localize_track.refine_pose`: Gauss-Newton on the
+        distance field with the cloud as prior) where most beams fit there and it lies within
+        the cloud; the particles and their spread are left as they are. False: the best
+        cluster's mean.
     """
 
     n_particles: int = 2000
@@ -203,6 +223,8 @@ class LocalizeConfig:
     match_window: float | None = 0.5
     match_turn: float = math.radians(6.0)
     match_gain: float = 0.3
+    refine: bool = True
+    lost_turn: float = math.radians(20.0)
 
     def __post_init__(self) -> None:
         if self.n_particles <= 0:
@@ -263,6 +285,8 @@ class LocalizeConfig:
             )
         if not (math.isfinite(self.see_through_margin) and self.see_through_margin >= 0):
             raise ValueError(f"see_through_margin must be >= 0 m, got {self.see_through_margin}")
+        if not (math.isfinite(self.lost_turn) and self.lost_turn > 0):
+            raise ValueError(f"lost_turn must be a finite number > 0 rad, got {self.lost_turn}")
         if not (math.isfinite(self.lost_jump) and self.lost_jump > 0):
             raise ValueError(f"lost_jump must be a finite number > 0 m, got {self.lost_jump}")
 
@@ -285,11 +309,13 @@ class LostReport:
         ``"off the map"`` (the estimate left the map's free space), ``"spread"`` (the
         particles spread beyond ``lost_spread``), ``"jump"`` (the estimate jumped more than
         ``lost_jump`` against the odometry from this update to the next: the filter had lost
-        track, or has) or ``"misfit"`` (the scans stopped fitting the map at the estimate:
-        ``LocalizeConfig.lost_matched``).
+        track, or has), ``"misfit"`` (the scans stopped fitting the map at the estimate:
+        ``LocalizeConfig.lost_matched``) or ``"turn"`` (the estimate turned against the
+        odometry while its beams ran through walls: ``LocalizeConfig.lost_turn``).
     value : float
         The spread (m) at that update; for ``"jump"``, the jump (m); for ``"misfit"``, the
-        mean fraction of the beams that ended near an obstacle over the last updates.
+        mean fraction of the beams that ended near an obstacle over the last updates; for
+        ``"turn"``, the turn (degrees).
     recovered_index : int or None
         The scan of the first update of the run of ``lost_updates`` good ones that followed
         (the filter found the robot again); None when the run ended lost.
@@ -315,6 +341,8 @@ class LostReport:
             "jump": f"its estimate then jumped {self.value:.1f} m against the odometry",
             "misfit": "its scans stopped fitting the map at its estimate (on average "
             f"{self.value:.0%} of the beams near an obstacle)",
+            "turn": f"its estimate then turned {self.value:.0f} deg against the odometry while "
+            "its scans ran through the map's walls",
         }.get(self.reason, f"its particles spread to {self.value:.1f} m")
         text = f"the filter lost track at scan {self.scan_index} (t = {self.time:.2f} s): {what}"
         if self.recovered_index is not None:
@@ -333,7 +361,9 @@ class LocalizationRun:
     times : (T,) ndarray
         Scan timestamps (s).
     poses : (T, 3) ndarray
-        Best-cluster estimates of the robot pose in the map frame (m, rad).
+        The estimates of the robot pose in the map frame (m, rad): the best cluster's mean,
+        refined against the map on the whole scan where that fits
+        (``LocalizeConfig.refine``).
     spread : (T,) ndarray
         Positional spread ``sqrt(var_x + var_y)`` of the particles (m).
     scan_index : (T,) int ndarray
@@ -368,6 +398,11 @@ class LocalizationRun:
         when it is not kept.
     laser_offset : (3,) ndarray
         The laser's pose in the robot frame (m, rad) the run used.
+    track_times, track : (M,) and (M, 3) ndarray
+        The robot's pose at every scan from the first update to the last (m, rad), by the
+        odometry between the updates
+        (:func:`~probmap.pipelines._localize_track.odometry_track`); what
+        :func:`interpolate_run` interpolates. Empty: the poses at the updates only.
     """
 
     times: NDArray[np.float64]
@@ -384,6 +419,8 @@ class LocalizationRun:
     fit: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     matched: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     see_through: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    track_times: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    track: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
 
     @property
     def ended_lost(self) -> bool:
@@ -632,6 +669,14 @@ def localize_scans(
     from probmap.geometry.se2 import between, compose
     from probmap.models.likelihood_field import LikelihoodField
     from probmap.models.sampling import OdometryMotionModel
+    from probmap.pipelines._localize_track import (
+        NearbyFreeSpace,
+        RefineConfig,
+        follow_scan,
+        odometry_track,
+        refine_pose,
+        turned_against_odometry,
+    )
 
     cfg = config or LocalizeConfig()
     t = np.asarray(times, dtype=np.float64)
@@ -675,7 +720,7 @@ def localize_scans(
     else:
         free_mask = np.nan_to_num(prob.astype(np.float64), nan=1.0) < cfg.free_threshold
     free = FreeSpaceSampler(spec, free_mask & (lf.distance > 0.15))
-    nearby = _NearbyFreeSpace(spec, free_mask & (lf.distance > 0.15), free)
+    nearby = NearbyFreeSpace(spec, free_mask & (lf.distance > 0.15), free)
     augmented = cfg.global_localization  # tracking: only while lost, set below
     rng = np.random.default_rng(cfg.seed)
     motion = OdometryMotionModel(*cfg.alphas)
@@ -700,6 +745,7 @@ def localize_scans(
         cov0 = np.diag(np.square(cfg.initial_std))
         mcl = MonteCarloLocalization.from_pose(lf, motion, rng, pose0, cov0, mcl_cfg, free)
     sel = slice(None, None, cfg.beam_step)
+    refine_cfg = RefineConfig()
     shared = np.ascontiguousarray(a[sel]) if a.ndim == 1 else None
     rows: list[tuple[float, float, float, float, float, int, float, float, float]] = []
     last = start
@@ -714,6 +760,7 @@ def localize_scans(
     episodes: list[LostReport] = []
     lost: LostReport | None = None  # the open episode
     prev: tuple[int, NDArray[np.float64]] | None = None  # the last update's scan and estimate
+    turns: list[tuple[int, float]] = []  # per update: scan, estimate's turn less the odometry's
     for k in range(start + 1, stop):
         d = odo[k] - odo[last]
         turn = abs((d[2] + math.pi) % (2 * math.pi) - math.pi)
@@ -728,13 +775,17 @@ def localize_scans(
         last = k
         p = est.best_cluster
         if cfg.match_window is not None and converged:
-            if _follow_scan(mcl, lf, p, r[k, sel], beams, mount, cfg):
+            if follow_scan(mcl, lf, p, r[k, sel], beams, mount, cfg):
                 est = mcl.estimate()
                 p = est.best_cluster
         fit = mcl.w_fast / mcl.w_slow if mcl.w_slow > 0 else 1.0
         matched = lf.matched_fraction(p, r[k, sel], beams, mount, 2.0 * cfg.sigma_hit)
         through = lf.see_through_fraction(p, r[k, sel], beams, mount, cfg.see_through_margin)
-        rows.append((t[k], p[0], p[1], p[2], est.spread, k, fit, matched, through))
+        q = p  # the reported pose: the cloud's, refined on the whole scan where that fits
+        if cfg.refine and converged and lost is None:
+            lx, ly, ok = lf.endpoints(r[k], a if a.ndim == 1 else a[k], mount)
+            q = refine_pose(lf, p, est.covariance, lx[ok], ly[ok], refine_cfg).pose
+        rows.append((t[k], q[0], q[1], q[2], est.spread, k, fit, matched, through))
         if observer is not None:
             observer(k, est, mcl.particles, r[k, sel], beams)
         ix, iy = math.floor((p[0] - x0) / res), math.floor((p[1] - y0) / res)
@@ -766,16 +817,20 @@ def localize_scans(
             k1, pose1 = prev  # where the odometry alone takes the previous estimate
             guess = compose(pose1, between(odo[k1], odo[k]))
             jump = math.hypot(p[0] - guess[0], p[1] - guess[1])
+        turned = turned_against_odometry(turns, k, p, odo, prev, 2 * cfg.lost_updates)
         prev = (k, np.array(p)) if converged else None
+        through10 = float(np.mean([row[8] for row in rows[-cfg.lost_updates :]]))
         if lost is None:
             if converged and jump > cfg.lost_jump:
                 streak = [(k1, "jump", jump)]  # lost at once
+            elif converged and turned[1] > cfg.lost_turn and through10 > cfg.converged_see_through:
+                streak = [(turned[0], "turn", math.degrees(turned[1]))]  # lost at once
             elif converged and (wide or not on_map or misfit):
                 why = "spread" if wide else "off the map" if not on_map else "misfit"
                 streak.append((k, why, float(est.spread) if why != "misfit" else fits))
             else:
                 streak.clear()
-            if streak and (streak[0][1] == "jump" or len(streak) >= cfg.lost_updates):
+            if streak and (streak[0][1] in ("jump", "turn") or len(streak) >= cfg.lost_updates):
                 k0, why, val = streak[0]
                 lost = LostReport(int(k0), float(t[k0]), why, val)
                 nearby.start(p)
@@ -783,7 +838,10 @@ def localize_scans(
                 warnings.warn(lost.describe(), FilterLostWarning, stacklevel=2)
                 streak.clear()
                 good = 0
-        elif wide or not on_map or fits < cfg.converged_matched or jump > cfg.lost_jump:
+        elif (
+            wide or not on_map or fits < cfg.converged_matched or jump > cfg.lost_jump
+            or through10 > cfg.converged_see_through
+        ):  # fmt: skip
             good = 0
         else:
             good += 1
@@ -796,6 +854,8 @@ def localize_scans(
                 lost = None
         mcl.augment = not converged or (cfg.augmented and lost is not None)
         mcl.random_floor = cfg.lost_random_fraction if lost is not None else 0.0
+        if lost is not None and lost.reason == "turn" and not (wide or not on_map or misfit):
+            mcl.augment, mcl.random_floor = False, 0.0  # random particles lure it further off
         # random particles: over all free space while a global localization converges; near
         # where a lost filter lost track, in a disc that doubles every lost_updates updates
         mcl.free_space = (  # a FreeSpaceSampler by duck typing: sample(n, rng)
@@ -811,11 +871,12 @@ def localize_scans(
         progress(stop - start, stop - start)
     arr = np.array(rows, dtype=np.float64).reshape(-1, 9)
     hyps = tuple(mcl.hypotheses())
+    track_scans, track = odometry_track(odo, arr[:, 5].astype(np.int64), arr[:, 1:4])
     run = LocalizationRun(
         arr[:, 0], arr[:, 1:4], arr[:, 4], arr[:, 5].astype(np.int64),
         lost=episodes[0] if episodes else None, particles=np.array(mcl.particles),
         laser_offset=mount, episodes=tuple(episodes), fit=arr[:, 6], matched=arr[:, 7],
-        see_through=arr[:, 8],
+        see_through=arr[:, 8], track_times=t[track_scans], track=track,
         converged_index=converged_index, hypotheses=hyps,
         localized=(
             converged_index is not None and len(hyps) == 1 and lost is None
@@ -827,92 +888,6 @@ def localize_scans(
     if observer is not None and hasattr(observer, "finish"):
         observer.finish(run)
     return run
-
-
-class _NearbyFreeSpace:
-    """Random poses over the free space within a disc around where the filter lost track (see
-    ``localize_scans``), by rejection; the disc starts at 2 m and doubles every ``per``
-    updates, and once it holds the whole map (or a draw finds no free cell) ``fallback``, the
-    sampler over all free space, draws."""
-
-    def __init__(self, spec: GridGeometry, free: NDArray[np.bool_], fallback: Any) -> None:
-        self.free = free
-        self.res = float(spec.resolution)
-        self.x0, self.y0 = (float(v) for v in spec.origin)
-        h, w = free.shape
-        self.size = math.hypot(h * self.res, w * self.res)
-        self.fallback = fallback
-        self.center = np.zeros(2)
-        self.updates = 0
-
-    def start(self, pose: NDArray[np.float64]) -> None:
-        self.center = np.array(pose[:2], dtype=np.float64)
-        self.updates = 0
-
-    def widen(self, per: int) -> _NearbyFreeSpace:
-        self.radius = 2.0 * 2.0 ** (self.updates / per)
-        self.updates += 1
-        return self
-
-    def sample(self, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
-        if self.radius >= self.size:
-            return np.asarray(self.fallback.sample(n, rng))
-        h, w = self.free.shape
-        got: list[NDArray[np.float64]] = []
-        count = 0
-        for _ in range(20):
-            m = 4 * n
-            rad = self.radius * np.sqrt(rng.uniform(size=m))
-            ang = rng.uniform(-np.pi, np.pi, size=m)
-            x = self.center[0] + rad * np.cos(ang)
-            y = self.center[1] + rad * np.sin(ang)
-            ix = np.floor((x - self.x0) / self.res).astype(np.int64)
-            iy = np.floor((y - self.y0) / self.res).astype(np.int64)
-            ok = (ix >= 0) & (iy >= 0) & (ix < w) & (iy < h)
-            ok[ok] = self.free[iy[ok], ix[ok]]
-            got.append(np.column_stack([x[ok], y[ok], rng.uniform(-np.pi, np.pi, int(ok.sum()))]))
-            count += int(ok.sum())
-            if count >= n:
-                return np.concatenate(got)[:n]
-        return np.asarray(self.fallback.sample(n, rng))
-
-
-def _follow_scan(
-    mcl: Any,
-    lf: Any,
-    pose: NDArray[np.float64],
-    ranges: NDArray[np.float64],
-    angles: NDArray[np.float64],
-    mount: NDArray[np.float64],
-    cfg: LocalizeConfig,
-) -> bool:
-    """Match the scan against the map around the estimate ``pose`` (robot, map frame); when a
-    pose inside the window (not on its edge) fits better by more than ``cfg.match_gain``
-    log-likelihood per beam, and fits the map as a converged filter must (``converged_matched``
-    of the beams near an obstacle), move the particles
-    within ``2 match_window`` of the estimate as the estimate moves to it (odometry that
-    contradicts the laser). Returns whether it moved them."""
-    from probmap.geometry.se2 import compose, inverse
-
-    window = float(cfg.match_window or 0.0)
-    lx, ly, ok = lf.endpoints(ranges, angles, mount)
-    best, gain = lf.local_search(pose, lx[ok], ly[ok], (window, cfg.match_turn))
-    d = best - pose
-    turn = abs(math.remainder(float(d[2]), 2 * math.pi))
-    # an optimum on the window's edge is no local optimum: a look-alike further off (Intel, in
-    # a map from its corrected log, where people hide the walls)
-    edge = max(abs(d[0]), abs(d[1])) > 0.99 * window or turn > 0.99 * cfg.match_turn > 0
-    if not gain > cfg.match_gain or edge:
-        return False
-    # and the scan must fit there as a converged filter's does: where it fits no pose well
-    # (people, a part of the map that is off) a better pose is no better evidence
-    if lf.matched_fraction(best, ranges, angles, mount, 2 * cfg.sigma_hit) < cfg.converged_matched:
-        return False
-    step = compose(best, inverse(pose))
-    pts = mcl.particles
-    near = np.hypot(pts[:, 0] - pose[0], pts[:, 1] - pose[1]) <= 2.0 * window
-    pts[near] = compose(step, pts[near])
-    return True
 
 
 def match_times(
@@ -978,18 +953,25 @@ def interpolate_run(
     run: LocalizationRun, times: ArrayLike, *, laser: bool = False
 ) -> NDArray[np.float64]:
     """The run's poses (robot's, or the laser's with ``laser=True``) at ``times`` (M,),
-    interpolated between its updates; NaN rows outside the span of its updates.
+    interpolated between its updates (by the odometry, :attr:`LocalizationRun.track`, where
+    the run has it); NaN rows outside the span of its updates.
 
     Update times that go back (a log's clock jitter) are taken in time order.
     """
+    from probmap.geometry.se2 import compose
     from probmap.geometry.timesync import interpolate_poses
 
     t = np.asarray(times, dtype=np.float64)
     poses = run.laser_poses if laser else run.poses
     if run.times.size == 0:
         return np.full((t.size, 3), np.nan)
-    order = np.argsort(run.times, kind="stable")
-    traj = np.column_stack([run.times[order], poses[order]])
+    stamps = run.times
+    if run.track_times.size >= 2:  # every scan, by the odometry between the updates
+        stamps, poses = run.track_times, run.track
+        if laser:
+            poses = np.asarray(compose(poses, run.laser_offset)).reshape(-1, 3)
+    order = np.argsort(stamps, kind="stable")
+    traj = np.column_stack([stamps[order], poses[order]])
     if traj.shape[0] == 1:  # a single update: the poses at its own time only
         out = np.full((t.size, 3), np.nan)
         out[t == traj[0, 0]] = traj[0, 1:]

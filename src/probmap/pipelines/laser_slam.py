@@ -505,6 +505,7 @@ def write_submap_slam(
     and red boxes in the picture at its ``doubts``; all-or-nothing (a missing folder is
     created). ``title`` heads the picture (the prefix's name by default).
     Returns the paths written."""
+    from probmap._memory import release_freed_memory
     from probmap.datasets.g2o import write_pose_graph_g2o
     from probmap.grid.io import save_map
     from probmap.viz.laser_slam import save_graph_slam_figure
@@ -521,6 +522,7 @@ def write_submap_slam(
                 f"{prefix}.g2o", g.poses, g.edges[used], g.measurements[used], info[used]
             )
         )
+        release_freed_memory()  # what encoding the map freed, before the picture is drawn
         files.append(
             save_graph_slam_figure(
                 f"{prefix}.plot.png", run, title=title or prefix.name,
@@ -648,6 +650,7 @@ def slam_grid(
         ``resume``, ``save_session``, ``observer`` or ``stop`` with an RBPF configuration, or a
         resumed session with a configuration of its own.
     """
+    from probmap._memory import release_freed_memory
     from probmap.config import write_config
 
     phase = phase or (lambda name: nullcontext())
@@ -721,6 +724,7 @@ def slam_grid(
                     ),
                 }
                 report["doubts"] = doubts_of(report)
+            release_freed_memory()  # the check's grids, before the files are written
         with phase("write"), atomic_outputs():  # every file or none
             if isinstance(run, SubmapSlamRun):
                 files = write_submap_slam(

@@ -53,8 +53,9 @@ MAX_PICTURE_PIXELS = 4000
 _MIN_DPI = 150.0
 # rows of cells pooled at once: bounds the temporary memory of a large map's picture
 _STRIP_CELLS = 1_000_000
-# pixels of the map image matplotlib draws at once (see draw_grid)
+# pixels of the map image matplotlib draws at once, and the most it draws whole (draw_grid)
 _STRIP_PIXELS = 250_000
+_WHOLE_PIXELS = 1_000_000
 
 
 def nice_length(span: float) -> float:
@@ -211,11 +212,13 @@ def draw_grid(ax: Any, grid: Any, *, max_pixels: int = MAX_PICTURE_PIXELS) -> in
     limits. Returns ``step``, the cells a pixel covers."""
     img, step = _map_pixels(grid, max_pixels, 4)
     x0, y0, x1, y1 = _extent(grid)
-    # in strips, opaque RGBA: matplotlib resamples an image in floating point (an RGB one in
-    # float64 RGBA, 32 bytes a pixel, an RGBA one in float32, in and out); a strip at a time
-    # keeps that to a few MB. The pixels are those of one image drawn whole.
-    h = img.shape[0]
-    rows = max(1, _STRIP_PIXELS // max(img.shape[1], 1))
+    # opaque RGBA, a large image in strips: matplotlib resamples an image in floating point
+    # (an RGB one in float64 RGBA, 32 bytes a pixel, an RGBA one in float32, in and out); a
+    # strip at a time keeps that to a few MB. A large image is drawn one file pixel per image
+    # pixel (save_picture), so its strips meet on pixel borders and the file is that of the
+    # image drawn whole; a small one is magnified, and drawn whole.
+    h, w = img.shape[:2]
+    rows = h if h * w <= _WHOLE_PIXELS else max(1, _STRIP_PIXELS // max(w, 1))
     dy = (y1 - y0) / h
     for r0 in range(0, h, rows):
         r1 = min(h, r0 + rows)

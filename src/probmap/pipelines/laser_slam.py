@@ -231,6 +231,10 @@ def run_submap_slam(
     """Run :class:`~probmap.slam.laser.submap_slam.SubmapSlam` over a scan batch (see
     :func:`load_laser_log`) and build the final map.
 
+    Blocks of memory of 4 MiB and more are served from memory maps of their own from then
+    on, for the rest of the process (:func:`probmap._memory.map_large_blocks`: with glibc,
+    the run's freed temporaries would otherwise stay resident).
+
     ``odometry``: True uses the scans' odometry poses, False ignores them (lidar-only SLAM:
     a constant-velocity prediction, see ``SubmapSlam.add_scan``), None (the default) uses
     them when the batch has any (:func:`has_odometry`) and a resumed session took them.
@@ -260,10 +264,11 @@ def run_submap_slam(
     ValueError
         When ``batch`` does not start after ``resume``'s last scan.
     """
-    from probmap._memory import release_freed_memory
+    from probmap._memory import map_large_blocks, release_freed_memory
     from probmap.geometry.se2 import between, compose, inverse, wrap_angle
     from probmap.slam.laser.submap_slam import SubmapSlam, SubmapSlamConfig
 
+    map_large_blocks()  # freed temporaries leave the process (see probmap._memory)
     cfg = config or SubmapSlamConfig()
     t0 = time.perf_counter()
     times = np.asarray(batch.times, dtype=np.float64)
@@ -650,9 +655,10 @@ def slam_grid(
         ``resume``, ``save_session``, ``observer`` or ``stop`` with an RBPF configuration, or a
         resumed session with a configuration of its own.
     """
-    from probmap._memory import release_freed_memory
+    from probmap._memory import map_large_blocks, release_freed_memory
     from probmap.config import write_config
 
+    map_large_blocks()  # freed temporaries leave the process (see probmap._memory)
     phase = phase or (lambda name: nullcontext())
     method = method_of(config)
     if method == "rbpf" and (resume is not None or save_session is not None):

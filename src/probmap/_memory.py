@@ -17,7 +17,7 @@ import ctypes
 import ctypes.util
 import sys
 
-__all__ = ["LARGE_BLOCK", "map_large_blocks", "release_freed_memory"]
+__all__ = ["LARGE_BLOCK", "SMALL_BLOCK", "map_large_blocks", "release_freed_memory"]
 
 _trim = None
 _mallopt = None
@@ -35,6 +35,10 @@ _M_MMAP_THRESHOLD = -3  # glibc's malloc.h
 #: Freiburg hospital graph SLAM's peak falls from 466 to 431 MiB for 3 % more CPU time (the
 #: kernel's); 1 MiB gives 389 MiB for 20 % more.
 LARGE_BLOCK = 4 << 20
+
+#: The threshold once the SLAM is over: the final map, the check and the files allocate few
+#: blocks, so that a lower threshold costs nothing (``slam_grid``).
+SMALL_BLOCK = 256 << 10
 
 
 def release_freed_memory() -> bool:

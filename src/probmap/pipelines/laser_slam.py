@@ -655,7 +655,7 @@ def slam_grid(
         ``resume``, ``save_session``, ``observer`` or ``stop`` with an RBPF configuration, or a
         resumed session with a configuration of its own.
     """
-    from probmap._memory import map_large_blocks, release_freed_memory
+    from probmap._memory import SMALL_BLOCK, map_large_blocks, release_freed_memory
     from probmap.config import write_config
 
     map_large_blocks()  # freed temporaries leave the process (see probmap._memory)
@@ -716,6 +716,7 @@ def slam_grid(
                     raise type(exc)(
                         exc.errno, f"cannot write {save_session}: {reason}", str(save_session)
                     ) from None
+        map_large_blocks(SMALL_BLOCK)  # the SLAM is over: few blocks from here on
         used = resume.config if resume is not None else run_config(run, config)
         report: dict[str, Any] | None = None
         if isinstance(run, SubmapSlamRun):

@@ -45,8 +45,9 @@ OCCUPIED_RGB = (0.0, 0.0, 0.0)
 UNKNOWN_RGB = (0.72, 0.78, 0.87)
 
 #: The most pixels a picture gives the map's longer side: a 460 m building at 0.05 m (9,159
-#: cells) is drawn at 3 cells a pixel, 3,053 pixels; its picture adds about 12 MB to the
-#: peak memory of the run that writes it.
+#: cells) is drawn at 3 cells a pixel, 3,053 pixels; its picture (a 3,436 x 2,357-pixel file)
+#: adds about 72 MiB to the memory of the process that draws it (the canvas, the map image,
+#: matplotlib's strips).
 MAX_PICTURE_PIXELS = 4000
 
 # the resolution of a small map's picture (the longer side of the axes about 1,000 pixels)

@@ -2,7 +2,8 @@
 size (RSS) and its high-water mark (max RSS) at the boundaries of each phase of
 :func:`probmap.pipelines.laser_slam.slam_grid`: reading the log, SLAM up to
 ``SubmapSlam.finish``, the final map (``SubmapSlam.map``), the check phase (the report), the
-map files (``save_map``), the pose graph, and the picture (``save_graph_slam_figure``).
+map files (``save_map``), the pose graph, and the picture (``save_graph_slam_figure``: the
+axes with the map image, ``plot_graph_slam``, then the file, ``save_picture``).
 
 Usage::
 
@@ -76,6 +77,8 @@ def main() -> None:
     _traced(gio, "save_map")
     _traced(g2o, "write_pose_graph_g2o")
     _traced(viz, "save_graph_slam_figure")
+    _traced(viz, "plot_graph_slam")
+    _traced(viz, "save_picture")
     slam_grid(args.log, args.prefix, phase=_phase)
     _say("end")
 

@@ -167,3 +167,81 @@ def test_label_metric_axes_labels_in_metres(title, legend):
     assert (got is None) == (legend is None)
     if got is not None:
         assert [t.get_text() for t in got.get_texts()] == ["trajectory"]
+
+
+def whole_map_image(g, max_pixels):
+    """The picture's colours computed over the whole map at once (the docstring's formula on
+    the obviously correct pooling)."""
+    step = picture_step(g, max_pixels)
+    lo, seen = reference_pool(np.asarray(g.log_odds), np.asarray(g.observed), step)
+    p = 1.0 / (1.0 + np.exp(-lo, dtype=np.float32))
+    grey = np.rint(255.0 * np.clip((0.75 - p) / 0.5, 0.0, 1.0)).astype(np.uint8)
+    img = np.repeat(grey[..., None], 3, axis=2)
+    img[~seen] = np.rint(255.0 * np.asarray(UNKNOWN_RGB)).astype(np.uint8)
+    return img, step
+
+
+@pytest.mark.parametrize(("max_pixels", "step"), [(50, 1), (17, 3), (8, 7)])
+def test_map_image_in_strips_is_the_whole_maps_image(max_pixels, step, monkeypatch):
+    """Built a strip at a time (several strips, the last one partial), the colours are those
+    computed over the whole map, value for value."""
+    import probmap.viz.maps as maps
+
+    monkeypatch.setattr(maps, "_STRIP_CELLS", 150)
+    g = grid(4)
+    got, got_step = map_image(g, max_pixels)
+    want, want_step = whole_map_image(g, max_pixels)
+    assert got_step == want_step == step
+    np.testing.assert_array_equal(got, want)
+
+
+def large_grid(seed: int = 5) -> OccupancyGrid:
+    """A map drawn one file pixel per cell (its longer side over 1,050 pixels)."""
+    rng = np.random.default_rng(seed)
+    spec = GridSpec(0.05, (-3.0, 2.0), (700, 1200))
+    lo = rng.normal(0.0, 2.0, spec.shape).astype(np.float32)
+    seen = rng.random(spec.shape) < 0.8
+    seen[:200, :300] = False  # a block never observed
+    return OccupancyGrid.from_log_odds(spec, lo, observed=seen)
+
+
+@pytest.mark.parametrize("make", [grid, large_grid])
+def test_picture_is_the_picture_of_the_map_drawn_whole(make, tmp_path, monkeypatch):
+    """The file draw_grid's opaque RGBA strips and save_picture's own crop write is, pixel
+    for pixel, the one of the map drawn as one RGB image and cropped by matplotlib's
+    ``bbox_inches="tight"`` (what the pictures were before): a small magnified map drawn
+    whole, a large one in 35 strips."""
+    from matplotlib.figure import Figure
+    from PIL import Image
+
+    import probmap.viz.maps as maps
+
+    monkeypatch.setattr(maps, "_STRIP_PIXELS", 24_000)  # 20 rows of 1,200 pixels
+    monkeypatch.setattr(maps, "_WHOLE_PIXELS", 100_000)  # 50 x 30 drawn whole, 1,200 x 700 not
+    g = make()
+    traj = np.array([[0.0, 2.5, 0.0], [1.0, 2.9, 0.3], [1.5, 3.5, 0.6]])
+
+    def picture(path):
+        fig = Figure(figsize=(8.0, 5.0))
+        ax = fig.add_subplot()
+        plot_map(ax, g, trajectory=traj, title="robot.log")
+        return maps.save_picture(fig, ax, path), len(ax.get_images())
+
+    ours, images = picture(tmp_path / "strips.png")
+    assert images == (1 if make is grid else 35)
+
+    def whole_rgb(ax, grid, *, max_pixels=maps.MAX_PICTURE_PIXELS):
+        img, step = whole_map_image(grid, max_pixels)
+        x0, y0, x1, y1 = maps._extent(grid)
+        ax.imshow(img, origin="lower", extent=(x0, x1, y0, y1), interpolation="nearest")
+        ax.set_xlim(x0, x1)
+        ax.set_ylim(y0, y1)
+        return step
+
+    monkeypatch.setattr(maps, "draw_grid", whole_rgb)
+    monkeypatch.setattr(maps, "_tight_bbox", lambda fig, dpi: "tight")
+    before, _ = picture(tmp_path / "whole.png")
+    with Image.open(ours) as a, Image.open(before) as b:
+        got, want = np.asarray(a), np.asarray(b)
+    assert got.shape == want.shape
+    np.testing.assert_array_equal(got, want)

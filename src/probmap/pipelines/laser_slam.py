@@ -231,6 +231,10 @@ def run_submap_slam(
     """Run :class:`~probmap.slam.laser.submap_slam.SubmapSlam` over a scan batch (see
     :func:`load_laser_log`) and build the final map.
 
+    Blocks of memory of 4 MiB and more are served from memory maps of their own from then
+    on, for the rest of the process (:func:`probmap._memory.map_large_blocks`: with glibc,
+    the run's freed temporaries would otherwise stay resident).
+
     ``odometry``: True uses the scans' odometry poses, False ignores them (lidar-only SLAM:
     a constant-velocity prediction, see ``SubmapSlam.add_scan``), None (the default) uses
     them when the batch has any (:func:`has_odometry`) and a resumed session took them.
@@ -260,10 +264,11 @@ def run_submap_slam(
     ValueError
         When ``batch`` does not start after ``resume``'s last scan.
     """
-    from probmap._memory import release_freed_memory
+    from probmap._memory import map_large_blocks, release_freed_memory
     from probmap.geometry.se2 import between, compose, inverse, wrap_angle
     from probmap.slam.laser.submap_slam import SubmapSlam, SubmapSlamConfig
 
+    map_large_blocks()  # freed temporaries leave the process (see probmap._memory)
     cfg = config or SubmapSlamConfig()
     t0 = time.perf_counter()
     times = np.asarray(batch.times, dtype=np.float64)
@@ -505,6 +510,7 @@ def write_submap_slam(
     and red boxes in the picture at its ``doubts``; all-or-nothing (a missing folder is
     created). ``title`` heads the picture (the prefix's name by default).
     Returns the paths written."""
+    from probmap._memory import release_freed_memory
     from probmap.datasets.g2o import write_pose_graph_g2o
     from probmap.grid.io import save_map
     from probmap.viz.laser_slam import save_graph_slam_figure
@@ -521,6 +527,7 @@ def write_submap_slam(
                 f"{prefix}.g2o", g.poses, g.edges[used], g.measurements[used], info[used]
             )
         )
+        release_freed_memory()  # what encoding the map freed, before the picture is drawn
         files.append(
             save_graph_slam_figure(
                 f"{prefix}.plot.png", run, title=title or prefix.name,
@@ -648,8 +655,10 @@ def slam_grid(
         ``resume``, ``save_session``, ``observer`` or ``stop`` with an RBPF configuration, or a
         resumed session with a configuration of its own.
     """
+    from probmap._memory import SMALL_BLOCK, map_large_blocks, release_freed_memory
     from probmap.config import write_config
 
+    map_large_blocks()  # freed temporaries leave the process (see probmap._memory)
     phase = phase or (lambda name: nullcontext())
     method = method_of(config)
     if method == "rbpf" and (resume is not None or save_session is not None):
@@ -718,6 +727,7 @@ def slam_grid(
                     raise type(exc)(
                         exc.errno, f"cannot write {save_session}: {reason}", str(save_session)
                     ) from None
+        map_large_blocks(SMALL_BLOCK)  # the SLAM is over: few blocks from here on
         used = resume.config if resume is not None else run_config(run, config)
         report: dict[str, Any] | None = None
         if isinstance(run, SubmapSlamRun):
@@ -732,6 +742,7 @@ def slam_grid(
                     ),
                 }
                 report["doubts"] = doubts_of(report)
+            release_freed_memory()  # the check's grids, before the files are written
         with phase("write"), atomic_outputs():  # every file or none
             if isinstance(run, SubmapSlamRun):
                 files = write_submap_slam(

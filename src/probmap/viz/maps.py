@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -44,16 +45,18 @@ OCCUPIED_RGB = (0.0, 0.0, 0.0)
 UNKNOWN_RGB = (0.72, 0.78, 0.87)
 
 #: The most pixels a picture gives the map's longer side: a 460 m building at 0.05 m (9,159
-#: cells) is drawn at 3 cells a pixel, 3,053 pixels; its picture adds about 12 MB to the
-#: peak memory of the run that writes it.
+#: cells) is drawn at 3 cells a pixel, 3,053 pixels; its picture (a 3,436 x 2,357-pixel file)
+#: adds about 72 MiB to the memory of the process that draws it (the canvas, the map image,
+#: matplotlib's strips).
 MAX_PICTURE_PIXELS = 4000
 
 # the resolution of a small map's picture (the longer side of the axes about 1,000 pixels)
 _MIN_DPI = 150.0
 # rows of cells pooled at once: bounds the temporary memory of a large map's picture
 _STRIP_CELLS = 1_000_000
-# pixels of the map image matplotlib draws at once (see draw_grid)
-_STRIP_PIXELS = 1_000_000
+# pixels of the map image matplotlib draws at once, and the most it draws whole (draw_grid)
+_STRIP_PIXELS = 250_000
+_WHOLE_PIXELS = 1_000_000
 
 
 def nice_length(span: float) -> float:
@@ -116,12 +119,13 @@ def picture_step(grid: Any, max_pixels: int = MAX_PICTURE_PIXELS) -> int:
     return max(1, -(-max(h, w) // int(max_pixels)))
 
 
-def pooled_cells(grid: Any, step: int) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
-    """The largest log odds among the observed cells of each ``step`` x ``step`` block (the
-    blocks of the last row and column may be smaller) and whether the block holds an observed
-    cell. A wall one cell thick darkens its block; stride sampling would miss it two times in
-    three at ``step = 3``. Works through the rows a strip at a time (the temporary memory is
-    about 10 MB whatever the map's size)."""
+def _pooled_strips(
+    grid: Any, step: int
+) -> Iterator[tuple[int, NDArray[np.float32], NDArray[np.bool_]]]:
+    """:func:`pooled_cells` a strip of rows at a time: ``(first row, log odds, observed)``
+    per strip of the pooled picture, in order. The cells are read about
+    a million at a time, so that neither the pooled image nor any temporary of the
+    whole map is ever held."""
     lo_all = np.asarray(grid.log_odds)
     h, w = lo_all.shape
     rows_of = getattr(grid, "observed_rows", None)  # the mask a strip at a time
@@ -131,24 +135,37 @@ def pooled_cells(grid: Any, step: int) -> tuple[NDArray[np.float32], NDArray[np.
         def rows_of(r0: int, r1: int) -> NDArray[np.bool_]:
             return seen_grid[r0:r1]
 
-    if step == 1:
-        seen_all = np.asarray(rows_of(0, h), dtype=bool)
-        return np.where(seen_all, lo_all, 0.0).astype(np.float32), seen_all
-    ho, wo = -(-h // step), -(-w // step)
-    lo_out = np.empty((ho, wo), np.float32)
-    seen_out = np.empty((ho, wo), bool)
+    wo = -(-w // step)
     rows = max(1, _STRIP_CELLS // max(w, 1) // step) * step
     pad_w = wo * step - w
     for r0 in range(0, h, rows):
         r1 = min(h, r0 + rows)
-        lo = np.where(rows_of(r0, r1), lo_all[r0:r1], -np.inf).astype(np.float32)
+        seen = np.asarray(rows_of(r0, r1), dtype=bool)
+        if step == 1:
+            yield r0, np.where(seen, lo_all[r0:r1], 0.0).astype(np.float32), seen
+            continue
+        lo = np.where(seen, lo_all[r0:r1], -np.inf).astype(np.float32)
         pad_h = -(-(r1 - r0) // step) * step - (r1 - r0)
         if pad_h or pad_w:
             lo = np.pad(lo, ((0, pad_h), (0, pad_w)), constant_values=-np.inf)
         blocks = lo.reshape(lo.shape[0] // step, step, wo, step).max(axis=(1, 3))
-        o0 = r0 // step
-        seen_out[o0 : o0 + len(blocks)] = np.isfinite(blocks)
-        lo_out[o0 : o0 + len(blocks)] = np.where(np.isfinite(blocks), blocks, 0.0)
+        finite = np.isfinite(blocks)
+        yield r0 // step, np.where(finite, blocks, 0.0).astype(np.float32), finite
+
+
+def pooled_cells(grid: Any, step: int) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+    """The largest log odds among the observed cells of each ``step`` x ``step`` block (the
+    blocks of the last row and column may be smaller) and whether the block holds an observed
+    cell. A wall one cell thick darkens its block; stride sampling would miss it two times in
+    three at ``step = 3``. Works through the rows a strip at a time (the temporary memory is
+    about 10 MB whatever the map's size)."""
+    h, w = grid.spec.shape
+    shape = (-(-h // step), -(-w // step))
+    lo_out = np.empty(shape, np.float32)
+    seen_out = np.empty(shape, bool)
+    for o0, lo, seen in _pooled_strips(grid, step):
+        lo_out[o0 : o0 + len(lo)] = lo
+        seen_out[o0 : o0 + len(lo)] = seen
     return lo_out, seen_out
 
 
@@ -157,14 +174,26 @@ def map_image(grid: Any, max_pixels: int = MAX_PICTURE_PIXELS) -> tuple[np.ndarr
     cells white (p <= 0.25) to black (p >= 0.75), linear between (the map PNG's grey ramp),
     never-observed cells :data:`UNKNOWN_RGB`. Each pixel covers ``step`` x ``step`` cells
     (:func:`picture_step`) and shows the most occupied observed one (:func:`pooled_cells`).
+    Built a strip at a time: besides the image, a few MB whatever the map's size.
     Returns the image (H, W, 3) and ``step``."""
+    return _map_pixels(grid, max_pixels, 3)
+
+
+def _map_pixels(grid: Any, max_pixels: int, channels: int) -> tuple[np.ndarray, int]:
+    """:func:`map_image` with ``channels`` 3 (RGB) or 4 (RGBA, opaque)."""
     step = picture_step(grid, max_pixels)
-    lo, seen = pooled_cells(grid, step)
-    # p = 1 / (1 + exp(-lo)); grey = clip((0.75 - p) / 0.5, 0, 1)
-    p = 1.0 / (1.0 + np.exp(-lo, dtype=np.float32))
-    grey = np.rint(255.0 * np.clip((0.75 - p) / 0.5, 0.0, 1.0)).astype(np.uint8)
-    img = np.repeat(grey[..., None], 3, axis=2)
-    img[~seen] = np.rint(255.0 * np.asarray(UNKNOWN_RGB)).astype(np.uint8)
+    h, w = grid.spec.shape
+    img = np.empty((-(-h // step), -(-w // step), channels), np.uint8)
+    unknown = np.rint(255.0 * np.asarray(UNKNOWN_RGB)).astype(np.uint8)
+    for o0, lo, seen in _pooled_strips(grid, step):
+        # p = 1 / (1 + exp(-lo)); grey = clip((0.75 - p) / 0.5, 0, 1)
+        p = 1.0 / (1.0 + np.exp(-lo, dtype=np.float32))
+        grey = np.rint(255.0 * np.clip((0.75 - p) / 0.5, 0.0, 1.0)).astype(np.uint8)
+        rgb = img[o0 : o0 + len(lo), :, :3]
+        rgb[...] = grey[..., None]
+        rgb[~seen] = unknown
+    if channels == 4:
+        img[..., 3] = 255
     return img, step
 
 
@@ -182,12 +211,15 @@ def map_legend_handles() -> list[Any]:
 def draw_grid(ax: Any, grid: Any, *, max_pixels: int = MAX_PICTURE_PIXELS) -> int:
     """Draw ``grid`` (:func:`map_image`) in the world frame, metres, its extent as the axes'
     limits. Returns ``step``, the cells a pixel covers."""
-    img, step = map_image(grid, max_pixels)
+    img, step = _map_pixels(grid, max_pixels, 4)
     x0, y0, x1, y1 = _extent(grid)
-    # in strips: matplotlib resamples an RGB image in float64 RGBA (32 bytes a pixel, in and
-    # out); a strip at a time keeps that to tens of MB
-    h = img.shape[0]
-    rows = max(1, _STRIP_PIXELS // max(img.shape[1], 1))
+    # opaque RGBA, a large image in strips: matplotlib resamples an image in floating point
+    # (an RGB one in float64 RGBA, 32 bytes a pixel, an RGBA one in float32, in and out); a
+    # strip at a time keeps that to a few MB. A large image is drawn one file pixel per image
+    # pixel (save_picture), so its strips meet on pixel borders and the file is that of the
+    # image drawn whole; a small one is magnified, and drawn whole.
+    h, w = img.shape[:2]
+    rows = h if h * w <= _WHOLE_PIXELS else max(1, _STRIP_PIXELS // max(w, 1))
     dy = (y1 - y0) / h
     for r0 in range(0, h, rows):
         r1 = min(h, r0 + rows)
@@ -311,6 +343,7 @@ def save_picture(
     map drawn in ``ax`` (:func:`draw_grid`) one file pixel per image pixel, at least 150 dpi,
     so a large map keeps its walls and a small one its usual size."""
     from probmap._atomic import atomic_write
+    from probmap._memory import release_freed_memory
 
     if dpi is None:
         dpi = _MIN_DPI
@@ -323,10 +356,35 @@ def save_picture(
             fw, fh = fig.get_size_inches()
             inches = max(pos.width * fw, 1e-3) if w >= h else max(pos.height * fh, 1e-3)
             dpi = max(_MIN_DPI, max(w, h) / inches)
+    bbox = _tight_bbox(fig, dpi)
+    release_freed_memory()  # the map image's temporaries, before the figure's pixels
     path = Path(path)
     with atomic_write(path, "wb") as f:
-        fig.savefig(f, format="png", dpi=dpi, bbox_inches="tight")
+        fig.savefig(f, format="png", dpi=dpi, bbox_inches=bbox)
     return path
+
+
+def _tight_bbox(fig: Any, dpi: float) -> Any:
+    """The area ``savefig(..., bbox_inches="tight")`` writes at ``dpi`` (inches, padded by
+    ``savefig.pad_inches``), measured as matplotlib measures it (a draw that renders
+    nothing, then the extents of what it drew) but with a renderer of one pixel: the
+    measuring renderer stays referenced by the figure's texts, and matplotlib's own, of the
+    whole figure's size, would still be held while the cropped figure is drawn (about 40 MB
+    for a 4,000-pixel map)."""
+    from contextlib import nullcontext
+
+    import matplotlib as mpl
+    from matplotlib.backends.backend_agg import RendererAgg
+
+    old = fig.dpi
+    fig.dpi = dpi
+    try:
+        renderer = RendererAgg(1, 1, dpi)  # text extents depend on the dpi, not the size
+        with getattr(renderer, "_draw_disabled", nullcontext)():
+            fig.draw(renderer)  # places what only a draw places (ticks, the legend)
+        return fig.get_tightbbox(renderer).padded(mpl.rcParams["savefig.pad_inches"])
+    finally:
+        fig.dpi = old
 
 
 def save_map_figure(

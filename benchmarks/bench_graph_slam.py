@@ -115,18 +115,7 @@ def _errors(times: np.ndarray, poses: np.ndarray, rel: Any) -> dict[str, float]:
 
 def _head(batch: Any, n: int) -> Any:
     """The first ``n`` scans of a batch (for warming the compiled kernels)."""
-    from dataclasses import replace
-
-    angles = np.asarray(batch.angles)
-    return replace(
-        batch,
-        times=np.asarray(batch.times)[:n],
-        ranges=batch.ranges[:n],
-        angles=angles if angles.ndim == 1 else angles[:n],
-        laser_poses=batch.laser_poses[:n],
-        robot_poses=batch.robot_poses[:n],
-        beams=batch.beams[:n],
-    )
+    return batch.rows(slice(0, n))
 
 
 def _bag_without_scans_past_tf(src: Path, dst: Path) -> tuple[Path, int]:

@@ -110,17 +110,7 @@ def perturb(batch: Any, case: str, seed: int = 0) -> Any:
         noisy = np.where(hit, np.maximum(r + rng.normal(0.0, v, r.shape), 0.01), r)
         return replace(batch, ranges=noisy.astype(np.asarray(batch.ranges).dtype))
     if kind == "every":
-        k = slice(None, None, int(v))
-        angles = np.asarray(batch.angles)
-        return replace(
-            batch,
-            times=np.asarray(batch.times)[k],
-            ranges=batch.ranges[k],
-            angles=angles if angles.ndim == 1 else angles[k],
-            laser_poses=laser[k],
-            robot_poses=robot[k],
-            beams=np.asarray(batch.beams)[k],
-        )
+        return batch.rows(slice(None, None, int(v)))
     if kind == "maxrange":
         r = np.asarray(batch.ranges).copy()
         r[r > v] = batch.max_range

@@ -85,6 +85,13 @@ def test_slam_grid_graph_on_intel_writes_every_file(shared_data, tmp_path):
     shown = " ".join(res.output.split())
     assert f"overrode the odometry {len(overridden)} times" in shown
     assert report["doubts"] == [] and "doubtful places none" in shown
+    # revisits: pieces of travel that passed a mapped place again, all joined by closures
+    revisits = report["revisits"]
+    assert revisits["unjoined"] == [] and revisits["unjoined_pieces"] == 0
+    step = revisits["piece_m"]
+    assert (
+        f"revisits {revisits['pieces'] * step:,.0f} m of travel passed mapped places, 0 m" in shown
+    )
     assert "the map may be wrong" not in res.output
     doubt = report["consistency"]
     assert 0.0 <= doubt["share"] < 1.0 and len(doubt["visits"]) >= 3  # 10 m each

@@ -341,8 +341,20 @@ def _check_rows(report: dict[str, Any] | None) -> list[tuple[str, str]]:
             f"{rejected.get('inconsistent_with_other_closures', 0):,} inconsistent",
         ),
         ("consistency", f"{share:.2%} of the walls seen were open space to other visits"),
+        *_revisit_rows(report.get("revisits")),
         ("doubtful places", _doubt_row(report.get("doubts", []))),
     ]
+
+
+def _revisit_rows(revisits: dict[str, Any] | None) -> list[tuple[str, str]]:
+    """The summary's row of revisited places and how many no closure joined (none for a
+    report without them)."""
+    if not revisits:
+        return []
+    step = revisits["piece_m"]
+    seen, loose = revisits["pieces"] * step, revisits["unjoined_pieces"] * step
+    return [("revisits", f"{seen:,.0f} m of travel passed mapped places, {loose:,.0f} m of it "
+             "joined by no loop closure")]  # fmt: skip
 
 
 def _doubt_row(doubts: list[dict[str, Any]]) -> str:
@@ -356,6 +368,11 @@ def _doubt_row(doubts: list[dict[str, Any]]) -> str:
         shown = ", ".join(f"{d['walls_seen_s'][0]:.0f}/{d['open_space_seen_s'][0]:.0f}"
                           for d in places[:4])  # fmt: skip
         parts.append(f"{len(places)} (visits at t = {shown}{', ...' if len(places) > 4 else ''} s)")
+    twice = [d for d in doubts if d["kind"] == "unjoined_revisit"]
+    if twice:
+        shown = ", ".join(f"{d['start_s']:.0f}-{d['end_s']:.0f}" for d in twice[:4])
+        more = ", ..." if len(twice) > 4 else ""
+        parts.append(f"{len(twice)} revisit(s) no closure joined (t = {shown}{more} s)")
     if lost:
         parts.append(f"{len(lost)} span(s) of scans that matched nothing")
     return "; ".join(parts)

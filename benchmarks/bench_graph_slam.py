@@ -255,11 +255,17 @@ def worker_graph(key: str, data: Path, end_time: float | None) -> dict[str, Any]
     out.update(closure_precision(run, mount, rel))
     out["peak_mib"] = _peak_mib()
     # the doubt check of `slam grid` (after the peak: the SLAM's memory is what is measured)
-    from probmap.pipelines.laser_slam import consistency_report, doubts_of, local_report
+    from probmap.pipelines.slam_report import (
+        consistency_report,
+        doubts_of,
+        local_report,
+        revisit_report,
+    )
 
     check = {
         "local": local_report(run.slam, run.times),
         "consistency": consistency_report(run.times, run.sensor_poses, batch),
+        "revisits": revisit_report(run.slam, run.times),
     }
     out["doubts"] = len(doubts_of(check))
     return out

@@ -351,6 +351,8 @@ def _revisit_rows(revisits: dict[str, Any] | None) -> list[tuple[str, str]]:
     report without them)."""
     if not revisits:
         return []
+    if not revisits["pieces"]:
+        return [("revisits", "none (no place passed again after 30 m of travel)")]
     step = revisits["piece_m"]
     seen, loose = revisits["pieces"] * step, revisits["unjoined_pieces"] * step
     return [("revisits", f"{seen:,.0f} m of travel passed mapped places, {loose:,.0f} m of it "

@@ -109,7 +109,7 @@ def wall_row(slots, pool, cells, state, bx, by):
     """The row of ``pool`` (P, K) that caches the wall ranges cast from block ``[by, bx]`` of
     ``slots`` (-1: none yet), assigned on first use; a full pool is wiped (every block
     forgotten) and filled again. ``cells`` (P,) remembers each row's block, ``state[0]`` the
-    rows in use."""
+    rows in use (``state[1]``: how far casts go, cells)."""
     r = slots[by, bx]
     if r >= 0:
         return r
@@ -170,7 +170,7 @@ def scan_log_likelihood_walls(
         row = wall_row(slots, pool, cells, state, bx, by)
         gx = min((bx + 0.5) * block, w - 0.5)
         gy = min((by + 0.5) * block, h - 0.5)
-    limit = 65000.0 * quantum
+    limit = float(state[1])
     acc = 0.0
     for b in range(lx.shape[0]):
         ex = (x + c * lx[b] - s * ly[b] - x0) * inv_res

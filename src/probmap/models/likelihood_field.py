@@ -179,7 +179,8 @@ class LikelihoodField(ScanLikelihood):
             slots = np.full((-(-h // block), -(-w // block)), -1, dtype=np.int32)
             pool = np.zeros((4096, 360), dtype=np.uint16)
             cells = np.zeros(4096, dtype=np.int64)
-            state = np.zeros(1, dtype=np.int64)
+            # rows in use; how far a cast goes (cells): the sensor's range, and no further
+            state = np.array([0, math.ceil(self.max_range / self.frame.resolution) + 2], np.int64)
             occ = np.ascontiguousarray(self.occupied)
             self._walls = (occ, slots, pool, cells, state, block, 0.2)
         return self._walls

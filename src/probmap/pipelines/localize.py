@@ -150,7 +150,8 @@ class LocalizeConfig:
         The filter also counts as lost at once when its estimate has turned more than this
         (rad) against the odometry over the last ``2 lost_updates`` updates while, on average
         over the last ``lost_updates``, more than ``converged_see_through`` of its beams run
-        through the map's walls (:func:`~probmap.pipelines._localize_track.turned_against_odometry`):
+        through the map's walls and fewer than ``converged_matched`` end near an obstacle
+        (:func:`~probmap.pipelines._localize_track.turned_against_odometry`):
         a tight cloud pulled to a turned, look-alike pose (Freiburg 079). Tracking right, the
         estimate turns at most 13-18 deg against the odometry over 20 updates on Intel and
         the hospital, and its beams cross walls rarely where it does. While lost so, no
@@ -187,8 +188,8 @@ class LocalizeConfig:
         the cloud; the particles and their spread are left as they are. False: the best
         cluster's mean.
     wall_margin, reverse_fraction : float or None, float
-        Tracking, while the last scan fit the map worse than a converged filter's must (less
-        than ``converged_matched``): beams through a wall of the map more than ``wall_margin``
+        Tracking and not lost, while the last scan fit the map worse than a converged filter's
+        must (``converged_matched``): beams through a wall of the map more than ``wall_margin``
         (m) short of their endpoint count as random readings, and ``reverse_fraction`` of the
         particles move by the odometry reversed (:mod:`probmap.filters.mcl_robust`; None, 0: off).
     """
@@ -868,9 +869,9 @@ def localize_scans(
                 )
                 lost = None
         mcl.augment = not converged or (cfg.augmented and lost is not None)
-        # robust weighting while tracking where the scan fits the map worse than a converged
-        # filter's must: the map lacks what the scan sees, or the odometry was wrong
-        robust = converged and not cfg.global_localization and matched < cfg.converged_matched
+        # tracking, where the scan fits worse than a converged filter's must: mcl_robust's pass
+        robust = converged and lost is None and not cfg.global_localization
+        robust = robust and matched < cfg.converged_matched
         mcl.wall_margin = cfg.wall_margin if robust else None
         mcl.reverse_fraction = cfg.reverse_fraction if robust else 0.0
         mcl.random_floor = cfg.lost_random_fraction if lost is not None else 0.0

@@ -188,8 +188,8 @@ class LocalizeConfig:
         the cloud; the particles and their spread are left as they are. False: the best
         cluster's mean.
     wall_margin, reverse_fraction : float or None, float
-        Tracking and not lost, while the last scan fit the map worse than a converged filter's
-        must (``converged_matched``): beams through a wall of the map more than ``wall_margin``
+        Tracking, while the last scan fit the map worse than a converged filter's must
+        (``converged_matched``): beams through a wall of the map more than ``wall_margin``
         (m) short of their endpoint count as random readings, and ``reverse_fraction`` of the
         particles move by the odometry reversed (:mod:`probmap.filters.mcl_robust`; None, 0: off).
     """
@@ -870,8 +870,7 @@ def localize_scans(
                 lost = None
         mcl.augment = not converged or (cfg.augmented and lost is not None)
         # tracking, where the scan fits worse than a converged filter's must: mcl_robust's pass
-        robust = converged and lost is None and not cfg.global_localization
-        robust = robust and matched < cfg.converged_matched
+        robust = not cfg.global_localization and converged and matched < cfg.converged_matched
         mcl.wall_margin = cfg.wall_margin if robust else None
         mcl.reverse_fraction = cfg.reverse_fraction if robust else 0.0
         mcl.random_floor = cfg.lost_random_fraction if lost is not None else 0.0

@@ -11,7 +11,7 @@ import math
 
 from numba import njit
 
-from probmap.models._likelihood_field_kernels import scan_log_likelihood
+from probmap.models._likelihood_field_kernels import scan_log_likelihood, scan_log_likelihood_walls
 
 
 @njit(cache=True, fastmath=True)
@@ -69,3 +69,44 @@ def gather_rows(src, idx, dst):
         dst[k, 0] = src[j, 0]
         dst[k, 1] = src[j, 1]
         dst[k, 2] = src[j, 2]
+
+
+@njit(cache=True, fastmath=True)
+def odometry_predict_and_weight_robust(
+    particles, noise, rot1, trans, rot2, sd1, sdt, sd2, lx, ly, table, x0, y0, inv_res, outside,
+    walls, ox, oy, beam_angle, beam_range, margin, occ, slots, pool, cells, state, block,
+    quantum, every, offset, lw,
+):  # fmt: skip
+    """:func:`odometry_predict_and_weight` with two robust parts, each optional.
+
+    - ``walls``: beams that run through the map's walls count as random readings
+      (:func:`probmap.models._likelihood_field_kernels.scan_log_likelihood_walls`; its
+      arguments from ``ox`` to ``quantum``).
+    - ``every > 0``: particle ``n`` with ``(n + offset) % every == 0`` moves by the odometry's
+      translation reversed (odometry that logs reversing as forward driving), a systematic
+      ``1 / every`` of the set.
+    """
+    two_pi = 2.0 * math.pi
+    for n in range(particles.shape[0]):
+        h1 = rot1 - sd1 * noise[n, 0]
+        ht = trans - sdt * noise[n, 1]
+        if every > 0 and (n + offset) % every == 0:
+            ht = -ht
+        h2 = rot2 - sd2 * noise[n, 2]
+        th = particles[n, 2] + h1
+        x = particles[n, 0] + ht * math.cos(th)
+        y = particles[n, 1] + ht * math.sin(th)
+        th = th + h2
+        th = (th + math.pi) % two_pi - math.pi
+        particles[n, 0] = x
+        particles[n, 1] = y
+        particles[n, 2] = th
+        if walls:
+            lw[n] += scan_log_likelihood_walls(
+                x, y, th, lx, ly, table, x0, y0, inv_res, outside, ox, oy, beam_angle,
+                beam_range, margin, occ, slots, pool, cells, state, block, quantum,
+            )  # fmt: skip
+        else:
+            lw[n] += scan_log_likelihood(
+                x, y, math.cos(th), math.sin(th), lx, ly, table, x0, y0, inv_res, outside
+            )

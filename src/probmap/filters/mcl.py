@@ -38,6 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from probmap.filters import _kernels as _k
 from probmap.filters.kld import KLDConfig, kld_resample
+from probmap.filters.mcl_robust import mcl_sample_and_weight_robust as _robust
 from probmap.filters.particle import (
     ParticleFilterWarning,
     weighted_pose_covariance,
@@ -765,6 +766,10 @@ class MonteCarloLocalization:
         self.w_slow = 0.0
         self.w_fast = 0.0
         self.last_exponent = 1.0  # the exponent the last measurement was taken to
+        #: update_scan's robust pass (:func:`probmap.filters.mcl_robust.mcl_sample_and_weight_robust`):
+        #: a wall margin (m; None: off) and the fraction of particles moved by the odometry reversed.
+        self.wall_margin: float | None = None
+        self.reverse_fraction = 0.0
         p = np.array(particles, dtype=np.float64)  # a copy: the filter moves it in place
         if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] == 0:
             raise ValueError(f"particles must have shape (N, 3) with N > 0, got {p.shape}")
@@ -925,7 +930,11 @@ class MonteCarloLocalization:
             return self.update((odom_prev, odom_cur), (ranges, angles, sensor_offset))
         lf, mm = self.sensor, self.motion
         lx, ly, valid = lf.endpoints(ranges, angles, sensor_offset)
-        self.predict_and_weight(odom_prev, odom_cur, lx[valid], ly[valid], lf, mm)
+        if self.wall_margin is None and not self.reverse_fraction > 0:
+            self.predict_and_weight(odom_prev, odom_cur, lx[valid], ly[valid], lf, mm)
+        else:
+            ll = _robust(self, odom_prev, odom_cur, lx[valid], ly[valid], sensor_offset)
+            self._add_log_likelihood(ll, int(valid.sum()))
         est = self.estimate()
         self.resample_if_needed()
         return est

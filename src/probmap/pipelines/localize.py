@@ -150,7 +150,8 @@ class LocalizeConfig:
         The filter also counts as lost at once when its estimate has turned more than this
         (rad) against the odometry over the last ``2 lost_updates`` updates while, on average
         over the last ``lost_updates``, more than ``converged_see_through`` of its beams run
-        through the map's walls (:func:`~probmap.pipelines._localize_track.turned_against_odometry`):
+        through the map's walls and fewer than ``converged_matched`` end near an obstacle
+        (:func:`~probmap.pipelines._localize_track.turned_against_odometry`):
         a tight cloud pulled to a turned, look-alike pose (Freiburg 079). Tracking right, the
         estimate turns at most 13-18 deg against the odometry over 20 updates on Intel and
         the hospital, and its beams cross walls rarely where it does. While lost so, no
@@ -186,6 +187,11 @@ class LocalizeConfig:
         distance field with the cloud as prior) where most beams fit there and it lies within
         the cloud; the particles and their spread are left as they are. False: the best
         cluster's mean.
+    wall_margin, reverse_fraction : float or None, float
+        Tracking, while the last scan fit the map worse than a converged filter's must
+        (``converged_matched``): beams through a wall of the map more than ``wall_margin``
+        (m) short of their endpoint count as random readings, and ``reverse_fraction`` of the
+        particles move by the odometry reversed (:mod:`probmap.filters.mcl_robust`; None, 0: off).
     """
 
     n_particles: int = 2000
@@ -225,6 +231,8 @@ class LocalizeConfig:
     match_gain: float = 0.3
     refine: bool = True
     lost_turn: float = math.radians(20.0)
+    wall_margin: float | None = 0.5
+    reverse_fraction: float = 0.05
 
     def __post_init__(self) -> None:
         if self.n_particles <= 0:
@@ -257,6 +265,11 @@ class LocalizeConfig:
             raise ValueError(f"max_range must be a finite number > 0 m, got {self.max_range}")
         if not 0 <= self.free_threshold <= 1:
             raise ValueError(f"free_threshold must lie in [0, 1], got {self.free_threshold}")
+        m = self.wall_margin
+        if m is not None and not (math.isfinite(m) and m > 0):
+            raise ValueError(f"wall_margin must be None or a finite number > 0 m, got {m}")
+        if not 0.0 <= self.reverse_fraction <= 0.5:
+            raise ValueError(f"reverse_fraction must lie in [0, 0.5], got {self.reverse_fraction}")
         if not (math.isfinite(self.lost_spread) and self.lost_spread > 0):
             raise ValueError(f"lost_spread must be a finite number > 0 m, got {self.lost_spread}")
         require_at_least("lost_updates", self.lost_updates, 1)
@@ -823,7 +836,10 @@ def localize_scans(
         if lost is None:
             if converged and jump > cfg.lost_jump:
                 streak = [(k1, "jump", jump)]  # lost at once
-            elif converged and turned[1] > cfg.lost_turn and through10 > cfg.converged_see_through:
+            elif (
+                converged and turned[1] > cfg.lost_turn
+                and through10 > cfg.converged_see_through and fits < cfg.converged_matched
+            ):  # fmt: skip
                 streak = [(turned[0], "turn", math.degrees(turned[1]))]  # lost at once
             elif converged and (wide or not on_map or misfit):
                 why = "spread" if wide else "off the map" if not on_map else "misfit"
@@ -853,6 +869,10 @@ def localize_scans(
                 )
                 lost = None
         mcl.augment = not converged or (cfg.augmented and lost is not None)
+        # tracking, where the scan fits worse than a converged filter's must: mcl_robust's pass
+        robust = not cfg.global_localization and converged and matched < cfg.converged_matched
+        mcl.wall_margin = cfg.wall_margin if robust else None
+        mcl.reverse_fraction = cfg.reverse_fraction if robust else 0.0
         mcl.random_floor = cfg.lost_random_fraction if lost is not None else 0.0
         if lost is not None and lost.reason == "turn" and not (wide or not on_map or misfit):
             mcl.augment, mcl.random_floor = False, 0.0  # random particles lure it further off

@@ -807,6 +807,20 @@ class MonteCarloLocalization:
         p = free_space.sample(cfg.n_particles, rng)
         return cls(sensor, motion, rng, cfg, free_space, particles=p)
 
+    def restart(self) -> None:
+        """Global localization again: ``config.n_particles`` particles uniform over
+        ``free_space``, uniform weights, augmented MCL's averages cleared.
+
+        Raises
+        ------
+        ValueError
+            Without a ``free_space`` sampler.
+        """
+        if self.free_space is None:
+            raise ValueError("restart needs a free_space sampler")
+        self._reset(self.free_space.sample(self.config.n_particles, self.rng))
+        self.w_slow = self.w_fast = 0.0
+
     def _reset(self, particles: NDArray[np.float64]) -> None:
         self.particles = np.ascontiguousarray(particles, dtype=np.float64)
         n = self.particles.shape[0]

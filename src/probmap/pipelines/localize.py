@@ -225,6 +225,8 @@ class LocalizeConfig:
     match_gain: float = 0.3
     refine: bool = True
     lost_turn: float = math.radians(20.0)
+    restart_updates: int | None = 20
+    converged_updates: int = 30
 
     def __post_init__(self) -> None:
         if self.n_particles <= 0:
@@ -260,6 +262,9 @@ class LocalizeConfig:
         if not (math.isfinite(self.lost_spread) and self.lost_spread > 0):
             raise ValueError(f"lost_spread must be a finite number > 0 m, got {self.lost_spread}")
         require_at_least("lost_updates", self.lost_updates, 1)
+        require_at_least("converged_updates", self.converged_updates, 1)
+        if self.restart_updates is not None:
+            require_at_least("restart_updates", self.restart_updates, 1)
         if self.kld_min is not None:
             require_at_least("kld_min", self.kld_min, 1)
         for name in ("converged_matched", "lost_matched", "lost_random_fraction",
@@ -421,6 +426,7 @@ class LocalizationRun:
     see_through: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     track_times: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     track: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
+    restarts: int = 0
 
     @property
     def ended_lost(self) -> bool:
@@ -615,6 +621,7 @@ def localize_scans(
     start: int = 0,
     stop: int | None = None,
     max_updates: int | None = None,
+    until_localized: bool = False,
     laser_offset: ArrayLike = (0.0, 0.0, 0.0),
     progress: Callable[[int, int], None] | None = None,
     observer: Any = None,
@@ -643,6 +650,10 @@ def localize_scans(
         Scan range to process.
     max_updates : int, optional
         Stop after this many filter updates.
+    until_localized : bool
+        Global localization: stop at the first update where the run knows where the robot is
+        (:attr:`LocalizationRun.localized` would hold: converged, one cluster, the scans fit
+        there), as a user runs it until it says so; within ``stop`` and ``max_updates``.
     laser_offset : (3,) array_like
         The laser's pose ``(x, y, theta)`` in the robot frame (m, rad), e.g. from
         :func:`laser_offset_of`; each particle (a robot pose) sees the scan from
@@ -755,6 +766,9 @@ def localize_scans(
     converged = not cfg.global_localization
     converged_index: int | None = None if cfg.global_localization else 0
     single = 0  # updates in a row with one tight cluster (a rival alive just before: no claim)
+    agree = 0  # updates in a row with one tight cluster whose scans fit
+    stuck = 0  # updates in a row with one tight cluster whose scans do not fit
+    restarts = 0
     streak: list[tuple[int, str, float]] = []  # the current run of lost-looking updates
     good, k_good = 0, start  # while lost: good updates in a row, and the first of them
     episodes: list[LostReport] = []
@@ -804,11 +818,25 @@ def localize_scans(
             top = mcl.hypotheses()[:1]
             one = bool(top) and top[0].weight >= cfg.converged_weight
             single = single + 1 if one and top[0].spread <= cfg.converged_spread else 0
-            converged = (
-                single >= min(cfg.lost_updates, max_updates or cfg.lost_updates) and consistent
+            tight = single >= min(cfg.lost_updates, max_updates or cfg.lost_updates)
+            agree = agree + 1 if one and consistent else 0
+            converged = tight and agree >= min(
+                cfg.converged_updates, max_updates or cfg.converged_updates
             )
+            stuck = stuck + 1 if single >= cfg.lost_updates and not consistent else 0
             if converged:
                 converged_index = len(rows) - 1
+                if cfg.refine:  # the claim's own pose refined, as every one after it
+                    lx, ly, ok = lf.endpoints(r[k], a if a.ndim == 1 else a[k], mount)
+                    q = refine_pose(lf, p, est.covariance, lx[ok], ly[ok], refine_cfg).pose
+                    rows[-1] = (rows[-1][0], q[0], q[1], q[2], *rows[-1][4:])
+            elif cfg.restart_updates is not None and stuck >= cfg.restart_updates:
+                # one tight cloud whose scans do not fit: a look-alike that took every
+                # particle. Nothing of the true place is left to find: start again
+                mcl.restart()
+                mcl.config = mcl_cfg
+                single = stuck = agree = 0
+                restarts += 1
         elif cfg.global_localization and lost is None and not consistent:
             converged, converged_index = False, None  # it was wrong: search the map again
             mcl.config = mcl_cfg
@@ -865,6 +893,8 @@ def localize_scans(
             mcl.config = dataclasses.replace(mcl_cfg, max_random_fraction=cfg.lost_random_fraction)
         if progress is not None and len(rows) % 50 == 0:
             progress(k - start, stop - start)
+        if until_localized and converged and lost is None and len(mcl.hypotheses()) == 1:
+            break
         if max_updates is not None and len(rows) >= max_updates:
             break
     if progress is not None:
@@ -877,7 +907,7 @@ def localize_scans(
         lost=episodes[0] if episodes else None, particles=np.array(mcl.particles),
         laser_offset=mount, episodes=tuple(episodes), fit=arr[:, 6], matched=arr[:, 7],
         see_through=arr[:, 8], track_times=t[track_scans], track=track,
-        converged_index=converged_index, hypotheses=hyps,
+        converged_index=converged_index, hypotheses=hyps, restarts=restarts,
         localized=(
             converged_index is not None and len(hyps) == 1 and lost is None
             and arr.shape[0] > 0

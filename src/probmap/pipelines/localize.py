@@ -11,7 +11,8 @@ where the odometry contradicts it clearly (``match_window``). A run says when it
 estimate) and when it recovered (:class:`LostReport`); while lost, augmented MCL injects random
 particles. A global localization reports the places its particles hold
 (:attr:`LocalizationRun.hypotheses`) and claims convergence only for one tight cluster whose
-scans fit the map. A reference trajectory is compared at its own times, the run interpolated
+scans fit the map over ``converged_updates`` updates, and searches again when its particles
+collapsed on a place that does not fit. A reference trajectory is compared at its own times, the run interpolated
 between its updates (:func:`trajectory_errors`): it never changes the run.
 
 The map is a map_server map or a graph-SLAM session (``probmap slam grid --save-session``):
@@ -109,8 +110,9 @@ class LocalizeConfig:
         Global localization has converged once the particles form one cluster
         (:func:`~probmap.filters.mcl.particle_clusters`) holding at least
         ``converged_weight`` of the weight, with a spread (m) of at most ``converged_spread``,
-        for ``lost_updates`` updates in a row,
-        and the last ``lost_updates`` scans fit the map seen from its estimate: on average at
+        for ``lost_updates`` updates in a row, and, for ``converged_updates`` updates in a row,
+        one cluster held that weight and the last ``lost_updates`` scans fit the map seen from
+        its estimate: on average at
         least ``converged_matched`` of their beams end within ``2 sigma_hit`` of an obstacle
         (:attr:`LocalizationRun.matched`). A cloud that collapsed on a look-alike place fits
         worse (Intel, 20,000 particles from random scans: 0.65-0.67 there, 0.96-1.00 where it
@@ -180,6 +182,21 @@ class LocalizeConfig:
         particles near the estimate are moved with it, as if the odometry had said so. None:
         never. The gain needs the whole scan to fit better, so a corridor, where sliding along
         it changes nothing, does not move the cloud.
+    converged_updates : int
+        Updates in a row over which a global localization's one cluster must fit the map
+        before it claims to know where the robot is (see ``converged_weight``): about 3 m or
+        3 rad of motion with the default update thresholds. A look-alike place fits for a few
+        metres, rarely for more (Freiburg 079, 50 starts, run until the claim: 10 claims on
+        the wrong place with 10 updates, none with 30).
+    restart_updates : int or None
+        A global localization whose particles form one tight cluster (as ``converged_weight``
+        and ``converged_spread`` ask) whose scans do not fit the map there (as
+        ``converged_matched`` and ``converged_see_through`` ask) for this many updates in a
+        row starts again (:meth:`~probmap.filters.mcl.MonteCarloLocalization.restart`:
+        particles uniform over free space): the cloud collapsed on a look-alike and nothing of
+        the true place is left in it, and random particles weighed on one scan rarely win
+        against a cloud that fits some. Counted in :attr:`LocalizationRun.restarts`. None:
+        never.
     refine : bool
         Report, while tracking, the particle estimate refined against the map on the whole
         scan (:func:`~probmap.pipelines._localize_track.refine_pose`: Gauss-Newton on the
@@ -403,6 +420,9 @@ class LocalizationRun:
         when it is not kept.
     laser_offset : (3,) ndarray
         The laser's pose in the robot frame (m, rad) the run used.
+    restarts : int
+        How often a global localization started its search again
+        (``LocalizeConfig.restart_updates``).
     track_times, track : (M,) and (M, 3) ndarray
         The robot's pose at every scan from the first update to the last (m, rad), by the
         odometry between the updates

@@ -809,13 +809,8 @@ class MonteCarloLocalization:
 
     def restart(self) -> None:
         """Global localization again: ``config.n_particles`` particles uniform over
-        ``free_space``, uniform weights, augmented MCL's averages cleared.
-
-        Raises
-        ------
-        ValueError
-            Without a ``free_space`` sampler.
-        """
+        ``free_space`` (ValueError without one), uniform weights, augmented MCL's averages
+        cleared."""
         if self.free_space is None:
             raise ValueError("restart needs a free_space sampler")
         self._reset(self.free_space.sample(self.config.n_particles, self.rng))

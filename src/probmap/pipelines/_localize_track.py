@@ -36,9 +36,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
-from probmap.geometry.se2 import between, compose, inverse
+from probmap.geometry.se2 import between, compose, inverse, wrap_angle
 from probmap.models.grid_map import GridGeometry
 
 __all__ = [
@@ -46,6 +46,7 @@ __all__ = [
     "RefineConfig",
     "RefinedPose",
     "follow_scan",
+    "laser_offset_of",
     "odometry_track",
     "refine_pose",
 ]
@@ -391,3 +392,44 @@ def turned_against_odometry(
     turns.append((scan, est - odo))
     del turns[:-window]
     return turns[0][0], abs(sum(d for _, d in turns))
+
+
+def laser_offset_of(
+    robot_poses: ArrayLike,
+    laser_poses: ArrayLike,
+    *,
+    tolerance: tuple[float, float] = (0.01, 0.01),
+) -> NDArray[np.float64] | None:
+    """The laser's mounting pose in the robot frame, ``between(robot_pose, laser_pose)``, from
+    poses logged together (a CARMEN ``ROBOTLASER1`` or ``FLASER`` line has both; the Freiburg
+    hospital's laser sits 0.22 m ahead of the robot).
+
+    Parameters
+    ----------
+    robot_poses, laser_poses : (S, 3) array_like
+        Robot and laser poses at the same scans, one frame (m, rad).
+    tolerance : (float, float)
+        Largest deviation (m, rad) of a scan's offset from the median for the poses to
+        describe one rigid mounting.
+
+    Returns
+    -------
+    (3,) ndarray or None
+        The median offset ``(x, y, theta)`` (m, m, rad); None when the offsets differ by more
+        than ``tolerance`` (laser poses corrected by SLAM next to raw odometry, say), so that
+        they describe no mounting.
+    """
+    robot = np.asarray(robot_poses, dtype=np.float64).reshape(-1, 3)
+    laser = np.asarray(laser_poses, dtype=np.float64).reshape(-1, 3)
+    if robot.shape != laser.shape or robot.shape[0] == 0:
+        raise ValueError(
+            f"need robot and laser poses (S, 3) alike, got {robot.shape}, {laser.shape}"
+        )
+    d = np.asarray(between(robot, laser)).reshape(-1, 3)
+    off = np.median(d, axis=0)
+    off[2] = float(wrap_angle(off[2] + np.median(wrap_angle(d[:, 2] - off[2]))))
+    far = np.hypot(d[:, 0] - off[0], d[:, 1] - off[1])
+    turn = np.abs(wrap_angle(d[:, 2] - off[2]))
+    if float(far.max()) > tolerance[0] or float(turn.max()) > tolerance[1]:
+        return None
+    return off

@@ -308,3 +308,33 @@ def test_likelihood_exponent():
     assert mcl_likelihood_exponent(8, 10.0) == 1.0 and mcl_likelihood_exponent(60, None) == 1.0
     with pytest.raises(ValueError, match="independent_measurements"):
         MCLConfig(independent_measurements=0.0)
+
+
+def test_restart_draws_a_fresh_uniform_set_over_free_space(field):
+    """A stuck global localization starts again: every particle on a free cell, as many as
+    configured, uniform weights, augmented MCL's averages cleared; the old set is gone."""
+    free_mask = field.distance > 0.2
+    free = FreeSpaceSampler(field.spec, free_mask)
+    cfg = MCLConfig(n_particles=4000)
+    rng = np.random.default_rng(3)
+    mcl = MonteCarloLocalization.from_pose(
+        field, OdometryMotionModel(), rng, [5.0, 5.0, 0.0], np.diag([1e-4, 1e-4, 1e-4]), cfg, free
+    )
+    mcl.particles = mcl.particles[:1000].copy()  # KLD-sampling may have shrunk the set
+    mcl.log_weights = np.log(np.r_[1.0, np.full(999, 1e-9)])
+    mcl.w_slow, mcl.w_fast = 0.3, 0.1
+    mcl.restart()
+    p = mcl.particles
+    assert p.shape == (4000, 3)
+    res = field.spec.resolution
+    ix = np.floor((p[:, 0] - field.spec.origin[0]) / res).astype(int)
+    iy = np.floor((p[:, 1] - field.spec.origin[1]) / res).astype(int)
+    assert free_mask[iy, ix].all()
+    assert np.hypot(p[:, 0] - 5.0, p[:, 1] - 5.0).mean() > 2.0  # no longer at the old pose
+    assert np.allclose(mcl.weights, 1 / 4000)
+    assert (mcl.w_slow, mcl.w_fast) == (0.0, 0.0)
+    assert np.ptp(p[:, 2]) > 6.0  # headings over the whole circle
+    with pytest.raises(ValueError, match="free_space"):
+        MonteCarloLocalization.from_pose(
+            field, OdometryMotionModel(), rng, [5.0, 5.0, 0.0], np.eye(3) * 1e-4, cfg
+        ).restart()

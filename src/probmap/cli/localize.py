@@ -134,6 +134,11 @@ def _convergence_rows(run: Any, global_: bool) -> list[tuple[str, str]]:
         else:
             k, t = int(run.scan_index[c]), float(run.times[c])
             rows.append(("converged", f"at update {c + 1:,} (scan {k}, t = {t:.2f} s)"))
+        if run.restarts:
+            rows.append(
+                ("search", f"started again {run.restarts} time(s): its particles had settled "
+                 "where the scans do not fit the map")
+            )  # fmt: skip
     hyps = run.hypotheses
     if len(hyps) == 1:
         h = hyps[0]

@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from probmap.filters import _kernels as _k
+from probmap.filters.clusters import Hypothesis, particle_clusters
 from probmap.filters.kld import KLDConfig, kld_resample
 from probmap.filters.mcl_robust import mcl_sample_and_weight_robust as _robust
 from probmap.filters.particle import (
@@ -182,94 +183,6 @@ class PoseEstimate:
     def spread(self) -> float:
         """``sqrt(var_x + var_y)`` (m): the particle cloud's positional spread."""
         return float(math.sqrt(max(self.covariance[0, 0] + self.covariance[1, 1], 0.0)))
-
-
-@dataclass(frozen=True)
-class Hypothesis:
-    """One cluster of particles: a place the robot may be (:func:`particle_clusters`).
-
-    Attributes
-    ----------
-    weight : float
-        Total weight of its particles.
-    mean : (3,) ndarray
-        Their weighted mean pose (m, rad).
-    spread : float
-        Their positional spread ``sqrt(var_x + var_y)`` (m).
-    n_particles : int
-    """
-
-    weight: float
-    mean: NDArray[np.float64]
-    spread: float
-    n_particles: int
-
-
-def particle_clusters(
-    particles: ArrayLike, weights: ArrayLike, cell: float = 0.5, min_weight: float = 0.05
-) -> list[Hypothesis]:
-    """The places a particle set holds: particles in touching cells of ``cell`` metres (8
-    neighbours) form one cluster; clusters of at least ``min_weight`` are returned, heaviest
-    first.
-
-    A weighted spread over all particles cannot tell one wide cloud from two tight ones far
-    apart (a symmetric building); the clusters can.
-
-    Parameters
-    ----------
-    particles : (N, 3) array_like
-        Poses (m, rad).
-    weights : (N,) array_like
-        Normalised weights.
-    cell : float
-        Cell size (m).
-    min_weight : float
-        Lightest cluster reported.
-
-    Returns
-    -------
-    list of Hypothesis
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> p = np.zeros((4, 3)); p[2:, 0] = 10.0
-    >>> [round(h.weight, 2) for h in particle_clusters(p, np.full(4, 0.25))]
-    [0.5, 0.5]
-    """
-    from scipy import ndimage
-
-    p = np.asarray(particles, dtype=np.float64).reshape(-1, 3)
-    w = np.asarray(weights, dtype=np.float64).reshape(-1)
-    if w.shape != (p.shape[0],) or p.shape[0] == 0:
-        raise ValueError(f"need particles (N, 3) and weights (N,), got {p.shape}, {w.shape}")
-    if not cell > 0:
-        raise ValueError(f"cell must be positive, got {cell}")
-    size = float(cell)
-    while True:  # a set spread over a huge area: coarser cells keep the label image small
-        cells = np.floor(p[:, :2] / size).astype(np.int64)
-        lo = cells.min(axis=0)
-        span = cells.max(axis=0) - lo + 1
-        if span[0] * span[1] <= 4_000_000:
-            break
-        size *= 2.0
-    occupied = np.zeros((int(span[0]), int(span[1])), dtype=bool)
-    ij = cells - lo
-    occupied[ij[:, 0], ij[:, 1]] = True
-    labels, count = ndimage.label(occupied, structure=np.ones((3, 3), dtype=bool))
-    of = labels[ij[:, 0], ij[:, 1]] - 1
-    mass = np.bincount(of, weights=w, minlength=count)
-    out = []
-    for c in np.argsort(-mass):
-        if mass[c] < min_weight or mass[c] <= 0:
-            break
-        sel = of == c
-        wc = w[sel] / mass[c]
-        mean = weighted_pose_mean(p[sel], wc)
-        cov = weighted_pose_covariance(p[sel], wc, mean)
-        spread = math.sqrt(max(cov[0, 0] + cov[1, 1], 0.0))
-        out.append(Hypothesis(float(mass[c]), mean, spread, int(sel.sum())))
-    return out
 
 
 class FreeSpaceSampler:
@@ -811,6 +724,15 @@ class MonteCarloLocalization:
         cfg = config or MCLConfig()
         p = free_space.sample(cfg.n_particles, rng)
         return cls(sensor, motion, rng, cfg, free_space, particles=p)
+
+    def restart(self) -> None:
+        """Global localization again: ``config.n_particles`` particles uniform over
+        ``free_space`` (ValueError without one), uniform weights, augmented MCL's averages
+        cleared."""
+        if self.free_space is None:
+            raise ValueError("restart needs a free_space sampler")
+        self._reset(self.free_space.sample(self.config.n_particles, self.rng))
+        self.w_slow = self.w_fast = 0.0
 
     def _reset(self, particles: NDArray[np.float64]) -> None:
         self.particles = np.ascontiguousarray(particles, dtype=np.float64)

@@ -36,9 +36,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
-from probmap.geometry.se2 import between, compose, inverse
+from probmap.geometry.se2 import between, compose, inverse, wrap_angle
 from probmap.models.grid_map import GridGeometry
 
 __all__ = [
@@ -46,6 +46,8 @@ __all__ = [
     "RefineConfig",
     "RefinedPose",
     "follow_scan",
+    "laser_offset_of",
+    "match_times",
     "odometry_track",
     "refine_pose",
 ]
@@ -391,3 +393,66 @@ def turned_against_odometry(
     turns.append((scan, est - odo))
     del turns[:-window]
     return turns[0][0], abs(sum(d for _, d in turns))
+
+
+def laser_offset_of(
+    robot_poses: ArrayLike,
+    laser_poses: ArrayLike,
+    *,
+    tolerance: tuple[float, float] = (0.01, 0.01),
+) -> NDArray[np.float64] | None:
+    """The laser's mounting pose in the robot frame, ``between(robot_pose, laser_pose)``, from
+    poses logged together (a CARMEN ``ROBOTLASER1`` or ``FLASER`` line has both; the Freiburg
+    hospital's laser sits 0.22 m ahead of the robot).
+
+    Parameters
+    ----------
+    robot_poses, laser_poses : (S, 3) array_like
+        Robot and laser poses at the same scans, one frame (m, rad).
+    tolerance : (float, float)
+        Largest deviation (m, rad) of a scan's offset from the median for the poses to
+        describe one rigid mounting.
+
+    Returns
+    -------
+    (3,) ndarray or None
+        The median offset ``(x, y, theta)`` (m, m, rad); None when the offsets differ by more
+        than ``tolerance`` (laser poses corrected by SLAM next to raw odometry, say), so that
+        they describe no mounting.
+    """
+    robot = np.asarray(robot_poses, dtype=np.float64).reshape(-1, 3)
+    laser = np.asarray(laser_poses, dtype=np.float64).reshape(-1, 3)
+    if robot.shape != laser.shape or robot.shape[0] == 0:
+        raise ValueError(
+            f"need robot and laser poses (S, 3) alike, got {robot.shape}, {laser.shape}"
+        )
+    d = np.asarray(between(robot, laser)).reshape(-1, 3)
+    off = np.median(d, axis=0)
+    off[2] = float(wrap_angle(off[2] + np.median(wrap_angle(d[:, 2] - off[2]))))
+    far = np.hypot(d[:, 0] - off[0], d[:, 1] - off[1])
+    turn = np.abs(wrap_angle(d[:, 2] - off[2]))
+    if float(far.max()) > tolerance[0] or float(turn.max()) > tolerance[1]:
+        return None
+    return off
+
+
+def match_times(
+    times: ArrayLike, ref_times: ArrayLike, max_dt: float = 0.02
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Pairs ``(i, j)`` with ``|times[i] - ref_times[j]| <= max_dt``, nearest ``i`` per ``j``.
+
+    ``times`` must be sorted ascending.
+    """
+    t = np.asarray(times, dtype=np.float64)
+    rt = np.asarray(ref_times, dtype=np.float64)
+    if t.size == 0 or rt.size == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    i = (
+        np.clip(np.searchsorted(t, rt), 1, max(t.size - 1, 1))
+        if t.size > 1
+        else np.zeros(rt.size, dtype=np.int64)
+    )
+    if t.size > 1:
+        i = np.where(np.abs(t[i - 1] - rt) < np.abs(t[i] - rt), i - 1, i)
+    ok = np.abs(t[i] - rt) <= max_dt
+    return i[ok].astype(np.int64), np.flatnonzero(ok).astype(np.int64)

@@ -11,7 +11,8 @@ where the odometry contradicts it clearly (``match_window``). A run says when it
 estimate) and when it recovered (:class:`LostReport`); while lost, augmented MCL injects random
 particles. A global localization reports the places its particles hold
 (:attr:`LocalizationRun.hypotheses`) and claims convergence only for one tight cluster whose
-scans fit the map. A reference trajectory is compared at its own times, the run interpolated
+scans fit the map over ``converged_updates`` updates, and searches again when its particles
+collapsed on a place that does not fit. A reference trajectory is compared at its own times, the run interpolated
 between its updates (:func:`trajectory_errors`): it never changes the run.
 
 The map is a map_server map or a graph-SLAM session (``probmap slam grid --save-session``):
@@ -41,6 +42,7 @@ from numpy.typing import ArrayLike, NDArray
 from probmap._checks import require_at_least
 from probmap.geometry.se2 import wrap_angle
 from probmap.models.grid_map import GridGeometry
+from probmap.pipelines._localize_track import laser_offset_of, match_times
 
 __all__ = [
     "FilterLostWarning",
@@ -109,8 +111,9 @@ class LocalizeConfig:
         Global localization has converged once the particles form one cluster
         (:func:`~probmap.filters.mcl.particle_clusters`) holding at least
         ``converged_weight`` of the weight, with a spread (m) of at most ``converged_spread``,
-        for ``lost_updates`` updates in a row,
-        and the last ``lost_updates`` scans fit the map seen from its estimate: on average at
+        for ``lost_updates`` updates in a row, and, for ``converged_updates`` updates in a row,
+        one cluster held that weight and the last ``lost_updates`` scans fit the map seen from
+        its estimate: on average at
         least ``converged_matched`` of their beams end within ``2 sigma_hit`` of an obstacle
         (:attr:`LocalizationRun.matched`). A cloud that collapsed on a look-alike place fits
         worse (Intel, 20,000 particles from random scans: 0.65-0.67 there, 0.96-1.00 where it
@@ -181,6 +184,21 @@ class LocalizeConfig:
         particles near the estimate are moved with it, as if the odometry had said so. None:
         never. The gain needs the whole scan to fit better, so a corridor, where sliding along
         it changes nothing, does not move the cloud.
+    converged_updates : int
+        Updates in a row over which a global localization's one cluster must fit the map
+        before it claims to know where the robot is (see ``converged_weight``): about 3 m or
+        3 rad of motion with the default update thresholds. A look-alike place fits for a few
+        metres, rarely for more (Freiburg 079, 50 starts, run until the claim: 10 claims on
+        the wrong place with 10 updates, none with 30).
+    restart_updates : int or None
+        A global localization whose particles form one tight cluster (as ``converged_weight``
+        and ``converged_spread`` ask) whose scans do not fit the map there (as
+        ``converged_matched`` and ``converged_see_through`` ask) for this many updates in a
+        row starts again (:meth:`~probmap.filters.mcl.MonteCarloLocalization.restart`:
+        particles uniform over free space): the cloud collapsed on a look-alike and nothing of
+        the true place is left in it, and random particles weighed on one scan rarely win
+        against a cloud that fits some. Counted in :attr:`LocalizationRun.restarts`. None:
+        never.
     refine : bool
         Report, while tracking, the particle estimate refined against the map on the whole
         scan (:func:`~probmap.pipelines._localize_track.refine_pose`: Gauss-Newton on the
@@ -233,6 +251,8 @@ class LocalizeConfig:
     lost_turn: float = math.radians(20.0)
     wall_margin: float | None = 0.5
     reverse_fraction: float = 0.05
+    restart_updates: int | None = 20
+    converged_updates: int = 30
 
     def __post_init__(self) -> None:
         if self.n_particles <= 0:
@@ -273,6 +293,9 @@ class LocalizeConfig:
         if not (math.isfinite(self.lost_spread) and self.lost_spread > 0):
             raise ValueError(f"lost_spread must be a finite number > 0 m, got {self.lost_spread}")
         require_at_least("lost_updates", self.lost_updates, 1)
+        require_at_least("converged_updates", self.converged_updates, 1)
+        if self.restart_updates is not None:
+            require_at_least("restart_updates", self.restart_updates, 1)
         if self.kld_min is not None:
             require_at_least("kld_min", self.kld_min, 1)
         for name in ("converged_matched", "lost_matched", "lost_random_fraction",
@@ -411,6 +434,9 @@ class LocalizationRun:
         when it is not kept.
     laser_offset : (3,) ndarray
         The laser's pose in the robot frame (m, rad) the run used.
+    restarts : int
+        How often a global localization started its search again
+        (``LocalizeConfig.restart_updates``).
     track_times, track : (M,) and (M, 3) ndarray
         The robot's pose at every scan from the first update to the last (m, rad), by the
         odometry between the updates
@@ -434,6 +460,7 @@ class LocalizationRun:
     see_through: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     track_times: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     track: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
+    restarts: int = 0
 
     @property
     def ended_lost(self) -> bool:
@@ -572,49 +599,6 @@ def load_localization_map(path: str | os.PathLike[str]) -> LocalizationMap:
     )
 
 
-def laser_offset_of(
-    robot_poses: ArrayLike,
-    laser_poses: ArrayLike,
-    *,
-    tolerance: tuple[float, float] = (0.01, 0.01),
-) -> NDArray[np.float64] | None:
-    """The laser's mounting pose in the robot frame, ``between(robot_pose, laser_pose)``, from
-    poses logged together (a CARMEN ``ROBOTLASER1`` or ``FLASER`` line has both; the Freiburg
-    hospital's laser sits 0.22 m ahead of the robot).
-
-    Parameters
-    ----------
-    robot_poses, laser_poses : (S, 3) array_like
-        Robot and laser poses at the same scans, one frame (m, rad).
-    tolerance : (float, float)
-        Largest deviation (m, rad) of a scan's offset from the median for the poses to
-        describe one rigid mounting.
-
-    Returns
-    -------
-    (3,) ndarray or None
-        The median offset ``(x, y, theta)`` (m, m, rad); None when the offsets differ by more
-        than ``tolerance`` (laser poses corrected by SLAM next to raw odometry, say), so that
-        they describe no mounting.
-    """
-    from probmap.geometry.se2 import between
-
-    robot = np.asarray(robot_poses, dtype=np.float64).reshape(-1, 3)
-    laser = np.asarray(laser_poses, dtype=np.float64).reshape(-1, 3)
-    if robot.shape != laser.shape or robot.shape[0] == 0:
-        raise ValueError(
-            f"need robot and laser poses (S, 3) alike, got {robot.shape}, {laser.shape}"
-        )
-    d = np.asarray(between(robot, laser)).reshape(-1, 3)
-    off = np.median(d, axis=0)
-    off[2] = float(wrap_angle(off[2] + np.median(wrap_angle(d[:, 2] - off[2]))))
-    far = np.hypot(d[:, 0] - off[0], d[:, 1] - off[1])
-    turn = np.abs(wrap_angle(d[:, 2] - off[2]))
-    if float(far.max()) > tolerance[0] or float(turn.max()) > tolerance[1]:
-        return None
-    return off
-
-
 def localize_scans(
     spec: GridGeometry,
     probability: ArrayLike,
@@ -628,6 +612,7 @@ def localize_scans(
     start: int = 0,
     stop: int | None = None,
     max_updates: int | None = None,
+    until_localized: bool = False,
     laser_offset: ArrayLike = (0.0, 0.0, 0.0),
     progress: Callable[[int, int], None] | None = None,
     observer: Any = None,
@@ -656,6 +641,10 @@ def localize_scans(
         Scan range to process.
     max_updates : int, optional
         Stop after this many filter updates.
+    until_localized : bool
+        Global localization: stop at the first update where the run knows where the robot is
+        (:attr:`LocalizationRun.localized` would hold: converged, one cluster, the scans fit
+        there), as a user runs it until it says so; within ``stop`` and ``max_updates``.
     laser_offset : (3,) array_like
         The laser's pose ``(x, y, theta)`` in the robot frame (m, rad), e.g. from
         :func:`laser_offset_of`; each particle (a robot pose) sees the scan from
@@ -768,6 +757,9 @@ def localize_scans(
     converged = not cfg.global_localization
     converged_index: int | None = None if cfg.global_localization else 0
     single = 0  # updates in a row with one tight cluster (a rival alive just before: no claim)
+    agree = 0  # updates in a row with one tight cluster whose scans fit
+    stuck = 0  # updates in a row with one tight cluster whose scans do not fit
+    restarts = 0
     streak: list[tuple[int, str, float]] = []  # the current run of lost-looking updates
     good, k_good = 0, start  # while lost: good updates in a row, and the first of them
     episodes: list[LostReport] = []
@@ -817,11 +809,25 @@ def localize_scans(
             top = mcl.hypotheses()[:1]
             one = bool(top) and top[0].weight >= cfg.converged_weight
             single = single + 1 if one and top[0].spread <= cfg.converged_spread else 0
-            converged = (
-                single >= min(cfg.lost_updates, max_updates or cfg.lost_updates) and consistent
+            tight = single >= min(cfg.lost_updates, max_updates or cfg.lost_updates)
+            agree = agree + 1 if one and consistent else 0
+            converged = tight and agree >= min(
+                cfg.converged_updates, max_updates or cfg.converged_updates
             )
+            stuck = stuck + 1 if single >= cfg.lost_updates and not consistent else 0
             if converged:
                 converged_index = len(rows) - 1
+                if cfg.refine:  # the claim's own pose refined, as every one after it
+                    lx, ly, ok = lf.endpoints(r[k], a if a.ndim == 1 else a[k], mount)
+                    q = refine_pose(lf, p, est.covariance, lx[ok], ly[ok], refine_cfg).pose
+                    rows[-1] = (rows[-1][0], q[0], q[1], q[2], *rows[-1][4:])
+            elif cfg.restart_updates is not None and stuck >= cfg.restart_updates:
+                # one tight cloud whose scans do not fit: a look-alike that took every
+                # particle. Nothing of the true place is left to find: start again
+                mcl.restart()
+                mcl.config = mcl_cfg
+                single = stuck = agree = 0
+                restarts += 1
         elif cfg.global_localization and lost is None and not consistent:
             converged, converged_index = False, None  # it was wrong: search the map again
             mcl.config = mcl_cfg
@@ -885,6 +891,8 @@ def localize_scans(
             mcl.config = dataclasses.replace(mcl_cfg, max_random_fraction=cfg.lost_random_fraction)
         if progress is not None and len(rows) % 50 == 0:
             progress(k - start, stop - start)
+        if until_localized and converged and lost is None and len(mcl.hypotheses()) == 1:
+            break
         if max_updates is not None and len(rows) >= max_updates:
             break
     if progress is not None:
@@ -897,7 +905,7 @@ def localize_scans(
         lost=episodes[0] if episodes else None, particles=np.array(mcl.particles),
         laser_offset=mount, episodes=tuple(episodes), fit=arr[:, 6], matched=arr[:, 7],
         see_through=arr[:, 8], track_times=t[track_scans], track=track,
-        converged_index=converged_index, hypotheses=hyps,
+        converged_index=converged_index, hypotheses=hyps, restarts=restarts,
         localized=(
             converged_index is not None and len(hyps) == 1 and lost is None
             and arr.shape[0] > 0
@@ -908,28 +916,6 @@ def localize_scans(
     if observer is not None and hasattr(observer, "finish"):
         observer.finish(run)
     return run
-
-
-def match_times(
-    times: ArrayLike, ref_times: ArrayLike, max_dt: float = 0.02
-) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """Pairs ``(i, j)`` with ``|times[i] - ref_times[j]| <= max_dt``, nearest ``i`` per ``j``.
-
-    ``times`` must be sorted ascending.
-    """
-    t = np.asarray(times, dtype=np.float64)
-    rt = np.asarray(ref_times, dtype=np.float64)
-    if t.size == 0 or rt.size == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    i = (
-        np.clip(np.searchsorted(t, rt), 1, max(t.size - 1, 1))
-        if t.size > 1
-        else np.zeros(rt.size, dtype=np.int64)
-    )
-    if t.size > 1:
-        i = np.where(np.abs(t[i - 1] - rt) < np.abs(t[i] - rt), i - 1, i)
-    ok = np.abs(t[i] - rt) <= max_dt
-    return i[ok].astype(np.int64), np.flatnonzero(ok).astype(np.int64)
 
 
 def trajectory_errors(

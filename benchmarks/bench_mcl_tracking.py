@@ -32,7 +32,6 @@ Run:  PROBMAP_DATA=/work/shared/data python benchmarks/bench_mcl_tracking.py \\
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import subprocess
 import sys
@@ -58,9 +57,18 @@ def data_dir() -> Path:
 
 
 def session_for(name: str, log: Path, cache: Path) -> Path:
-    """The slam grid session of ``log`` in ``cache``, built when missing."""
+    """The slam grid session of ``log`` in ``cache``, built when missing or when this code
+    cannot read it (an older format: its map may be another run's, so it is built again)."""
+    from probmap.pipelines.localize import load_localization_map
+
     out = cache / name
     session = out / "slam.session"
+    if session.is_file():
+        try:
+            load_localization_map(session)
+        except ValueError as exc:
+            print(f"<!-- {name}: {exc}; building it again -->", flush=True)
+            session.unlink()
     if not session.is_file():
         out.mkdir(parents=True, exist_ok=True)
         cmd = [
@@ -121,13 +129,7 @@ def main() -> None:
         log = data_dir() / LOGS[name][0]
         rel = read_relations(data_dir() / LOGS[name][1])
         session = session_for(name, log, args.cache)
-        try:
-            m = load_localization_map(session)
-        except ValueError as exc:  # a session of another format: its map_server map, poses
-            print(f"<!-- {name}: {exc}; using slam.yaml and slam.trajectory.csv -->")
-            tr = np.loadtxt(session.parent / "slam.trajectory.csv", delimiter=",", skiprows=1)
-            m = load_localization_map(session.parent / "slam.yaml")
-            m = dataclasses.replace(m, times=tr[:, 0], poses=tr[:, 1:4])
+        m = load_localization_map(session)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             batch = open_scans(log, poses="corrected")

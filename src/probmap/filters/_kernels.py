@@ -14,6 +14,26 @@ from numba import njit
 from probmap.models._likelihood_field_kernels import scan_log_likelihood, scan_log_likelihood_walls
 
 
+@njit(cache=True, fastmath=True, inline="always")
+def _odometry_step(particles, n, noise, rot1, trans, rot2, sd1, sdt, sd2, reverse):
+    """Move particle ``n`` by one odometry sample (Table 5.6) in place, its translation
+    reversed when ``reverse``; returns its new ``(x, y, theta)``."""
+    h1 = rot1 - sd1 * noise[n, 0]
+    ht = trans - sdt * noise[n, 1]
+    if reverse:
+        ht = -ht
+    h2 = rot2 - sd2 * noise[n, 2]
+    th = particles[n, 2] + h1
+    x = particles[n, 0] + ht * math.cos(th)
+    y = particles[n, 1] + ht * math.sin(th)
+    th = th + h2
+    th = (th + math.pi) % (2.0 * math.pi) - math.pi
+    particles[n, 0] = x
+    particles[n, 1] = y
+    particles[n, 2] = th
+    return x, y, th
+
+
 @njit(cache=True, fastmath=True)
 def odometry_predict_and_weight(
     particles, noise, rot1, trans, rot2, sd1, sdt, sd2, lx, ly, table, x0, y0, inv_res, outside, lw
@@ -25,19 +45,8 @@ def odometry_predict_and_weight(
     the valid beam endpoints in the robot frame; ``lw`` (N,) receives the scan
     log-likelihood added to the previous log weight.
     """
-    two_pi = 2.0 * math.pi
     for n in range(particles.shape[0]):
-        h1 = rot1 - sd1 * noise[n, 0]
-        ht = trans - sdt * noise[n, 1]
-        h2 = rot2 - sd2 * noise[n, 2]
-        th = particles[n, 2] + h1
-        x = particles[n, 0] + ht * math.cos(th)
-        y = particles[n, 1] + ht * math.sin(th)
-        th = th + h2
-        th = (th + math.pi) % two_pi - math.pi
-        particles[n, 0] = x
-        particles[n, 1] = y
-        particles[n, 2] = th
+        x, y, th = _odometry_step(particles, n, noise, rot1, trans, rot2, sd1, sdt, sd2, False)
         c = math.cos(th)
         s = math.sin(th)
         lw[n] += scan_log_likelihood(x, y, c, s, lx, ly, table, x0, y0, inv_res, outside)
@@ -86,21 +95,9 @@ def odometry_predict_and_weight_robust(
       translation reversed (odometry that logs reversing as forward driving), a systematic
       ``1 / every`` of the set.
     """
-    two_pi = 2.0 * math.pi
     for n in range(particles.shape[0]):
-        h1 = rot1 - sd1 * noise[n, 0]
-        ht = trans - sdt * noise[n, 1]
-        if every > 0 and (n + offset) % every == 0:
-            ht = -ht
-        h2 = rot2 - sd2 * noise[n, 2]
-        th = particles[n, 2] + h1
-        x = particles[n, 0] + ht * math.cos(th)
-        y = particles[n, 1] + ht * math.sin(th)
-        th = th + h2
-        th = (th + math.pi) % two_pi - math.pi
-        particles[n, 0] = x
-        particles[n, 1] = y
-        particles[n, 2] = th
+        back = every > 0 and (n + offset) % every == 0
+        x, y, th = _odometry_step(particles, n, noise, rot1, trans, rot2, sd1, sdt, sd2, back)
         if walls:
             lw[n] += scan_log_likelihood_walls(
                 x, y, th, lx, ly, table, x0, y0, inv_res, outside, ox, oy, beam_angle,

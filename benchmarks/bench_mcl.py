@@ -246,13 +246,18 @@ def main() -> None:
         )
 
     # the update as probmap localize tracks (LocalizeConfig's defaults): the scan tempered to
-    # 10 independent beams, the augmented-MCL averages kept (random particles only while lost:
-    # none here)
+    # 10 independent beams and, where one scan would leave fewer than 30 % effective
+    # particles, less; the augmented-MCL averages kept (random particles only while lost: none
+    # here); KLD-sampling's bin count at every resampling (the cloud is tight: it keeps N)
+    from probmap.filters.kld import KLDConfig
     from probmap.pipelines.localize import LocalizeConfig
 
+    dflt = LocalizeConfig()
     cfg_d = MCLConfig(
         n_particles=n, resample_threshold=1.0,
-        independent_measurements=LocalizeConfig().independent_beams,
+        independent_measurements=dflt.independent_beams,
+        min_ess_fraction=dflt.min_ess_fraction,
+        kld=KLDConfig(n_min=n, n_max=50 * n) if dflt.kld else None,
     )  # fmt: skip
     mcl_d = MonteCarloLocalization.from_pose(
         lf, motion, np.random.default_rng(0), world.poses[k - 1], cov, cfg_d

@@ -32,6 +32,7 @@ Run:  PROBMAP_DATA=/work/shared/data python benchmarks/bench_mcl_tracking.py \\
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import subprocess
 import sys
@@ -103,7 +104,12 @@ def main() -> None:
     ap.add_argument(
         "--fixed", action="store_true", help="every global run exactly --updates updates long"
     )
-    ap.add_argument("--global-particles", type=int, default=20000)
+    ap.add_argument(
+        "--global-particles", type=int, default=None,
+        help="a fixed count for global runs (KLD off); default: LocalizeConfig's (KLD-sampling "
+        "from particle_density per m2 of free space)",
+    )  # fmt: skip
+    ap.add_argument("--no-tracking", action="store_true", help="global localization only")
     args = ap.parse_args()
 
     from probmap.cli.localize import _laser_offset
@@ -120,11 +126,11 @@ def main() -> None:
 
     print(
         "| log | SLAM relation error (m) | MCL relation error (m) | lost (spans, log time) "
-        "| outside lost spans (m) | ended lost | updates | s "
+        "| outside lost spans (m) | ended lost | updates | s | global: particles at the start "
         "| global: converged right / converged wrong / said not "
         "| updates to the claim (median / 90 % / max) | travel to the claim (m) | global s |"
     )
-    print("| --- | ---: | ---: | --- | ---: | --- | ---: | ---: | --- | --- | --- | ---: |")
+    print("| --- | ---: | ---: | --- | ---: | --- | ---: | ---: | ---: | --- | --- | --- | ---: |")
     for name in args.logs:
         log = data_dir() / LOGS[name][0]
         rel = read_relations(data_dir() / LOGS[name][1])
@@ -138,60 +144,69 @@ def main() -> None:
         args_run = (m.spec, m.probability, t, batch.ranges, batch.angles, batch.robot_poses)
         pose0 = m.pose_at(float(t[0]))
         robot0 = compose(pose0, inverse(mount))
-        cfg = LocalizeConfig(initial_pose=tuple(float(v) for v in robot0))
-        t0 = time.perf_counter()
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            run = localize_scans(*args_run, batch.max_range, cfg, laser_offset=mount)
-        wall = time.perf_counter() - t0
-        ts = np.unique(np.r_[rel.t1, rel.t2])
-        est = interpolate_run(run, ts)
-        ok = np.all(np.isfinite(est), axis=1)
-        mcl_fig = relation_figure(ts[ok], est[ok], rel)
-        # the same, less the relations with a pose inside a span the run reported lost
-        spans = [(e.time, e.recovered_time or np.inf) for e in run.episodes]
-        keep = ok & ~np.any([(ts >= a) & (ts <= b) for a, b in spans] or [ts < -np.inf], axis=0)
-        outside = relation_figure(ts[keep], est[keep], rel) if spans else "same"
-        lost_txt = ", ".join(
-            f"{a:.1f}-{b:.1f} s" if np.isfinite(b) else f"{a:.1f} s-end" for a, b in spans
-        )
         slam_t, slam_p = read_trajectory(session.parent / "slam.trajectory.csv")
         slam_fig = relation_figure(slam_t, slam_p, rel)
-
+        mcl_fig = outside = lost_txt = ended = n_upd = wall_txt = "-"
+        if not args.no_tracking:
+            cfg = LocalizeConfig(initial_pose=tuple(float(v) for v in robot0))
+            t0 = time.perf_counter()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                run = localize_scans(*args_run, batch.max_range, cfg, laser_offset=mount)
+            wall = time.perf_counter() - t0
+            ts = np.unique(np.r_[rel.t1, rel.t2])
+            est = interpolate_run(run, ts)
+            ok = np.all(np.isfinite(est), axis=1)
+            mcl_fig = relation_figure(ts[ok], est[ok], rel)
+            # the same, less the relations with a pose inside a span the run reported lost
+            spans = [(e.time, e.recovered_time or np.inf) for e in run.episodes]
+            keep = ok & ~np.any([(ts >= a) & (ts <= b) for a, b in spans] or [ts < -np.inf], axis=0)
+            outside = relation_figure(ts[keep], est[keep], rel) if spans else "same"
+            lost_txt = ", ".join(
+                f"{a:.1f}-{b:.1f} s" if np.isfinite(b) else f"{a:.1f} s-end" for a, b in spans
+            )
+            lost_txt = f"{len(run.episodes)} {lost_txt}"
+            ended, n_upd = ("yes" if run.ended_lost else "no"), f"{run.times.size:,}"
+            wall_txt = f"{wall:.0f}"
         order = np.argsort(m.times, kind="stable")  # a log's clock may jitter back
         session_traj = np.column_stack([m.times[order], m.poses[order]])
         rng = np.random.default_rng(0)
         right = wrong = said = 0
-        steps, travel = [], []
+        steps, travel, first = [], [], []
         moved = np.r_[
             0.0, np.cumsum(np.hypot(*np.diff(np.asarray(batch.robot_poses)[:, :2], axis=0).T))
         ]
         g0 = time.perf_counter()
         for i in range(args.starts):
             s = int(rng.integers(0, max(1, t.size - 3000)))
-            gcfg = LocalizeConfig(
-                n_particles=args.global_particles, global_localization=True, seed=i
-            )
+            gcfg = LocalizeConfig(global_localization=True, seed=i)
+            if args.global_particles is not None:
+                gcfg = dataclasses.replace(gcfg, n_particles=args.global_particles, kld=False)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 g = localize_scans(
                     *args_run, batch.max_range, gcfg, laser_offset=mount, start=s,
                     max_updates=args.updates, until_localized=not args.fixed,
                 )  # fmt: skip
+            first.append(int(g.particle_count[0]) if g.particle_count.size else 0)
+            verdict = "not converged, said so"
             if not g.localized:
                 said += 1
+                print(f"  {name} start {i}: scan {s}, {verdict}", file=sys.stderr, flush=True)
                 continue
             # the session keeps a pose at the scans it used: interpolated at the last update
             ref = interpolate_poses(session_traj, g.times[-1:])[0]
             err = float(np.hypot(*(g.laser_poses[-1, :2] - ref[:2])))  # NaN outside: wrong
             right, wrong = (right + 1, wrong) if err <= 0.3 else (right, wrong + 1)
+            verdict = f"claimed, {err:.2f} m off the session"
+            print(f"  {name} start {i}: scan {s}, {verdict}", file=sys.stderr, flush=True)
             if err <= 0.3:
                 steps.append(g.times.size)
                 travel.append(moved[g.scan_index[-1]] - moved[s])
         gwall = time.perf_counter() - g0
         print(
-            f"| {name} | {slam_fig} | {mcl_fig} | {len(run.episodes)} {lost_txt} | {outside} | "
-            f"{'yes' if run.ended_lost else 'no'} | {run.times.size:,} | {wall:.0f} | "
+            f"| {name} | {slam_fig} | {mcl_fig} | {lost_txt} | {outside} | "
+            f"{ended} | {n_upd} | {wall_txt} | {f'{first[0]:,}' if first else '-'} | "
             f"{right} / {wrong} / {said} of {args.starts} | {spread_of(steps, '.0f')} | "
             f"{spread_of(travel, '.1f')} | {gwall:.0f} |",
             flush=True,

@@ -3,7 +3,9 @@ OUTPUT/config.yaml recording what ran."""
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
+import math
 from pathlib import Path
 
 import pytest
@@ -51,21 +53,48 @@ def test_localize_config_file_and_record(tmp_path):
 def test_kld_sampling_adapts_the_particle_count():
     import numpy as np
 
-    from probmap.pipelines.localize import localize_scans
+    from probmap.filters.mcl import FreeSpaceSampler
+    from probmap.models.likelihood_field import LikelihoodField
+    from probmap.pipelines.localize import global_particle_count, localize_scans
     from probmap.sim.localization import simulate_localization_world
 
-    with pytest.raises(ValueError, match="kld_min"):
-        LocalizeConfig(kld_min=0)
+    for bad in ({"particle_density": 0.0}, {"particle_density": float("nan")},
+                {"max_particles": 0}):  # fmt: skip
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            LocalizeConfig(**bad)
+    cfg = LocalizeConfig(n_particles=100, particle_density=2.0, max_particles=5000)
+    assert global_particle_count(cfg, 1000.0) == 2000  # 2 per m2
+    assert global_particle_count(cfg, 10.0) == 100  # never fewer than n_particles
+    assert global_particle_count(cfg, 1e6) == 5000  # at most max_particles
+    assert global_particle_count(dataclasses.replace(cfg, n_particles=9000), 1e6) == 9000
+
     w = simulate_localization_world(0)
-    n = 120
-    cfg = LocalizeConfig(n_particles=2000, initial_pose=tuple(w.poses[0]), kld_min=100)
-    run = localize_scans(
-        w.spec, w.occupied.astype(float), 0.2 * np.arange(n), w.ranges[:n], w.angles,
-        w.odometry[:n], w.max_range, cfg,
-    )  # fmt: skip
-    assert run.particles is not None and 100 <= run.particles.shape[0] < 2000  # tight: fewer
-    err = np.hypot(*(run.poses[:, :2] - w.poses[run.scan_index, :2]).T)
+    n = 200
+    args = (w.spec, w.occupied.astype(float), 0.2 * np.arange(n), w.ranges[:n], w.angles,
+            w.odometry[:n], w.max_range)  # fmt: skip
+    # global: the density's count over the map's free space until the claim, then fewer
+    g = localize_scans(*args, LocalizeConfig(n_particles=300, global_localization=True))
+    lf = LikelihoodField(w.spec, w.occupied.astype(float), max_range=w.max_range)
+    area = FreeSpaceSampler(w.spec, ~w.occupied & (lf.distance > 0.15)).cells.size * 0.05**2
+    start = global_particle_count(LocalizeConfig(n_particles=300), area)
+    assert start == round(30 * area) or start == math.ceil(30 * area)
+    c = g.converged_index
+    assert g.localized and c is not None
+    assert np.all(g.particle_count[: c - 30] == start)  # the search keeps its count
+    assert g.particle_count[-1] < start / 3 and g.particle_count.min() >= 300
+    err = np.hypot(*(g.poses[c:, :2] - w.poses[g.scan_index[c:], :2]).T)
     assert np.median(err) < 0.1
+    # tracking: a tight cloud keeps n_particles, and runs as without KLD-sampling until the
+    # cloud spreads over more bins than n_particles covers (Table 8.4's bound)
+    cfg = LocalizeConfig(n_particles=500, initial_pose=tuple(w.poses[0]))
+    on, off = (localize_scans(*args, dataclasses.replace(cfg, kld=k)) for k in (True, False))
+    assert np.median(on.particle_count) == 500 and on.particle_count.max() > 500
+    same = int(np.argmax(on.particle_count > 500))  # the first update that drew more
+    np.testing.assert_array_equal(on.poses[: same + 1], off.poses[: same + 1])
+    assert np.all(off.particle_count == 500)
+    for run in (on, off):
+        err = np.hypot(*(run.poses[:, :2] - w.poses[run.scan_index, :2]).T)
+        assert np.median(err) < 0.1
 
 
 @pytest.mark.parametrize(

@@ -104,6 +104,7 @@ def test_localize_command_reports_hypotheses(tmp_path):
     assert res.exit_code == 0, res.output
     text = " ".join(res.output.split())
     assert "converged no:" in text and "not one place" in text
+    assert "particles 5,000 " in text  # a small room: --particles, more than 30 per m2 ask
 
 
 class _TrueMap:

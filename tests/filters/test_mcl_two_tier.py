@@ -69,6 +69,7 @@ def test_functions_and_class_agree_step_by_step(world, field, free, name, fused)
     )
     # the function tier, on its own generator with the same seed
     rng = np.random.default_rng(5)
+    count_rng = rng.spawn(1)[0]  # KLD's counting draws: the class's own child generator
     p = sample_pose_gaussian(world.poses[0], COV0, cfg.n_particles, rng)
     lw = np.full(p.shape[0], -math.log(p.shape[0]))
     ess, w_slow, w_fast = float(p.shape[0]), 0.0, 0.0
@@ -96,7 +97,7 @@ def test_functions_and_class_agree_step_by_step(world, field, free, name, fused)
         assert est.ess == ess
         p_rand = mcl_random_fraction(w_slow, w_fast) if cfg.augmented else 0.0
         if ess < cfg.resample_threshold * p.shape[0] or p_rand > 0:
-            p = mcl_resample(p, _normalised(lw), rng, cfg.kld, p_rand, free)
+            p = mcl_resample(p, _normalised(lw), rng, cfg.kld, p_rand, free, count_rng)
             lw = np.full(p.shape[0], -math.log(p.shape[0]))
             ess = float(p.shape[0])
             resampled += 1

@@ -152,6 +152,20 @@ def _convergence_rows(run: Any, global_: bool) -> list[tuple[str, str]]:
     return rows
 
 
+def _particle_rows(run: Any, cfg: Any) -> list[tuple[str, str]]:
+    """How many particles the filter used: the count at the start and at the end, and the
+    most, with KLD-sampling; the fixed count without it."""
+    n = run.particle_count
+    if not n.size:
+        return []
+    if not cfg.kld or n.min() == n.max():
+        return [("particles", f"{int(n[0]):,}")]
+    return [
+        ("particles", f"{int(n[0]):,} after the first update, {int(n[-1]):,} at the end, "
+         f"{int(n.min()):,}-{int(n.max()):,} (KLD-sampling)")
+    ]  # fmt: skip
+
+
 @opt.with_option_groups
 def localize_command(
     first: Path = typer.Argument(
@@ -178,7 +192,10 @@ def localize_command(
         "Output folder (created when missing): trajectory.csv (the robot's poses) and "
         "trajectory.png."
     ),
-    particles: int | None = opt.particles_option("Number of particles [default: 2000]."),
+    particles: int | None = opt.particles_option(
+        "Particles while tracking, the fewest KLD-sampling keeps [default: 2000]. A global "
+        "localization starts with more: 30 per m2 of free space (particle_density)."
+    ),
     global_: bool = typer.Option(
         False, "--global", help="Global localization: start from particles over free space."
     ),
@@ -411,6 +428,7 @@ def localize_command(
             ("laser offset", _describe_offset(mount)),
             *([offset_row] if offset_row is not None else []),
             ("updates", f"{run.times.size:,}"),
+            *_particle_rows(run, cfg),
             ("final spread", f"{run.spread[-1]:.3f} m" if run.spread.size else "-"),
             *_convergence_rows(run, cfg.global_localization),
             *[("lost", e.describe()) for e in run.episodes],

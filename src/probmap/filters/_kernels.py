@@ -107,3 +107,26 @@ def odometry_predict_and_weight_robust(
             lw[n] += scan_log_likelihood(
                 x, y, math.cos(th), math.sin(th), lx, ly, table, x0, y0, inv_res, outside
             )
+
+
+@njit(cache=True)
+def ess_fraction(lw, ll, gamma):
+    """``ESS / N`` of the weights ``exp(lw + gamma * ll)`` (NaN in ``ll``: weight 0); 0 when
+    every weight is 0. Two passes: the largest log-weight, then the sums."""
+    n = lw.shape[0]
+    top = -math.inf
+    for i in range(n):
+        if not math.isnan(ll[i]):
+            x = lw[i] + gamma * ll[i]
+            if x > top:
+                top = x
+    if not (top > -math.inf and top < math.inf):
+        return 0.0
+    s = 0.0
+    s2 = 0.0
+    for i in range(n):
+        if not math.isnan(ll[i]):
+            w = math.exp(lw[i] + gamma * ll[i] - top)
+            s += w
+            s2 += w * w
+    return s * s / s2 / n

@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from probmap.filters import _kernels as _k
 from probmap.filters.clusters import Hypothesis, particle_clusters
-from probmap.filters.kld import KLDConfig, kld_resample
+from probmap.filters.kld import KLDConfig, kld_count
 from probmap.filters.mcl_robust import mcl_sample_and_weight_robust as _robust
 from probmap.filters.particle import (
     ParticleFilterWarning,
@@ -419,13 +419,13 @@ def mcl_likelihood_exponent(count: int, independent: float | None) -> float:
 
 
 def _ess_fraction(lw: NDArray[np.float64], ll: NDArray[np.float64], gamma: float) -> float:
-    x = np.where(np.isnan(ll), -np.inf, lw + gamma * ll)
-    top = float(x.max())
-    if not math.isfinite(top):
-        return 0.0
-    w = np.exp(x - top)
-    s = float(w.sum())
-    return s * s / float(np.dot(w, w)) / w.size
+    return float(
+        _k.ess_fraction(
+            np.ascontiguousarray(lw, dtype=np.float64),
+            np.ascontiguousarray(ll, dtype=np.float64),
+            float(gamma),
+        )
+    )
 
 
 def mcl_adaptive_exponent(
@@ -516,11 +516,14 @@ def mcl_resample(
     kld: KLDConfig | None = None,
     random_fraction: float = 0.0,
     free_space: FreeSpaceSampler | None = None,
+    count_rng: np.random.Generator | None = None,
 ) -> NDArray[np.float64]:
     """Resampling (Table 8.2, lines 8-11).
 
-    Low-variance resampling (Table 4.4, one uniform draw), or KLD-sampling (Table 8.4) when
-    ``kld`` is given; then, under augmented MCL, each new particle is replaced with probability
+    Low-variance resampling (Table 4.4, one uniform draw) of ``N`` particles, or of as many as
+    KLD-sampling (Table 8.4, :func:`~probmap.filters.kld.kld_count`) asks for when ``kld`` is
+    given (the low-variance draw covers the bins at least as well as Table 8.4's independent
+    draws, which set the count); then, under augmented MCL, each new particle is replaced with probability
     ``random_fraction`` by a pose uniform over free space (Table 8.3, lines 11-15: a binomial
     count of slots chosen without replacement).
 
@@ -535,6 +538,9 @@ def mcl_resample(
     random_fraction : float
         From :func:`mcl_random_fraction`; used only with ``free_space``.
     free_space : FreeSpaceSampler, optional
+    count_rng : numpy.random.Generator, optional
+        For KLD-sampling's counting draws (default ``rng``): a generator of their own leaves
+        the filter's random stream as it is without KLD-sampling wherever the count is ``N``.
 
     Returns
     -------
@@ -542,11 +548,9 @@ def mcl_resample(
         ``M = N`` unless KLD-sampling chose another count. Weights are uniform afterwards.
     """
     src = np.ascontiguousarray(particles, dtype=np.float64)
-    if kld is not None:
-        idx = kld_resample(src, weights, rng, kld)
-    else:
-        idx = np.empty(src.shape[0], dtype=np.int64)
-        _k.low_variance_indexes(weights, float(rng.uniform()), idx)
+    m = src.shape[0] if kld is None else kld_count(src, weights, count_rng or rng, kld)
+    idx = np.empty(m, dtype=np.int64)
+    _k.low_variance_indexes(weights, float(rng.uniform()), idx)
     new = np.empty((idx.shape[0], 3))
     _k.gather_rows(src, idx, new)
     if random_fraction > 0.0 and free_space is not None:
@@ -667,6 +671,7 @@ class MonteCarloLocalization:
         self.sensor = sensor
         self.motion = motion
         self.rng = rng
+        self._count_rng: np.random.Generator | None = None  # KLD's counting draws, lazily
         self.free_space = free_space
         #: Whether resampling injects random particles now (Table 8.3); ``config.augmented`` at
         #: first. A caller may switch it: the localization pipeline turns it on only while its
@@ -797,6 +802,8 @@ class MonteCarloLocalization:
     def resample(self) -> None:
         """Low-variance resampling (Table 4.4), KLD-sampling when configured (Table 8.4),
         with random particles injected under augmented MCL (Table 8.3)."""
+        if self.config.kld is not None and self._count_rng is None:
+            self._count_rng = self.rng.spawn(1)[0]  # the parent's stream is not advanced
         new = mcl_resample(
             self.particles,
             self.weights,
@@ -804,6 +811,7 @@ class MonteCarloLocalization:
             self.config.kld,
             self.random_fraction(),
             self.free_space,
+            self._count_rng,
         )
         self._reset(new)
 

@@ -5,9 +5,12 @@ All figures are measured in one run on the simulated world of ``probmap demo --l
 
 1. Whole MCL update, likelihood field: sample the odometry model (Table 5.6), weight by the
    likelihood field (Table 6.3), low-variance resampling (Table 4.4) -- every update resamples.
-   Twice: with MCLConfig's defaults (Table 8.2 as printed) and as ``probmap localize`` tracks
-   (``LocalizeConfig``'s defaults: tempered likelihood, the likelihood averages of augmented
-   MCL kept).
+   Three times: with MCLConfig's defaults (Table 8.2 as printed); as ``probmap localize``
+   tracks (``LocalizeConfig``'s defaults: tempered likelihood, the likelihood averages of
+   augmented MCL kept, KLD-sampling's count, which a tight cloud leaves at N); and with
+   ``localize``'s adaptive tempering as well (the exponent found by bisection, 31 ESS
+   evaluations, wherever one scan would leave fewer than 30 % effective particles: in this
+   world at every update).
    probmap: ``MonteCarloLocalization.predict_and_weight`` (one fused numba pass over particles,
    beam endpoints rotated once per particle, float32 log-likelihood table) + ``resample``.
    numpy: the same three steps on (N, B) arrays with the float32 distance field.
@@ -26,6 +29,7 @@ Run:  python benchmarks/bench_mcl.py [--particles 10000] [--beam-particles 1000]
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import time
 
@@ -246,9 +250,10 @@ def main() -> None:
         )
 
     # the update as probmap localize tracks (LocalizeConfig's defaults): the scan tempered to
-    # 10 independent beams and, where one scan would leave fewer than 30 % effective
-    # particles, less; the augmented-MCL averages kept (random particles only while lost: none
-    # here); KLD-sampling's bin count at every resampling (the cloud is tight: it keeps N)
+    # 10 independent beams, the augmented-MCL averages kept (random particles only while lost:
+    # none here), KLD-sampling's count at every resampling (the cloud is tight: it keeps N);
+    # then also adaptive tempering, which takes less of a scan that would leave fewer than
+    # 30 % effective particles (a bisection on the exponent: here, at every update)
     from probmap.filters.kld import KLDConfig
     from probmap.pipelines.localize import LocalizeConfig
 
@@ -256,21 +261,30 @@ def main() -> None:
     cfg_d = MCLConfig(
         n_particles=n, resample_threshold=1.0,
         independent_measurements=dflt.independent_beams,
-        min_ess_fraction=dflt.min_ess_fraction,
         kld=KLDConfig(n_min=n, n_max=50 * n) if dflt.kld else None,
     )  # fmt: skip
-    mcl_d = MonteCarloLocalization.from_pose(
-        lf, motion, np.random.default_rng(0), world.poses[k - 1], cov, cfg_d
+    cfg_e = dataclasses.replace(cfg_d, min_ess_fraction=dflt.min_ess_fraction)
+    mcl_d, mcl_e = (
+        MonteCarloLocalization.from_pose(
+            lf, motion, np.random.default_rng(0), world.poses[k - 1], cov, c
+        )
+        for c in (cfg_d, cfg_e)
     )
 
     def pm_default() -> None:
         mcl_d.predict_and_weight(odo0, odo1, lx, ly, lf, motion)
         mcl_d.resample()
 
+    def pm_tempered() -> None:
+        mcl_e.predict_and_weight(odo0, odo1, lx, ly, lf, motion)
+        mcl_e.resample()
+
     pm_update()  # compile
     pm_default()
+    pm_tempered()
     t_pm = timed(pm_update, 50)
     t_pm_d = timed(pm_default, 50)
+    t_pm_e = timed(pm_tempered, 50)
     t_np = timed(np_update, 5)
 
     parts = mcl.particles.copy()
@@ -327,6 +341,7 @@ def main() -> None:
     rows = [
         (f"whole update, likelihood field ({n} x {b})", n * b, t_pm, t_np),
         (f"whole update, localize defaults ({n} x {b})", n * b, t_pm_d, t_np),
+        (f"the same, adaptive tempering too ({n} x {b})", n * b, t_pm_e, t_np),
         (f"likelihood-field weights only ({n} x {b})", n * b, t_pm_w, t_np_w),
         (f"beam model ({nb} x {angles.size}), table vs numpy sphere tracing", nba, t_pm_t, t_np_b),
         (

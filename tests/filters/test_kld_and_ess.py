@@ -98,3 +98,33 @@ def test_kld_count_is_table_8_4s_count_and_leaves_a_tight_cloud_alone():
     peaked = np.zeros(6000)
     peaked[:5] = 1.0
     assert kld_count(spread[:1].repeat(6000, 0), peaked, g, cfg) == 100
+
+
+def test_pose_bounds_kernel_matches_numpy():
+    rng = np.random.default_rng(8)
+    for n in (1, 2, 17, 5000):
+        p = rng.normal(size=(n, 3)) * [30.0, 5.0, 2.0]
+        out = np.empty((2, 3))
+        _kernels.pose_bounds(p, out)
+        np.testing.assert_array_equal(out, np.stack([p.min(axis=0), p.max(axis=0)]))
+
+
+def test_adaptive_exponent_kernel_is_the_bisection():
+    from probmap.filters.mcl import mcl_adaptive_exponent
+
+    def bisection(lw, ll, exponent, target):  # the plain-Python rule, on numpy's ESS
+        if _ess_numpy(lw, ll, exponent) >= target:
+            return exponent
+        lo, hi = 0.0, exponent
+        for _ in range(30):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if _ess_numpy(lw, ll, mid) >= target else (lo, mid)
+        return lo
+
+    rng = np.random.default_rng(6)
+    for spread in (0.1, 5.0, 50.0, 500.0):
+        lw = np.log(rng.dirichlet(np.ones(2000)))
+        ll = rng.normal(0.0, spread, size=2000)
+        got = mcl_adaptive_exponent(lw, ll, 1.0 / 6.0, 0.3)
+        assert got == pytest.approx(bisection(lw, ll, 1.0 / 6.0, 0.3), rel=1e-8)
+        assert _ess_numpy(lw, ll, got) >= 0.3 - 1e-12

@@ -130,3 +130,37 @@ def ess_fraction(lw, ll, gamma):
             s += w
             s2 += w * w
     return s * s / s2 / n
+
+
+@njit(cache=True)
+def pose_bounds(p, out):
+    """Per column of the (N, 3) poses ``p`` (N >= 1), the smallest and the largest value:
+    ``out[0] = (min x, min y, min theta)``, ``out[1]`` the maxima. One pass (numpy's
+    ``max(axis=0)`` on an (N, 3) array is several times slower)."""
+    for j in range(3):
+        out[0, j] = p[0, j]
+        out[1, j] = p[0, j]
+    for i in range(1, p.shape[0]):
+        for j in range(3):
+            v = p[i, j]
+            if v < out[0, j]:
+                out[0, j] = v
+            elif v > out[1, j]:
+                out[1, j] = v
+
+
+@njit(cache=True)
+def adaptive_exponent(lw, ll, exponent, min_fraction):
+    """The bisection of :func:`probmap.filters.mcl.mcl_adaptive_exponent` in one call: the
+    same 30 halvings and :func:`ess_fraction` tests, so the same exponent."""
+    if ess_fraction(lw, ll, exponent) >= min_fraction:
+        return exponent
+    lo = 0.0
+    hi = exponent
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        if ess_fraction(lw, ll, mid) >= min_fraction:
+            lo = mid
+        else:
+            hi = mid
+    return lo

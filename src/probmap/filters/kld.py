@@ -19,6 +19,8 @@ from statistics import NormalDist
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from probmap.filters._kernels import pose_bounds as _pose_bounds
+
 __all__ = ["KLDConfig", "kld_count", "kld_resample", "kld_sample_size"]
 
 
@@ -152,8 +154,10 @@ def kld_count(
     """
     p, w = _checked(poses, weights)
     # the bins of the cloud's bounding box bound the bins it occupies: a tight cloud is done
-    box = np.floor(p.max(axis=0) / config.bin_size) - np.floor(p.min(axis=0) / config.bin_size)
-    if kld_sample_size(int(np.prod(box + 1)), config.epsilon, config.delta) <= config.n_min:
+    bounds = np.empty((2, 3))
+    _pose_bounds(np.ascontiguousarray(p), bounds)
+    lo, hi = (np.floor(b / np.asarray(config.bin_size)) for b in bounds)
+    if kld_sample_size(int(np.prod(hi - lo + 1)), config.epsilon, config.delta) <= config.n_min:
         return config.n_min
     keys = _bin_keys(p, config)
     occupied = np.unique(keys[w > 0]).size

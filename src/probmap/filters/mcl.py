@@ -418,16 +418,6 @@ def mcl_likelihood_exponent(count: int, independent: float | None) -> float:
     return float(independent) / count
 
 
-def _ess_fraction(lw: NDArray[np.float64], ll: NDArray[np.float64], gamma: float) -> float:
-    return float(
-        _k.ess_fraction(
-            np.ascontiguousarray(lw, dtype=np.float64),
-            np.ascontiguousarray(ll, dtype=np.float64),
-            float(gamma),
-        )
-    )
-
-
 def mcl_adaptive_exponent(
     log_weights: NDArray[np.float64],
     log_likelihood: NDArray[np.float64],
@@ -435,8 +425,8 @@ def mcl_adaptive_exponent(
     min_ess_fraction: float,
 ) -> float:
     """The largest exponent ``g <= exponent`` whose weights ``w p(z | x)^g`` keep an effective
-    sample size of at least ``min_ess_fraction * N`` (found by bisection; ``exponent`` itself
-    when it already does).
+    sample size of at least ``min_ess_fraction * N`` (found by bisection to ``2**-30`` of
+    ``exponent``, in one compiled call; ``exponent`` itself when it already does).
 
     Adaptive tempering, as sequential Monte Carlo samplers anneal: when one scan would leave a
     handful of effective particles (the first scan of a global localization, where the luckiest
@@ -449,16 +439,14 @@ def mcl_adaptive_exponent(
     >>> 0.0 < g < 0.05, mcl_adaptive_exponent(lw, np.zeros(4), 1.0, 0.5)
     (True, 1.0)
     """
-    if _ess_fraction(log_weights, log_likelihood, exponent) >= min_ess_fraction:
-        return exponent
-    lo, hi = 0.0, exponent
-    for _ in range(30):  # to 1e-9 of the exponent
-        mid = 0.5 * (lo + hi)
-        if _ess_fraction(log_weights, log_likelihood, mid) >= min_ess_fraction:
-            lo = mid
-        else:
-            hi = mid
-    return lo
+    return float(
+        _k.adaptive_exponent(
+            np.ascontiguousarray(log_weights, dtype=np.float64),
+            np.ascontiguousarray(log_likelihood, dtype=np.float64),
+            float(exponent),
+            float(min_ess_fraction),
+        )
+    )
 
 
 def mcl_likelihood_averages(

@@ -313,11 +313,16 @@ class LikelihoodField(ScanLikelihood):
 
     def matched_fraction(
         self, pose: ArrayLike, ranges: ArrayLike, angles: ArrayLike, sensor_offset: ArrayLike,
-        near: float,
+        near: float, known: NDArray[np.bool_] | None = None,
     ) -> float:  # fmt: skip
         """The fraction of the beams with a return that end within ``near`` metres of an
         obstacle, seen from the robot pose ``pose`` (m, rad) with the laser at
         ``sensor_offset`` in the robot frame; 1.0 for a scan without a return.
+
+        With ``known`` ((H, W) bool, the cells the map has observed), only the beams that end
+        on a known cell count: one that ends where the map knows nothing (or off the grid) is
+        no evidence for or against the pose (the likelihood field gives it the uniform
+        ``1 / z_max``, Table 6.3). 1.0 when no beam ends on a known cell.
 
         Examples
         --------
@@ -328,6 +333,9 @@ class LikelihoodField(ScanLikelihood):
         ...     shape=(40, 40)), occ, max_range=5.0)
         >>> lf.matched_fraction([0.5, 1.0, 0.0], [1.0, 0.5], [0.0, 0.0], (0, 0, 0), 0.1)
         0.5
+        >>> known = np.ones((40, 40), bool); known[:, 19:21] = False  # the map never saw x = 1 m
+        >>> lf.matched_fraction([0.5, 1.0, 0.0], [1.0, 0.5], [0.0, 0.0], (0, 0, 0), 0.1, known)
+        1.0
         """
         lx, ly, valid = self.endpoints(ranges, angles, sensor_offset)
         if not valid.any():
@@ -343,7 +351,11 @@ class LikelihoodField(ScanLikelihood):
         inside = (ix >= 0) & (iy >= 0) & (ix < w) & (iy < h)
         d = np.full(ex.shape, np.inf)
         d[inside] = self.distance[iy[inside], ix[inside]]
-        return float(np.mean(d <= near))
+        if known is None:
+            return float(np.mean(d <= near))
+        seen = np.zeros(ex.shape, dtype=bool)
+        seen[inside] = known[iy[inside], ix[inside]]
+        return float(np.mean(d[seen] <= near)) if seen.any() else 1.0
 
     def see_through_fraction(
         self, pose: ArrayLike, ranges: ArrayLike, angles: ArrayLike, sensor_offset: ArrayLike,

@@ -338,3 +338,22 @@ def test_restart_draws_a_fresh_uniform_set_over_free_space(field):
         MonteCarloLocalization.from_pose(
             field, OdometryMotionModel(), rng, [5.0, 5.0, 0.0], np.eye(3) * 1e-4, cfg
         ).restart()
+
+
+def test_resize_draws_the_weighted_set_to_a_new_count(world, field):
+    rng = np.random.default_rng(3)
+    free = FreeSpaceSampler(field.spec, field.distance > 0.2)
+    mcl = MonteCarloLocalization.uniform(
+        field, OdometryMotionModel(0.1, 0.1, 0.1, 0.1), rng, free, MCLConfig(n_particles=400)
+    )
+    w = np.zeros(400)
+    w[:4] = [0.1, 0.2, 0.3, 0.4]  # four particles carry all the weight
+    mcl.log_weights = np.log(np.maximum(w, 1e-300))
+    kept = mcl.particles[:4].copy()
+    mcl.resize(5000)
+    assert mcl.n == 5000 and np.allclose(mcl.weights, 1 / 5000)
+    # low-variance: each of the four appears in proportion to its weight, to one particle
+    for i, wi in enumerate(w[:4]):
+        assert abs(np.sum(np.all(mcl.particles == kept[i], axis=1)) - wi * 5000) <= 1
+    with pytest.raises(ValueError, match="at least 1"):
+        mcl.resize(0)

@@ -727,6 +727,17 @@ class MonteCarloLocalization:
         self._reset(self.free_space.sample(self.config.n_particles, self.rng))
         self.w_slow = self.w_fast = 0.0
 
+    def resize(self, n: int) -> None:
+        """Resample the weighted set to exactly ``n`` particles (low-variance, Table 4.4;
+        uniform weights afterwards): a filter that KLD-sampling shrank, made to search again."""
+        if n < 1:
+            raise ValueError(f"n must be at least 1, got {n}")
+        idx = np.empty(int(n), dtype=np.int64)
+        _k.low_variance_indexes(self.weights, float(self.rng.uniform()), idx)
+        new = np.empty((idx.shape[0], 3))
+        _k.gather_rows(np.ascontiguousarray(self.particles), idx, new)
+        self._reset(new)
+
     def _reset(self, particles: NDArray[np.float64]) -> None:
         self.particles = np.ascontiguousarray(particles, dtype=np.float64)
         n = self.particles.shape[0]

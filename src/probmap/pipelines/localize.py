@@ -882,6 +882,8 @@ def localize_scans(
         elif cfg.global_localization and lost is None and not consistent:
             converged, converged_index = False, None  # it was wrong: search the map again
             mcl.config = mcl_cfg
+            if mcl.n < n_global:  # with the search's count: KLD-sampling shrank the cloud
+                mcl.resize(n_global)
         jump = 0.0
         if prev is not None:  # the previous update converged too
             k1, pose1 = prev  # where the odometry alone takes the previous estimate

@@ -36,7 +36,7 @@ def _world():
 
 
 def _run(world, seed, stop=None, **kw):
-    cfg = LocalizeConfig(n_particles=5000, global_localization=True, seed=seed, **kw)
+    cfg = LocalizeConfig(**{"n_particles": 5000, "global_localization": True, "seed": seed, **kw})
     return localize_scans(
         world.spec, world.truth.astype(float), world.times, world.ranges, world.angles,
         world.odometry, world.max_range, cfg, stop=stop,
@@ -79,3 +79,16 @@ def test_no_claim_before_the_distinguishing_feature_is_seen():
     world = _world()
     run = _run(world, 0, stop=_first_sight(world))
     assert not run.localized and run.converged_index is None
+
+
+def test_a_dropped_claim_searches_with_the_full_count():
+    """KLD-sampling shrinks the cloud once a run claims a place; a run that then drops the
+    claim searches the whole map again with the search's count, not with the shrunk one."""
+    world = _world()
+    run = _run(world, 3, n_particles=1000, particle_density=60.0)
+    counts = run.particle_count
+    start = counts[0]
+    assert start > 5000  # 60 per m2 of the room's free floor, more than n_particles
+    assert counts.min() == 1000  # it claimed the twin and KLD-sampling kept 1,000
+    assert not run.localized and run.converged_index is None  # then it saw the box
+    assert counts[-1] == start  # and searches with the full count again

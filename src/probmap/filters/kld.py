@@ -135,8 +135,9 @@ def kld_count(
     particles another way (low-variance resampling, Table 4.4).
 
     Where the bound for every bin the weighted set occupies (or its bounding box spans) is at
-    most ``n_min``, no draw can ask for more: ``n_min``, without drawing (``rng`` untouched; a tight cloud tracking).
-    Otherwise the draws of :func:`kld_resample`, counted and not kept.
+    most ``n_min``, no draw can ask for more: ``n_min``, without drawing (``rng`` untouched;
+    a tight cloud tracking). Otherwise the draws of :func:`kld_resample`, counted and not
+    kept.
 
     Parameters
     ----------

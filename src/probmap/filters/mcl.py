@@ -511,9 +511,9 @@ def mcl_resample(
     Low-variance resampling (Table 4.4, one uniform draw) of ``N`` particles, or of as many as
     KLD-sampling (Table 8.4, :func:`~probmap.filters.kld.kld_count`) asks for when ``kld`` is
     given (the low-variance draw covers the bins at least as well as Table 8.4's independent
-    draws, which set the count); then, under augmented MCL, each new particle is replaced with probability
-    ``random_fraction`` by a pose uniform over free space (Table 8.3, lines 11-15: a binomial
-    count of slots chosen without replacement).
+    draws, which set the count); then, under augmented MCL, each new particle is replaced with
+    probability ``random_fraction`` by a pose uniform over free space (Table 8.3, lines 11-15:
+    a binomial count of slots chosen without replacement).
 
     Parameters
     ----------

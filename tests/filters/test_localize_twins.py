@@ -64,6 +64,8 @@ def test_a_cloud_on_the_twin_sees_through_walls_and_searches_again():
     # at the twin, past the box, beams run through walls (seen from the right place: none)
     wrong = np.flatnonzero(err > 5.0)
     assert wrong.size and run.see_through[wrong].max() > 0.1
+    # any claim it dropped on the way is said, and recovered by the right claim
+    assert all(e.reason.startswith("unclaimed") and e.recovered for e in run.episodes)
     # without the see-through check the cloud never finds the robot (and says so)
     blind = _run(world, 1, converged_see_through=1.0)
     assert not blind.localized
@@ -92,3 +94,6 @@ def test_a_dropped_claim_searches_with_the_full_count():
     assert counts.min() == 1000  # it claimed the twin and KLD-sampling kept 1,000
     assert not run.localized and run.converged_index is None  # then it saw the box
     assert counts[-1] == start  # and searches with the full count again
+    # the dropped claim is said, as a lost span that never recovered
+    assert run.episodes and run.episodes[-1].reason.startswith("unclaimed")
+    assert run.ended_lost and "searched the map again" in run.episodes[-1].describe()

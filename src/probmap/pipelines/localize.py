@@ -383,11 +383,16 @@ class LostReport:
         ``lost_jump`` against the odometry from this update to the next: the filter had lost
         track, or has), ``"misfit"`` (the scans stopped fitting the map at the estimate:
         ``LocalizeConfig.lost_matched``) or ``"turn"`` (the estimate turned against the
-        odometry while its beams ran through walls: ``LocalizeConfig.lost_turn``).
+        odometry while its beams ran through walls: ``LocalizeConfig.lost_turn``) or
+        ``"unclaimed"`` and ``"unclaimed: walls"`` (a global localization that had claimed a
+        place: its scans stopped fitting the map as a claim needs, too few beams near an
+        obstacle or too many through walls, and it searched the whole map again; recovered at
+        its next claim).
     value : float
         The spread (m) at that update; for ``"jump"``, the jump (m); for ``"misfit"``, the
-        mean fraction of the beams that ended near an obstacle over the last updates; for
-        ``"turn"``, the turn (degrees).
+        mean fraction of the beams that ended near an obstacle over the last updates (for
+        ``"unclaimed"`` too, counted over all beams); for ``"unclaimed: walls"``, the mean
+        fraction that ran through walls; for ``"turn"``, the turn (degrees).
     recovered_index : int or None
         The scan of the first update of the run of ``lost_updates`` good ones that followed
         (the filter found the robot again); None when the run ended lost.
@@ -415,6 +420,10 @@ class LostReport:
             f"{self.value:.0%} of the beams near an obstacle)",
             "turn": f"its estimate then turned {self.value:.0f} deg against the odometry while "
             "its scans ran through the map's walls",
+            "unclaimed": "its scans no longer fit the map as a claim needs (on average "
+            f"{self.value:.0%} of the beams near an obstacle): it searched the map again",
+            "unclaimed: walls": "its scans no longer fit the map as a claim needs (on average "
+            f"{self.value:.0%} of the beams through its walls): it searched the map again",
         }.get(self.reason, f"its particles spread to {self.value:.1f} m")
         text = f"the filter lost track at scan {self.scan_index} (t = {self.time:.2f} s): {what}"
         if self.recovered_index is not None:
@@ -809,6 +818,7 @@ def localize_scans(
     good, k_good = 0, start  # while lost: good updates in a row, and the first of them
     episodes: list[LostReport] = []
     lost: LostReport | None = None  # the open episode
+    dropped: int | None = None  # the episode of a dropped claim, until the next claim
     prev: tuple[int, NDArray[np.float64]] | None = None  # the last update's scan and estimate
     turns: list[tuple[int, float]] = []  # per update: scan, estimate's turn less the odometry's
     for k in range(start + 1, stop):
@@ -868,6 +878,11 @@ def localize_scans(
             stuck = stuck + 1 if single >= cfg.lost_updates and not consistent else 0
             if converged:
                 converged_index = len(rows) - 1
+                if dropped is not None:  # claimed again after a dropped claim
+                    episodes[dropped] = dataclasses.replace(
+                        episodes[dropped], recovered_index=int(k), recovered_time=float(t[k])
+                    )
+                    dropped = None
                 if cfg.refine:  # the claim's own pose refined, as every one after it
                     lx, ly, ok = lf.endpoints(r[k], a if a.ndim == 1 else a[k], mount)
                     q = refine_pose(lf, p, est.covariance, lx[ok], ly[ok], refine_cfg).pose
@@ -882,6 +897,15 @@ def localize_scans(
         elif cfg.global_localization and lost is None and not consistent:
             converged, converged_index = False, None  # it was wrong: search the map again
             mcl.config = mcl_cfg
+            # said, as a lost span: the estimates until the next claim are a search's
+            fit_now, walls_now = (float(v) for v in recent.mean(axis=0))
+            episodes.append(
+                LostReport(int(k), float(t[k]), "unclaimed", fit_now)
+                if fit_now < cfg.converged_matched
+                else LostReport(int(k), float(t[k]), "unclaimed: walls", walls_now)
+            )
+            dropped = len(episodes) - 1
+            warnings.warn(episodes[-1].describe(), FilterLostWarning, stacklevel=2)
             if mcl.n < n_global:  # with the search's count: KLD-sampling shrank the cloud
                 mcl.resize(n_global)
         jump = 0.0

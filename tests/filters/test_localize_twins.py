@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from probmap.pipelines.localize import LocalizeConfig, localize_scans
+from probmap.pipelines.localize import FilterLostWarning, LocalizeConfig, localize_scans
 from probmap.sim.laser import drive_route, interpolate_route, walled_box
 
 LENGTH, WIDTH, REACH = 24.0, 6.0, 5.0
@@ -49,6 +49,7 @@ def _first_sight(world) -> int:
     return int(np.argmax(d < REACH + 0.4))
 
 
+@pytest.mark.filterwarnings("ignore::probmap.pipelines.localize.FilterLostWarning")
 def test_a_cloud_on_the_twin_sees_through_walls_and_searches_again():
     world = _world()
     seen = _first_sight(world)
@@ -87,7 +88,8 @@ def test_a_dropped_claim_searches_with_the_full_count():
     """KLD-sampling shrinks the cloud once a run claims a place; a run that then drops the
     claim searches the whole map again with the search's count, not with the shrunk one."""
     world = _world()
-    run = _run(world, 3, n_particles=1000, particle_density=60.0)
+    with pytest.warns(FilterLostWarning, match="searched the map again"):
+        run = _run(world, 3, n_particles=1000, particle_density=60.0)
     counts = run.particle_count
     start = counts[0]
     assert start > 5000  # 60 per m2 of the room's free floor, more than n_particles

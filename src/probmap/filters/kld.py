@@ -65,15 +65,11 @@ def kld_sample_size(k: int, epsilon: float, delta: float) -> int:
     >>> kld_sample_size(1, 0.05, 0.01), kld_sample_size(2, 0.05, 0.01)
     (1, 66)
     """
-    if k <= 1:
-        return 1
-    z = NormalDist().inv_cdf(1.0 - delta)
-    a = 2.0 / (9.0 * (k - 1))
-    return int(math.ceil((k - 1) / (2.0 * epsilon) * (1.0 - a + math.sqrt(a) * z) ** 3))
+    return int(_sample_sizes(np.array([k], dtype=np.int64), epsilon, delta)[0])
 
 
 def _sample_sizes(k: NDArray[np.int64], epsilon: float, delta: float) -> NDArray[np.int64]:
-    """:func:`kld_sample_size` for an array of bin counts."""
+    """:func:`kld_sample_size` for an array of bin counts (1 where ``k <= 1``)."""
     z = NormalDist().inv_cdf(1.0 - delta)
     km1 = np.maximum(k - 1, 1).astype(np.float64)
     a = 2.0 / (9.0 * km1)

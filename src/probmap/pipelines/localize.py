@@ -771,7 +771,7 @@ def localize_scans(
         free_mask = np.nan_to_num(prob.astype(np.float64), nan=1.0) < cfg.free_threshold
     free = FreeSpaceSampler(spec, free_mask & (lf.distance > 0.15))
     # the cells the map has observed: a beam ending elsewhere is no evidence of a misfit
-    known = None if prob.dtype == np.bool_ else ~np.isnan(prob.astype(np.float64, copy=False))
+    known = ~np.isnan(prob) if np.issubdtype(prob.dtype, np.floating) else None
     if known is not None and known.all():
         known = None
     nearby = NearbyFreeSpace(spec, free_mask & (lf.distance > 0.15), free)

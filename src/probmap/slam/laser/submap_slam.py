@@ -63,6 +63,7 @@ from probmap.slam.laser.scan_matching import (
     refine,
     scan_points,
 )
+from probmap.slam.laser.scan_poses import spread_between_nodes
 from probmap.slam.laser.submaps import Submap
 from probmap.slam.posegraph.optimize import RobustKernel
 
@@ -145,6 +146,12 @@ class OptimizationConfig:
             require_at_least(name, getattr(self, name), 0)
         if self.robust not in ("dcs", "cauchy", "huber", "none"):
             raise ValueError(f"robust must be dcs, cauchy, huber or none, got {self.robust!r}")
+
+
+# the turning nodes that measure the odometry's turn errors (``recover_turn``): at least this
+# turn (radians), the last this many
+_TURN_MIN = 0.1
+_TURN_SAMPLES = 50
 
 
 @dataclass(frozen=True)
@@ -287,6 +294,9 @@ class SubmapSlam:
         self._recent_steps = np.zeros((0, 3))
         self._velocity_base: tuple[float, NDArray[np.float64]] | None = None
         self._score_level: float | None = None  # recent nodes' mean match score
+        # recent turning nodes' heading corrections as fractions of the odometry's turn
+        self._turn_errors: list[float] = []
+        self.turn_searches = 0  # failed matches searched again over a wider heading
         self.optimizations = 0
         self.optimize_seconds = 0.0
         self._last_node_odometry: NDArray[np.float64] | None = None
@@ -490,7 +500,7 @@ class SubmapSlam:
         predicted = compose(prev, u)
         pose = self._refine_only(pts, predicted)
         if pose is None:  # a poor or distant refinement: the node's whole search
-            pose = self._match(pts, predicted).pose
+            pose = self._match(pts, predicted, turn=abs(float(wrap_angle(u[2])))).pose
         rel = between(prev, pose)
         rel[2] = float(wrap_angle(rel[2]))
         return rel
@@ -518,7 +528,9 @@ class SubmapSlam:
                     pts, predicted, wide_window=cfg.local.lidar_only_window, scan=scan
                 )
             else:
-                local = self._match_local(pts, predicted, (3.0 * sxy, 3.0 * sth))
+                local = self._match_local(
+                    pts, predicted, (3.0 * sxy, 3.0 * sth), turn=abs(float(wrap_angle(u[2])))
+                )
             rel = between(prev, local)
             self.graph.add_node(compose(self.graph.pose(k - 1), rel))
             self.graph.add_edge(k - 1, k, rel, self._local_info)
@@ -575,6 +587,16 @@ class SubmapSlam:
         ):
             self.optimize()
 
+    def _turn_widening(self) -> float:
+        """How far, as a fraction of the odometry's turn, a failed match's heading is searched
+        again (``recover_turn``): four times the median heading correction of the last 50
+        matched nodes that turned at least 0.1 rad, as a fraction of their odometry turns, at
+        most ``recover_turn``; 0 before 10 such nodes."""
+        errs = self._turn_errors
+        if len(errs) < 10:
+            return 0.0
+        return min(self.config.local.recover_turn, 4.0 * float(np.median(errs)))
+
     def _anchor_information(self, rel: NDArray[np.float64]) -> NDArray[np.float64]:
         """Information of a node-to-anchor edge with relative pose ``rel``: ``local_sd`` with
         the translation part grown by ``anchor_sd_rate`` per metre of the edge's length."""
@@ -599,12 +621,16 @@ class SubmapSlam:
         *,
         wide_window: tuple[float, float] | None = None,
         scan: int = -1,
+        turn: float = 0.0,
     ) -> NDArray[np.float64]:
         """Scan-to-submap matching of a new node around the odometry prediction (local-SLAM
         frame); counts failed matches and wide searches, whether the odometry held (``ball``:
         its 3-sigma half-widths, metres and radians, see ``check_odometry``), and keeps the
         recent nodes' score level."""
-        got = self._match(pts, predicted, ball, wide_window=wide_window)
+        got = self._match(pts, predicted, ball, wide_window=wide_window, turn=turn)
+        if not got.failed and turn >= _TURN_MIN:
+            fix = abs(float(wrap_angle(between(predicted, got.pose)[2])))
+            self._turn_errors = [*self._turn_errors[-(_TURN_SAMPLES - 1) :], fix / turn]
         if got.failed and self.lidar_only and scan not in self.untracked_scans[-1:]:
             self.untracked_scans.append(scan)
         if got.searched:  # a match that never ran leaves the gate as the last node set it
@@ -665,6 +691,7 @@ class SubmapSlam:
         ball: tuple[float, float] | None = None,
         *,
         wide_window: tuple[float, float] | None = None,
+        turn: float = 0.0,
     ) -> LocalMatch:
         """Match ``pts`` against the oldest active submap around ``predicted`` (local-SLAM
         frame): the correlative search, and the wide one after a poor match (under
@@ -704,6 +731,18 @@ class SubmapSlam:
             if score2 > score + 0.05 * pts.shape[0]:
                 pose, score = pose2, score2
                 took_wide = True
+            extra = self._turn_widening() * turn
+            if extra > 0.0 and score / pts.shape[0] < cfg.local.min_match_score:
+                # still no match, and this odometry's turns have been off: search the
+                # heading as far as the turn may be wrong (recover_turn)
+                wide = replace(wide, angular_window=ang + extra)
+                best2, _ = correlative_search(fld, pts, guess, wide)
+                pose2, _, _ = refine(fld, pts, best2, m.iterations, (m.linear_step, m.angular_step))
+                score2, _, _ = normal_equations(fld, pts, pose2)
+                self.turn_searches += 1
+                if score2 > score + 0.05 * pts.shape[0]:
+                    pose, score = pose2, score2
+                    took_wide = True
         if score / pts.shape[0] < cfg.local.min_match_score:
             return LocalMatch(predicted, True, searched_wide, took_wide, failed=True)
         refuted = False
@@ -908,84 +947,6 @@ def _in_local(anchor: NDArray[np.float64], pose: NDArray[np.float64]) -> NDArray
     """A pose in a submap's frame as a local-SLAM pose (heading wrapped)."""
     out = compose(anchor, pose)
     out[2] = float(wrap_angle(out[2]))
-    return out
-
-
-def spread_between_nodes(
-    node_poses: ArrayLike,
-    node_local: ArrayLike,
-    node_scan: ArrayLike,
-    scan_node: ArrayLike,
-    scan_offset: ArrayLike,
-    times: ArrayLike,
-) -> NDArray[np.float64]:
-    """Pose of every scan from the optimized nodes and each scan's offset from its node.
-
-    Scan ``i`` of node ``k = scan_node[i]`` is first placed at ``P_k (+) o_i`` (``P`` the
-    optimized node poses, ``o_i`` its pose relative to node ``k`` in the local-SLAM frame).
-    The optimization moved node ``k + 1`` by ``D = P_{k+1} - P_k (+) (L_k^-1 (+) L_{k+1})``
-    (map frame, heading wrapped) from where that chain puts it; the scans from node ``k`` to
-    node ``k + 1`` receive the fraction of ``D`` that their local-SLAM travel from node ``k``
-    is of the whole (translation by path length, heading by the summed turn; by time where
-    that part did not move), so the trajectory is continuous at every node. Scans after the
-    last node keep ``P_k (+) o_i``.
-
-    Parameters
-    ----------
-    node_poses : array_like, shape (N, 3)
-        Optimized node poses ``P``, map frame (metres, radians).
-    node_local : array_like, shape (N, 3)
-        The nodes' local-SLAM poses ``L`` (the drifting frame the offsets are in).
-    node_scan : array_like, shape (N,)
-        Scan index of each node, increasing.
-    scan_node : array_like, shape (S,)
-        Node of each scan: the last node at or before it.
-    scan_offset : array_like, shape (S, 3)
-        Each scan's pose relative to its node's local pose (zero for the node itself).
-    times : array_like, shape (S,)
-        Scan timestamps, seconds.
-
-    Returns
-    -------
-    ndarray, shape (S, 3)
-        Scan poses, map frame; node scans exactly at ``node_poses``.
-    """
-    P = np.asarray(node_poses, dtype=np.float64).reshape(-1, 3)
-    L = np.asarray(node_local, dtype=np.float64).reshape(-1, 3)
-    ns = np.asarray(node_scan, dtype=np.int64)
-    sn = np.asarray(scan_node, dtype=np.int64)
-    off = np.asarray(scan_offset, dtype=np.float64).reshape(-1, 3)
-    t = np.asarray(times, dtype=np.float64)
-    if sn.size == 0:
-        return np.zeros((0, 3))
-    out = compose(P[sn], off)
-    nxt = np.minimum(sn + 1, P.shape[0] - 1)
-    inner = nxt > sn  # scans with a next node
-    if not inner.any():
-        out[:, 2] = wrap_angle(out[:, 2])
-        return out
-    predicted = compose(P[sn], between(L[sn], L[nxt]))
-    d = P[nxt] - predicted
-    d[:, 2] = wrap_angle(d[:, 2])
-    a, b = ns[sn], ns[nxt]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        by_time = np.clip(np.where(t[b] > t[a], (t - t[a]) / (t[b] - t[a]), 0.0), 0.0, 1.0)
-    local = compose(L[sn], off)  # every scan's local-SLAM pose
-    step = np.diff(local, axis=0)
-    cum_xy = np.concatenate([[0.0], np.cumsum(np.hypot(step[:, 0], step[:, 1]))])
-    cum_th = np.concatenate([[0.0], np.cumsum(np.abs(wrap_angle(step[:, 2])))])
-
-    def fraction(cum: NDArray[np.float64]) -> NDArray[np.float64]:
-        whole = cum[b] - cum[a]
-        moved = whole > 1e-9
-        with np.errstate(invalid="ignore", divide="ignore"):
-            f = np.where(moved, (cum - cum[a]) / np.where(moved, whole, 1.0), by_time)
-        return np.clip(f, 0.0, 1.0)
-
-    f_xy = np.where(inner, fraction(cum_xy), 0.0)
-    f_th = np.where(inner, fraction(cum_th), 0.0)
-    out[:, :2] += f_xy[:, None] * d[:, :2]
-    out[:, 2] = wrap_angle(out[:, 2] + f_th * d[:, 2])
     return out
 
 

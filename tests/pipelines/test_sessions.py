@@ -102,7 +102,7 @@ def test_saving_twice_writes_the_same_bytes_and_a_header_says_what_it_covers(tou
     with zipfile.ZipFile(a) as z:
         assert z.namelist()[:2] == ["header.json", "state.json"]
         header = json.loads(z.read("header.json"))
-    assert header["config"]["submaps"]["scans"] == 40 and header["version"] == 4
+    assert header["config"]["submaps"]["scans"] == 40 and header["version"] == 5
 
 
 # ----------------------------------------------------------------------------- hostile files
@@ -196,7 +196,7 @@ def _first_array_key(tree) -> str:
         ("huge shape", "its header does not match its size"),
         ("compressed", "not a probmap graph-SLAM session"),
         ("no state", "not a probmap graph-SLAM session"),
-        ("other version", "session format version 99, this probmap reads version 4"),
+        ("other version", "session format version 99, this probmap reads version 5"),
         ("extra attribute", "attributes this probmap does not have or lacks: ['planted']"),
         ("wrong type", "SubmapSlam.scan_times is a str"),
         ("short list", "entries in scan_node for"),

@@ -69,8 +69,8 @@ SESSION_FORMAT = "probmap.GraphSlam session"
 #: Version 1 was a Python pickle (refused: it could run code); 2 the archive of arrays; 3 the
 #: same archive, with the pairwise closure check's state and settings (a version-2 session
 #: would resume a different algorithm: refused); 4 adds lidar-only SLAM's recent steps (its
-#: motion model).
-SESSION_VERSION = 4
+#: motion model); 5 the odometry's measured turn errors (``local.recover_turn``).
+SESSION_VERSION = 5
 
 _HEADER = "header.json"
 _STATE = "state.json"

@@ -1,7 +1,8 @@
 """Graph SLAM on real laser logs (issues 18, 36): the raw Intel log, the Freiburg hospital log,
-the Intel ROS bag and Freiburg 079 (whose look-alike offices fool closures), with default
-settings, each run in its own process; the RBPF on Intel and raw odometry as peers in the same
-run.
+the Intel ROS bag, Freiburg 079 (whose look-alike offices fool closures) and the Freiburg campus
+(outdoor, a scan every metre, odometry rebuilt from its corrected log: ``_campus.py``), with
+default settings, each run in its own process; the RBPF on Intel and raw odometry as peers in
+the same run.
 
 Usage::
 

@@ -40,6 +40,9 @@ def _value(text: str) -> Any:
     parts = [p.strip() for p in text.split(",")]
     vals: list[Any] = []
     for p in parts:
+        if p.lower() in ("true", "false"):  # check_odometry=false
+            vals.append(p.lower() == "true")
+            continue
         try:
             vals.append(int(p))
         except ValueError:

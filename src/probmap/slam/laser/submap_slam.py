@@ -731,8 +731,9 @@ class SubmapSlam:
             if score2 > score + 0.05 * pts.shape[0]:
                 pose, score = pose2, score2
                 took_wide = True
-            extra = self._turn_widening() * turn
-            if extra > 0.0 and score / pts.shape[0] < cfg.local.min_match_score:
+            failed = score / pts.shape[0] < cfg.local.min_match_score
+            extra = self._turn_widening() * turn if failed and turn > 0.0 else 0.0
+            if extra > 0.0:
                 # still no match, and this odometry's turns have been off: search the
                 # heading as far as the turn may be wrong (recover_turn)
                 wide = replace(wide, angular_window=ang + extra)

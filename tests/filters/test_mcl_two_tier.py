@@ -181,3 +181,23 @@ def test_filter_is_valid_when_built(world, field, free):
         MonteCarloLocalization.from_pose(
             field, motion, np.random.default_rng(0), np.zeros(2), np.eye(3)
         )
+
+
+@pytest.mark.parametrize("unit", [None, 0.1])
+def test_fused_and_generic_sampling_share_the_unit_step(field, unit):
+    """The compiled predict-and-weight pass and the numpy sampler draw a 1 m step with the same
+    noise: with ``unit_step``, the heading variance of ten 0.1 m steps (Table 5.6 as printed:
+    ten times that)."""
+    motion = OdometryMotionModel(0.3, 0.1, 0.1, 0.3, unit_step=unit)
+    n = 40000
+    start = np.tile([5.0, 5.0, 0.0], (n, 1))
+    u = (np.zeros(3), np.array([1.0, 0.0, 0.0]))
+    fused = np.ascontiguousarray(start.copy())
+    no_beams = np.zeros(0)
+    mcl_sample_and_weight_scan(
+        fused, *u, no_beams, no_beams, field, motion, np.random.default_rng(3)
+    )
+    generic = mcl_sample_motion(start, motion, u, np.random.default_rng(4))
+    expected = 2 * 0.1 * 1.0**2 / (10 if unit else 1)
+    for p in (fused, generic):
+        assert abs(np.var(p[:, 2]) / expected - 1) < 5 * math.sqrt(2 / n)

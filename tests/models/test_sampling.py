@@ -11,6 +11,7 @@ from probmap.models.sampling import (
     VelocityMotionModel,
     motion_model_odometry,
     odometry_deltas,
+    odometry_step_count,
     wrap_angle,
 )
 
@@ -170,3 +171,44 @@ def test_reversing_is_not_noisier_than_driving_forwards():
     jitter = model.sample(start, [0.0, 0.0, 0.0], [0.0, 0.005, 0.5], rng)
     expected = 0.5 * np.sqrt(0.1)  # only rot2 = 0.5 is noisy: sd sqrt(alpha1) * 0.5
     assert abs(np.std(jitter[:, 2]) / expected - 1) < 0.1
+
+
+def test_unit_step_gives_a_long_step_the_noise_of_its_chain_of_short_ones():
+    """A 1 m straight step with ``unit_step = 0.1``: its heading variance is that of ten
+    0.1 m steps sampled one after another (Table 5.6 as printed: ten times more)."""
+    alphas = (0.3, 0.1, 0.1, 0.3)
+    n = 40000
+    start = np.zeros((n, 3))
+    u0, u1 = np.zeros(3), np.array([1.0, 0.0, 0.0])
+    assert odometry_step_count(1.0, 0.1) == pytest.approx(10.0)
+    assert odometry_step_count(0.05, 0.1) == 1.0  # never more noise than as printed
+    assert odometry_step_count(1.0, None) == 1.0
+    rng = np.random.default_rng(1)
+    one = OdometryMotionModel(*alphas, unit_step=0.1).sample(start, u0, u1, rng)
+    printed = OdometryMotionModel(*alphas).sample(start, u0, u1, rng)
+    chain = start.copy()
+    short = OdometryMotionModel(*alphas)
+    for k in range(10):
+        chain = short.sample(chain, [0.1 * k, 0.0, 0.0], [0.1 * (k + 1), 0.0, 0.0], rng)
+    # heading: rot1 + rot2, each of variance alpha2 trans^2 per step, k steps of trans / k
+    var_chain = 2 * alphas[1] * 1.0**2 / 10
+    tol = 5 * np.sqrt(2 / n)
+    assert abs(np.var(chain[:, 2]) / var_chain - 1) < tol
+    assert abs(np.var(one[:, 2]) / var_chain - 1) < tol
+    assert abs(np.var(printed[:, 2]) / (10 * var_chain) - 1) < tol
+    # the density is the sampler's: the same variances divided by the same count
+    new = np.array([1.02, 0.03, 0.05])
+    h1, ht, h2 = odometry_deltas(np.zeros(3), new)
+    expected = (
+        _normal(0.0 - h1, (alphas[0] * h1**2 + alphas[1] * ht**2) / 10)
+        * _normal(1.0 - ht, (alphas[2] * ht**2 + alphas[3] * (h1**2 + h2**2)) / 10)
+        * _normal(0.0 - h2, (alphas[0] * h2**2 + alphas[1] * ht**2) / 10)
+    )
+    got = motion_model_odometry(new, u0, u1, np.zeros(3), alphas, 0.1)
+    assert np.isclose(got, expected, rtol=1e-10)
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf")])
+def test_bad_unit_step(bad):
+    with pytest.raises(ValueError, match="unit_step"):
+        OdometryMotionModel(unit_step=bad)

@@ -584,7 +584,7 @@ def mcl_sample_and_weight_scan(
         Log-likelihood of the scan for each moved particle.
     """
     r1, tr, r2 = (float(v) for v in odometry_deltas(odom_prev, odom_cur))
-    sd1, sdt, sd2 = odometry_noise_std(r1, tr, r2, motion.alphas)
+    sd1, sdt, sd2 = odometry_noise_std(r1, tr, r2, motion.alphas, motion.unit_step)
     n = particles.shape[0]
     noise = rng.standard_normal((n, 3))
     ll = np.zeros(n)

@@ -62,7 +62,7 @@ def mcl_sample_and_weight_robust(
     """
     field, rng = mcl.sensor, mcl.rng
     r1, tr, r2 = (float(v) for v in odometry_deltas(odom_prev, odom_cur))
-    sd1, sdt, sd2 = odometry_noise_std(r1, tr, r2, mcl.motion.alphas)
+    sd1, sdt, sd2 = odometry_noise_std(r1, tr, r2, mcl.motion.alphas, mcl.motion.unit_step)
     particles = mcl.particles
     n = particles.shape[0]
     noise = rng.standard_normal((n, 3))

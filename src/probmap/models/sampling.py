@@ -29,6 +29,7 @@ __all__ = [
     "motion_model_velocity",
     "odometry_deltas",
     "odometry_noise_std",
+    "odometry_step_count",
     "rotation_noise_scale",
     "sample_motion_model_odometry",
     "sample_motion_model_velocity",
@@ -108,6 +109,7 @@ def motion_model_odometry(
     odom_cur: ArrayLike,
     pose_old: ArrayLike,
     alphas: tuple[float, float, float, float],
+    unit_step: float | None = None,
 ) -> NDArray[np.float64]:
     """Density ``p(x_t | u_t, x_{t-1})`` of the odometry motion model, Table 5.5.
 
@@ -120,6 +122,9 @@ def motion_model_odometry(
     alphas : (alpha1, alpha2, alpha3, alpha4)
         Rotation-from-rotation, rotation-from-translation, translation-from-translation and
         translation-from-rotation noise (dimensionless variance factors).
+    unit_step : float, optional
+        Metres: the variances are divided by the odometry step's count of such steps
+        (:func:`odometry_step_count`), as :func:`sample_motion_model_odometry` does.
 
     Returns
     -------
@@ -128,29 +133,52 @@ def motion_model_odometry(
     """
     a1, a2, a3, a4 = alphas
     r1, tr, r2 = odometry_deltas(odom_prev, odom_cur)
+    k = odometry_step_count(float(tr), unit_step)
     h1, htr, h2 = odometry_deltas(pose_old, pose_new)
     q1, q2 = rotation_noise_scale(h1), rotation_noise_scale(h2)
-    p1 = _prob_normal(wrap_angle(r1 - h1), a1 * q1**2 + a2 * htr**2)
-    p2 = _prob_normal(tr - htr, a3 * htr**2 + a4 * (q1**2 + q2**2))
-    p3 = _prob_normal(wrap_angle(r2 - h2), a1 * q2**2 + a2 * htr**2)
+    p1 = _prob_normal(wrap_angle(r1 - h1), (a1 * q1**2 + a2 * htr**2) / k)
+    p2 = _prob_normal(tr - htr, (a3 * htr**2 + a4 * (q1**2 + q2**2)) / k)
+    p3 = _prob_normal(wrap_angle(r2 - h2), (a1 * q2**2 + a2 * htr**2) / k)
     return p1 * p2 * p3
 
 
+def odometry_step_count(trans: float, unit_step: float | None) -> float:
+    """How many steps of ``unit_step`` metres an odometry step of ``trans`` metres spans:
+    ``max(1, trans / unit_step)``; 1 with ``unit_step=None``.
+
+    Table 5.6's variances grow with the square of the step. Splitting a step into ``k`` equal
+    parts and sampling each divides them by ``k``: the noise of one metre of travel then
+    depends on how often it is sampled. Dividing the variances of a long step by its count
+    of unit steps gives it the noise of the chain of unit steps it stands for, so a log with a
+    scan every metre gets the noise per metre of one with a scan every 20 cm. Turns are not
+    counted: a turn in place taken in one step (simulated routes) keeps its noise.
+    """
+    if unit_step is None:
+        return 1.0
+    return max(1.0, trans / unit_step)
+
+
 def odometry_noise_std(
-    rot1: float, trans: float, rot2: float, alphas: tuple[float, float, float, float]
+    rot1: float,
+    trans: float,
+    rot2: float,
+    alphas: tuple[float, float, float, float],
+    unit_step: float | None = None,
 ) -> tuple[float, float, float]:
     """Standard deviations of rot1, trans and rot2 in Table 5.6 (lines 5-7).
 
     Rotations enter through :func:`rotation_noise_scale` so that reversing is not noisier
-    than driving forwards.
+    than driving forwards. With ``unit_step``, the variances are divided by
+    :func:`odometry_step_count`.
     """
     a1, a2, a3, a4 = alphas
     q1 = float(rotation_noise_scale(rot1))
     q2 = float(rotation_noise_scale(rot2))
+    k = odometry_step_count(trans, unit_step)
     return (
-        math.sqrt(a1 * q1 * q1 + a2 * trans * trans),
-        math.sqrt(a3 * trans * trans + a4 * (q1 * q1 + q2 * q2)),
-        math.sqrt(a1 * q2 * q2 + a2 * trans * trans),
+        math.sqrt((a1 * q1 * q1 + a2 * trans * trans) / k),
+        math.sqrt((a3 * trans * trans + a4 * (q1 * q1 + q2 * q2)) / k),
+        math.sqrt((a1 * q2 * q2 + a2 * trans * trans) / k),
     )
 
 
@@ -162,6 +190,7 @@ def sample_motion_model_odometry(
     odom_cur: ArrayLike,
     alphas: tuple[float, float, float, float],
     rng: np.random.Generator,
+    unit_step: float | None = None,
 ) -> NDArray[np.float64]:
     """Draw ``x_t ~ p(x_t | u_t, x_{t-1})`` for every particle, Table 5.6.
 
@@ -175,6 +204,9 @@ def sample_motion_model_odometry(
         Noise parameters as in :func:`motion_model_odometry`.
     rng : numpy.random.Generator
         Source of the ``(N, 3)`` standard normal draws.
+    unit_step : float, optional
+        Noise per step of this many metres: a longer step's variances are divided by its
+        count of them (:func:`odometry_step_count`).
 
     Returns
     -------
@@ -183,7 +215,7 @@ def sample_motion_model_odometry(
     """
     p = _poses(poses, "poses").reshape(-1, 3)
     r1, tr, r2 = (float(v) for v in odometry_deltas(odom_prev, odom_cur))
-    sd1, sdt, sd2 = odometry_noise_std(r1, tr, r2, alphas)
+    sd1, sdt, sd2 = odometry_noise_std(r1, tr, r2, alphas, unit_step)
     e = rng.standard_normal((p.shape[0], 3))
     # The book's "sample(b^2)" draws with variance b^2: a standard normal scaled by sqrt(b^2).
     h1 = r1 - e[:, 0] * sd1
@@ -329,15 +361,23 @@ class OdometryMotionModel:
         Variance factors: rotation from rotation (rad^2/rad^2), rotation from translation
         (rad^2/m^2), translation from translation (m^2/m^2), translation from rotation
         (m^2/rad^2).
+    unit_step : float or None
+        The alphas give the noise of a step this long (m); a longer step is as noisy as the
+        chain of such steps it spans (:func:`odometry_step_count`). None: Table 5.6 as
+        printed, whatever the step.
     """
 
     alpha1: float = 0.05
     alpha2: float = 0.05
     alpha3: float = 0.05
     alpha4: float = 0.05
+    unit_step: float | None = None
 
     def __post_init__(self) -> None:
         _check_alphas(self.alphas, "OdometryMotionModel")
+        u = self.unit_step
+        if u is not None and not (math.isfinite(u) and u > 0):
+            raise ValueError(f"OdometryMotionModel: unit_step must be None or > 0 m, got {u}")
 
     @property
     def alphas(self) -> tuple[float, float, float, float]:
@@ -351,13 +391,17 @@ class OdometryMotionModel:
         rng: np.random.Generator,
     ) -> NDArray[np.float64]:
         """Sample new particle poses, Table 5.6 (see :func:`sample_motion_model_odometry`)."""
-        return sample_motion_model_odometry(poses, odom_prev, odom_cur, self.alphas, rng)
+        return sample_motion_model_odometry(
+            poses, odom_prev, odom_cur, self.alphas, rng, self.unit_step
+        )
 
     def probability(
         self, pose_new: ArrayLike, odom_prev: ArrayLike, odom_cur: ArrayLike, pose_old: ArrayLike
     ) -> NDArray[np.float64]:
         """Density of the motion, Table 5.5 (see :func:`motion_model_odometry`)."""
-        return motion_model_odometry(pose_new, odom_prev, odom_cur, pose_old, self.alphas)
+        return motion_model_odometry(
+            pose_new, odom_prev, odom_cur, pose_old, self.alphas, self.unit_step
+        )
 
 
 # The class tier over the functions, as OdometryMotionModel (see there).

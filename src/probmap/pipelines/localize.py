@@ -30,10 +30,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
@@ -42,6 +40,7 @@ from numpy.typing import ArrayLike, NDArray
 from probmap._checks import require_at_least
 from probmap.models.grid_map import GridGeometry
 from probmap.pipelines._localize_eval import interpolate_run, trajectory_errors
+from probmap.pipelines._localize_map import LocalizationMap, load_localization_map
 from probmap.pipelines._localize_track import laser_offset_of, match_times
 
 __all__ = [
@@ -88,11 +87,18 @@ class LocalizeConfig:
     initial_std : (float, float, float)
         Standard deviations (m, m, rad) of the initial Gaussian.
     alphas : (float, float, float, float)
-        Odometry model noise (Table 5.6).
-    sigma_hit, z_hit, z_rand, max_distance : float
-        Likelihood field parameters (Table 6.3).
-    max_range : float or None
-        Readings at or beyond it are "no return"; None: 80 m or the log's maximum, the smaller.
+        Odometry model noise (Table 5.6) of a step of ``noise_distance``.
+    noise_distance : float or None
+        The ``alphas`` are the noise of a step this long (m): the odometry between two
+        updates that spans ``k`` such steps is sampled with the variances divided by ``k``
+        (:func:`~probmap.models.sampling.odometry_step_count`), the noise of the chain of
+        short steps it stands for. Table 5.6 as printed grows the variances with the square
+        of the step, so a log with a scan every metre (the Freiburg campus) got five times
+        the noise per metre of one with a scan every 20 cm: rotations with a standard
+        deviation of 18 deg per metre of straight driving with these ``alphas``, 8 deg as a
+        chain. 0.2 m: the longest of the steps the defaults were judged at (the median
+        update spans 0.11 m on Intel, 0.13 m on Freiburg 079, 0.20 m on the hospital), which
+        this leaves as they were. None: as printed.
     update_distance, update_angle : float
         Motion (m, rad) that triggers a filter update. The filter never updates while the
         odometry has not moved at all, even with both at 0.
@@ -244,6 +250,7 @@ class LocalizeConfig:
     initial_pose: tuple[float, float, float] | None = None
     initial_std: tuple[float, float, float] = (0.1, 0.1, 0.05)
     alphas: tuple[float, float, float, float] = (0.3, 0.1, 0.1, 0.3)
+    noise_distance: float | None = 0.2
     sigma_hit: float = 0.15
     z_hit: float = 0.9
     z_rand: float = 0.1
@@ -299,6 +306,9 @@ class LocalizeConfig:
                 raise ValueError(f"{name} must be finite and non-negative, got {vals}")
         if len(self.initial_std) != 3 or len(self.alphas) != 4:
             raise ValueError("initial_std needs 3 numbers and alphas 4")
+        u = self.noise_distance
+        if u is not None and not (math.isfinite(u) and u > 0):
+            raise ValueError(f"noise_distance must be None or a number > 0 m, got {u}")
         for name in ("sigma_hit", "max_distance", "update_distance", "update_angle"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"{name} must be finite, got {getattr(self, name)}")
@@ -526,127 +536,6 @@ class LocalizationRun:
         return np.asarray(compose(self.poses, self.laser_offset)).reshape(-1, 3)
 
 
-@dataclass(frozen=True, eq=False)
-class LocalizationMap:
-    """The map a log is localized in, read by :func:`load_localization_map`.
-
-    It has what the map pictures and the live view take of an occupancy grid (``spec``,
-    ``log_odds``, ``observed``), so it can be drawn like one.
-
-    Attributes
-    ----------
-    spec : GridSpec
-        Geometry (resolution in m, origin of the lower-left corner in m, shape (H, W)).
-    probability : (H, W) ndarray
-        Occupancy probability per cell, rows from the smallest y, NaN where unknown.
-    source : Path
-        The file it was read from.
-    kind : str
-        ``"map"`` (a map_server YAML map) or ``"session"`` (a graph-SLAM session).
-    times : (S,) ndarray or None
-        A session's scan timestamps (s); None for a map.
-    poses : (S, 3) ndarray or None
-        A session's optimized sensor poses at those scans (m, rad), in the map frame: the
-        run's own trajectory, which a localization in its map can be compared with.
-    odometry : (S, 3) ndarray or None
-        A session's sensor odometry at those scans (m, rad): the robot's odometry composed
-        with the mounting offset the session was built with (see :func:`laser_offset_of`).
-    """
-
-    spec: Any
-    probability: NDArray[np.float64]
-    source: Path
-    kind: str
-    times: NDArray[np.float64] | None = None
-    poses: NDArray[np.float64] | None = None
-    odometry: NDArray[np.float64] | None = None
-
-    @property
-    def observed(self) -> NDArray[np.bool_]:
-        """(H, W) bool: cells with a known occupancy."""
-        return np.isfinite(self.probability)
-
-    @property
-    def log_odds(self) -> NDArray[np.float64]:
-        """(H, W) log odds ``log(p / (1 - p))`` (0 where unknown; +-inf at p = 1, 0)."""
-        p = np.nan_to_num(self.probability, nan=0.5)
-        with np.errstate(divide="ignore"):
-            return np.log(p) - np.log1p(-p)
-
-    def pose_at(self, time_s: float, max_dt: float = 0.02) -> NDArray[np.float64] | None:
-        """A session's pose (3,) at the scan nearest ``time_s`` when one lies within
-        ``max_dt`` seconds; None otherwise (and always for a map)."""
-        if self.times is None or self.poses is None:
-            return None
-        i, j = match_times(self.times, [time_s], max_dt)
-        return self.poses[i[0]].copy() if j.size else None
-
-
-def load_localization_map(path: str | os.PathLike[str]) -> LocalizationMap:
-    """A map to localize in: a map_server YAML map, or a graph-SLAM session saved by
-    ``probmap slam grid --save-session`` (:func:`~probmap.pipelines.sessions.save_session`).
-
-    A session's run is finished as ``slam grid`` finishes it (the final optimization), and
-    its occupancy grid is rendered with every scan at its optimized pose
-    (:meth:`SubmapSlam.map <probmap.slam.laser.submap_slam.SubmapSlam.map>`): the map ``slam grid``
-    wrote beside the session. Its frame is the session's, the sensor odometry frame of its
-    first scan. A session is data (arrays and a JSON header, docs/sessions.md): reading one
-    runs no code from it, whoever wrote it.
-
-    Parameters
-    ----------
-    path : path-like
-        ``*.yaml`` / ``*.yml``: a map_server map; a folder: its ``slam.session`` (the file
-        ``slam grid --save-session FOLDER`` writes; named in ``source``); anything else: a
-        session.
-
-    Returns
-    -------
-    LocalizationMap
-
-    Raises
-    ------
-    FileNotFoundError
-        No such file.
-    ValueError
-        A file that is neither (one line naming the file), a malformed map (a
-        :class:`~probmap.errors.MapFileError` naming the field), or a session of another
-        format version or malformed (an old pickled one among them: it is never unpickled).
-    """
-    p = Path(path)
-    if p.is_dir():  # a folder given to slam grid --save-session holds slam.session
-        from probmap.pipelines.laser_slam import SESSION_NAME
-
-        p = p / SESSION_NAME
-    if not p.is_file():
-        raise FileNotFoundError(f"{p}: no such map or session file")
-    if p.suffix.lower() in (".yaml", ".yml"):
-        from probmap.grid.io import read_map_server
-
-        m = read_map_server(p)
-        return LocalizationMap(m.spec, np.asarray(m.probability, dtype=np.float64), p, "map")
-    neither = (
-        f"{p}: neither a map_server YAML map (*.yaml) nor a probmap graph-SLAM session "
-        "(probmap slam grid --save-session)"
-    )
-    from probmap.pipelines.sessions import NotASessionError, load_session
-
-    try:
-        slam = load_session(p)
-    except NotASessionError:
-        raise ValueError(neither) from None
-    if slam.nodes == 0:
-        raise ValueError(f"{p}: the session holds no scans")
-    slam.finish()  # the final optimization, as slam grid ran it before writing its map
-    grid = slam.map()
-    prob = np.where(grid.observed, grid.probability(), np.nan)
-    times, poses = slam.trajectory()
-    odometry = np.asarray(slam.scan_odometry, dtype=np.float64).reshape(-1, 3)
-    return LocalizationMap(
-        grid.spec, prob, p, "session", np.asarray(times, dtype=np.float64), poses, odometry
-    )
-
-
 def localize_scans(
     spec: GridGeometry,
     probability: ArrayLike,
@@ -777,7 +666,7 @@ def localize_scans(
     nearby = NearbyFreeSpace(spec, free_mask & (lf.distance > 0.15), free)
     augmented = cfg.global_localization  # tracking: only while lost, set below
     rng = np.random.default_rng(cfg.seed)
-    motion = OdometryMotionModel(*cfg.alphas)
+    motion = OdometryMotionModel(*cfg.alphas, unit_step=cfg.noise_distance)
     n_global = global_particle_count(cfg, free.cells.size * spec.resolution**2)
     # KLD-sampling once the filter knows where it is: a global search that let the count
     # fall as its cloud gathered lost the rival places with it (Intel: a claim 9.9 m off)

@@ -116,3 +116,33 @@ class _TrueMap:
 
     def probability(self):
         return self._p
+
+
+def test_a_searching_filter_skips_the_robust_pass(world, monkeypatch):
+    """While lost and searching with random particles, the robust pass (casts along every
+    beam, for a cloud KLD-sampling may have grown to the global count) is off; it ran while
+    the kidnapped filter still tracked a scan that fit poorly."""
+    import probmap.filters.mcl as mcl_module
+
+    calls: list[float] = []
+    real = mcl_module._robust
+
+    def spy(mcl, *args):
+        calls.append(mcl.random_floor)  # > 0: lost, random particles drawn at resampling
+        return real(mcl, *args)
+
+    monkeypatch.setattr(mcl_module, "_robust", spy)
+    n = world.ranges.shape[0]
+    cfg = LocalizeConfig(n_particles=2000, initial_pose=tuple(world.poses[0]), seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run = localize_scans(
+            world.spec, world.occupied.astype(float), 0.2 * np.arange(n), world.ranges,
+            world.angles, _kidnapped(world), world.max_range, cfg,
+        )  # fmt: skip
+    assert run.episodes and run.episodes[0].reason != "turn"
+    assert calls and all(floor == 0.0 for floor in calls)
+    # the lost span was long enough to have called it many times otherwise
+    first = run.episodes[0]
+    assert np.sum((run.scan_index >= first.scan_index)
+                  & (run.scan_index < first.recovered_index)) > 20  # fmt: skip

@@ -26,6 +26,10 @@ relations rebuilt from the corrected log in the cache by ``_campus.py``):
    ``--fixed`` runs the earlier protocol instead: exactly ``--updates`` updates (150 then), the
    claim judged at the last one.
 
+``--kidnap`` makes the odometry jump 10 m sideways at the middle scan while the robot stays
+where it is: tracking must say it lost track and find the robot again; "outside lost spans"
+then scores the rest.
+
 Run:  PROBMAP_DATA=/work/shared/data python benchmarks/bench_mcl_tracking.py \\
           [--cache /tmp/mcl_maps] [--logs intel hospital fr079 intelbag] [--starts 10]
 """
@@ -133,6 +137,11 @@ def main() -> None:
         "from particle_density per m2 of free space)",
     )  # fmt: skip
     ap.add_argument("--no-tracking", action="store_true", help="global localization only")
+    ap.add_argument(
+        "--kidnap", action="store_true",
+        help="tracking only: the odometry jumps 10 m sideways at the middle scan (the robot "
+        "does not move), so the run must lose track and find the robot again",
+    )  # fmt: skip
     args = ap.parse_args()
 
     from probmap.cli.localize import _laser_offset
@@ -163,7 +172,11 @@ def main() -> None:
             batch = open_scans(log, poses="corrected")
             mount = _laser_offset(log, batch, m, False, None)
         t = np.asarray(batch.times)
-        args_run = (m.spec, m.probability, t, batch.ranges, batch.angles, batch.robot_poses)
+        odometry = np.asarray(batch.robot_poses, dtype=np.float64)
+        if args.kidnap:
+            odometry = odometry.copy()
+            odometry[t.size // 2 :, 1] += 10.0
+        args_run = (m.spec, m.probability, t, batch.ranges, batch.angles, odometry)
         pose0 = m.pose_at(float(t[0]))
         robot0 = compose(pose0, inverse(mount))
         slam_t, slam_p = read_trajectory(session.parent / "slam.trajectory.csv")

@@ -15,7 +15,9 @@ real log and scores it with the log's relations (Kuemmerle et al. 2009), the sam
 - ``max range R m``: returns beyond ``R`` metres turned into no-returns (a shorter-range laser).
 
 The noise is seeded, graph SLAM is deterministic, so the errors are reproducible; the time is
-the wall time of one core (shown for scale only). One process per row, so one row's memory and
+the wall time of one core (shown for scale only). "doubts" counts the places and spans that
+``probmap slam grid`` would warn about on the same run (``slam_report.doubts_of``): a copy that
+breaks with no doubt is a silently wrong map. One process per row, so one row's memory and
 compiled kernels do not leak into the next.
 
 Run: ``PROBMAP_DATA=../shared/data python benchmarks/bench_graph_slam_robustness.py
@@ -133,6 +135,20 @@ def worker(data: Path, log: str, case: str, settings: list[str]) -> dict[str, An
     e = relation_errors(np.asarray(run.times), np.asarray(run.poses), rel)
     odo = relation_errors(np.asarray(batch.times), np.asarray(batch.robot_poses, float), rel)
     w = np.asarray(run.closure_weights)
+    # what `slam grid` would warn about (after the timing: the check is not SLAM's cost)
+    from probmap.pipelines.slam_report import (
+        consistency_report,
+        doubts_of,
+        local_report,
+        revisit_report,
+    )
+
+    check = {
+        "local": local_report(run.slam, run.times),
+        "consistency": consistency_report(run.times, run.sensor_poses, batch),
+        "revisits": revisit_report(run.slam, run.times),
+    }
+    doubts = doubts_of(check)
     return {
         "case": case,
         "mean": float(e.translation.mean()),
@@ -141,6 +157,7 @@ def worker(data: Path, log: str, case: str, settings: list[str]) -> dict[str, An
         "odometry": float(odo.translation.mean()),
         "accepted": len(w),
         "kept": int((w >= 0.5).sum()),
+        "doubts": len(doubts),
         "seconds": wall,
     }
 
@@ -190,13 +207,13 @@ def main() -> None:
     rows = [results[c] for c in cases]
     base = next((r["mean"] for r in rows if r["case"] == "base"), None)
     head = ("perturbation", "relation error m (mean ± std)", "p95 m", "vs as logged",
-            "odometry alone m", "closures accepted / kept", "SLAM s")  # fmt: skip
+            "odometry alone m", "closures accepted / kept", "doubts", "SLAM s")  # fmt: skip
     lines = []
     for r in rows:
         ratio = f"{r['mean'] / base:.2f}x" if base else "-"
         lines.append((describe(r["case"]), f"{r['mean']:.4f} ± {r['std']:.4f}", f"{r['p95']:.3f}",
                       ratio, f"{r['odometry']:.3f}", f"{r['accepted']:,} / {r['kept']:,}",
-                      f"{r['seconds']:.0f}"))  # fmt: skip
+                      str(r["doubts"]), f"{r['seconds']:.0f}"))  # fmt: skip
     from rich.console import Console
     from rich.table import Table
 

@@ -412,7 +412,9 @@ def test_trusted_far_closures_are_the_right_ones(floorplan):
     none. With the defaults the ambiguity test drops the aliased matches before all that."""
     no_test = _closures(SubmapSlamConfig(), ambiguity=0.0)
     slam, far = _far_closures(floorplan, no_test)
-    right = [(robust, linked) for err, robust, linked in far if err < 0.05]
+    # right within two closure deviations (0.1 m): a far match is refined against the submap
+    # merged with its neighbours, whose cells are binned again onto its grid (far_neighbours)
+    right = [(robust, linked) for err, robust, linked in far if err < 0.1]
     wrong = [(robust, linked) for err, robust, linked in far if err > 1.0]
     assert right and wrong and len(right) + len(wrong) == len(far)
     assert all(not robust and linked for robust, linked in right)
@@ -421,7 +423,7 @@ def test_trusted_far_closures_are_the_right_ones(floorplan):
     slam0, far0 = _far_closures(floorplan, _closures(no_test, trust_drift=0.0))
     assert slam0.loops.trusted == 0 and far0 and all(robust for _, robust, _ in far0)
     default, far_default = _far_closures(floorplan, SubmapSlamConfig())
-    assert far_default and all(err < 0.05 for err, _, _ in far_default)
+    assert far_default and all(err < 0.1 for err, _, _ in far_default)
     assert default.loops.ambiguous > 0
 
 
@@ -503,14 +505,20 @@ def test_low_scoring_far_match_is_believed_only_within_a_plausible_drift(world, 
     ``closure_window + trust_drift * travel`` while the estimate is in fact 0.2 m off. With
     the bound made loose (a trust_drift of 1 m per metre of travel) the alias is accepted and
     the map breaks, so the rule is what keeps it out; with drift_min_score at wide_min_score
-    (the rule off) no low match is searched for and none is dropped."""
+    (the rule off) no low match is searched for and none is dropped. The far searches here
+    match single submaps (``far_neighbours = 0``): against a submap merged with its neighbours
+    the ambiguity test drops that match before the rule sees it (3 far matches dropped as
+    ambiguous instead of 2), and the default run has no wrong closure either."""
     _, _, truth, *_ = world
     slam, _ = run
-    assert slam.loops.drift_rejected >= 1 and _wrong_closures(slam, truth) == []
-    loose, _ = _run(world, config(trust_drift=1.0))
+    assert _wrong_closures(slam, truth) == []
+    single = _closures(SubmapSlamConfig(), far_neighbours=0)
+    one, _ = _run(world, single)
+    assert one.loops.drift_rejected >= 1 and _wrong_closures(one, truth) == []
+    loose, _ = _run(world, _closures(single, trust_drift=1.0))
     wrong = _wrong_closures(loose, truth)
     assert loose.loops.drift_rejected == 0 and wrong and min(wrong) > 5.0
-    off, _ = _run(world, config(drift_min_score=0.55))
+    off, _ = _run(world, _closures(single, drift_min_score=0.55))
     assert off.loops.drift_rejected == 0 and _wrong_closures(off, truth) == []
 
 

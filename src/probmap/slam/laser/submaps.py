@@ -182,6 +182,22 @@ class Submap:
         self._field = None
         self.finished = True
 
+    @property
+    def cell_spec(self) -> GridSpec:
+        """Layout of a finished submap's cropped grid (submap frame)."""
+        if self._spec is None:
+            raise RuntimeError(f"submap {self.index} is not finished")
+        return self._spec
+
+    def occupied_centres(self) -> NDArray[np.float64]:
+        """Centres (K, 2) of a finished submap's occupied cells, submap frame (metres)."""
+        spec = self.cell_spec
+        assert self._cells is not None
+        iy, ix = np.divmod(self._cells, spec.shape[1])
+        ox, oy = spec.origin
+        r = spec.resolution
+        return np.column_stack((ox + (ix + 0.5) * r, oy + (iy + 0.5) * r))
+
     def release(self) -> None:
         """Drop the cached field of a finished submap (it is rebuilt on demand)."""
         if self.finished:

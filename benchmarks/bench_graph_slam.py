@@ -275,6 +275,13 @@ def worker_graph(key: str, data: Path, end_time: float | None) -> dict[str, Any]
     out.update(closure_precision(run, mount, rel))
     out["peak_mib"] = _peak_mib()
     # the doubt check of `slam grid` (after the peak: the SLAM's memory is what is measured)
+    out["doubts"] = len(doubts_of_run(run, batch))
+    return out
+
+
+def doubts_of_run(run: Any, batch: Any) -> list[dict[str, Any]]:
+    """What ``slam grid`` would warn about for ``run`` (``run_submap_slam`` on ``batch``):
+    the doubts of its local, consistency and revisit reports (``slam_report.doubts_of``)."""
     from probmap.pipelines.slam_report import (
         consistency_report,
         doubts_of,
@@ -287,8 +294,7 @@ def worker_graph(key: str, data: Path, end_time: float | None) -> dict[str, Any]
         "consistency": consistency_report(run.times, run.sensor_poses, batch),
         "revisits": revisit_report(run.slam, run.times),
     }
-    out["doubts"] = len(doubts_of(check))
-    return out
+    return doubts_of(check)
 
 
 def worker_warm(data: Path, end_time: float | None) -> dict[str, Any]:

@@ -136,19 +136,9 @@ def worker(data: Path, log: str, case: str, settings: list[str]) -> dict[str, An
     odo = relation_errors(np.asarray(batch.times), np.asarray(batch.robot_poses, float), rel)
     w = np.asarray(run.closure_weights)
     # what `slam grid` would warn about (after the timing: the check is not SLAM's cost)
-    from probmap.pipelines.slam_report import (
-        consistency_report,
-        doubts_of,
-        local_report,
-        revisit_report,
-    )
+    from bench_graph_slam import doubts_of_run
 
-    check = {
-        "local": local_report(run.slam, run.times),
-        "consistency": consistency_report(run.times, run.sensor_poses, batch),
-        "revisits": revisit_report(run.slam, run.times),
-    }
-    doubts = doubts_of(check)
+    doubts = doubts_of_run(run, batch)
     return {
         "case": case,
         "mean": float(e.translation.mean()),

@@ -204,6 +204,68 @@ def test_node_bound_is_the_max_grid_sum_and_bounds_every_candidate_of_the_node()
             assert bound >= max(leaves)
 
 
+@pytest.mark.parametrize("seed", range(16))
+def test_root_bounds_keep_exactly_the_roots_that_reach_min_score(seed):
+    # the oracle: every root scored on its own, as a pure-Python sum over the max-grid
+    rng = np.random.default_rng(40 + seed)
+    v = random_values(rng, ["field", "uniform", "binary", "levels"][seed % 4], (60, 45))
+    top = int(rng.integers(2, 5))
+    g = PrecomputedGrids(v, (0.0, 0.0), 0.1, depth=top + 1)
+    pts = rng.uniform(-2.5, 2.5, size=(int(rng.integers(5, 30)), 2))
+    # even seeds: the default step (the farthest point moves up to a cell per heading), so a
+    # group's cells span up to a block; odd seeds: a step too coarse to group the headings
+    step = 0.1 / float(np.hypot(pts[:, 0], pts[:, 1]).max()) if seed % 2 == 0 else 0.2
+    n_angles = int(rng.integers(1, 3 * 2**top))
+    cx = np.empty((n_angles, len(pts)), dtype=np.int64)
+    cy = np.empty_like(cx)
+    K.cell_tables(pts, 2.2, 3.0, 0.4, step, n_angles, 0.0, 0.0, 0.1, cx, cy)
+    nl = int(rng.integers(2**top, 4 * 2**top))
+    side = 2**top
+    per_axis = (2 * nl) // side + 1
+    m = g.max_grid(top)
+    pad = side - 1
+    exact = np.empty(n_angles * per_axis * per_axis)
+    for a in range(n_angles):
+        for i in range(per_axis):
+            for j in range(per_axis):
+                total = 0.0
+                for ix, iy in zip(cx[a] - nl + i * side, cy[a] - nl + j * side, strict=True):
+                    if 0 <= iy + pad < m.shape[0] and 0 <= ix + pad < m.shape[1]:
+                        total += m[iy + pad, ix + pad]
+                exact[(a * per_axis + i) * per_axis + j] = total / len(pts)
+    min_score = float(np.quantile(exact, [0.9, 0.99][seed % 4 // 2]))
+    out = np.empty_like(exact)
+    count = K.root_bounds(g._buf, g._levels, TABLE, cx, cy, nl, top, min_score, out)
+    keep = exact >= min_score
+    np.testing.assert_array_equal(out >= min_score, keep)
+    np.testing.assert_allclose(out[keep], exact[keep], rtol=0, atol=1e-12)
+    assert (out[~keep] < min_score).all()
+    if seed % 2 == 0 and n_angles > side:  # grouped: fewer scorings than one per root
+        assert count < len(exact)
+
+
+@pytest.mark.parametrize("seed", range(24))
+def test_branch_and_bound_with_a_wide_window_and_fine_headings_matches_brute_force(seed):
+    # wide windows (roots of depth >= 2), many headings and a threshold: the grouped roots
+    rng = np.random.default_rng(300 + seed)
+    v = random_values(rng, ["field", "uniform", "binary", "levels"][seed % 4], (70, 60))
+    g = PrecomputedGrids(v, (0.0, 0.0), 0.1, depth=int(rng.integers(3, 7)))
+    pts = rng.uniform(-3.0, 3.0, size=(int(rng.integers(5, 40)), 2))
+    centre = np.array([rng.uniform(2.0, 4.0), rng.uniform(2.5, 4.5), rng.uniform(-3, 3)])
+    lin, ang = float(rng.uniform(0.8, 2.5)), float(rng.uniform(0.05, 0.4))
+    bf0 = brute_force_search(g, pts, centre, lin, ang)
+    assert bf0 is not None
+    min_score = float(rng.choice([0.5, 0.9, 1.0, 1.01])) * bf0.score
+    bnb = branch_and_bound_search(g, pts, centre, lin, ang, min_score=min_score)
+    bf = brute_force_search(g, pts, centre, lin, ang, min_score=min_score)
+    if bf is None:
+        assert bnb is None
+        return
+    assert bnb is not None
+    assert bnb.score == bf.score
+    np.testing.assert_array_equal(bnb.pose, bf.pose)
+
+
 # ----------------------------------------------------------------- the search
 @pytest.mark.parametrize("seed", range(12))
 def test_brute_force_matches_pure_python_scoring_of_the_window(seed):

@@ -83,17 +83,23 @@ def max_grids(codes0, h, w, depth, buf, levels, tmp):  # pragma: no cover - comp
 @njit(cache=True, inline="always")
 def _copy(src, s0, dst, d0, n):  # pragma: no cover - compiled
     """``dst[d0 : d0 + n] = src[s0 : s0 + n]``."""
+    # on slices, indexed from 0: no negative-index wrap to test, so the loops vectorise
+    s = src[s0 : s0 + n]
+    d = dst[d0 : d0 + n]
     for i in range(n):
-        dst[d0 + i] = src[s0 + i]
+        d[i] = s[i]
 
 
 @njit(cache=True, inline="always")
 def _max2(src, a0, b0, dst, d0, n):  # pragma: no cover - compiled
     """``dst[d0 + i] = max(src[a0 + i], src[b0 + i])`` for ``i < n``."""
+    sa = src[a0 : a0 + n]
+    sb = src[b0 : b0 + n]
+    d = dst[d0 : d0 + n]
     for i in range(n):
-        a = src[a0 + i]
-        c = src[b0 + i]
-        dst[d0 + i] = a if a > c else c
+        a = sa[i]
+        c = sb[i]
+        d[i] = a if a > c else c
 
 
 @njit(cache=True)
@@ -144,6 +150,83 @@ def node_sum(buf, levels, lev, table, cxa, cya, kx, ky):  # pragma: no cover - c
         if 0 <= j < hp and 0 <= k < wp:
             total += table[buf[off + j * wp + k]]
     return total
+
+
+@njit(cache=True)
+def root_bounds(buf, levels, table, cx, cy, nl, top, min_score, out):  # pragma: no cover
+    """The bound of every root of depth ``top`` (``side = 2**top`` cells), or -1 for a root
+    that a bound over its group of headings already puts below ``min_score``; returns the
+    scorings done.
+
+    ``out[(a * P + i) * P + j]`` is the root of heading ``a`` at offsets ``(-nl + i side,
+    -nl + j side)``, ``P`` roots per axis, as :func:`branch_and_bound` numbers them. Headings
+    go in groups of ``side``: over a group each point's cells span a box of corner
+    ``(lx, ly)``; when it is at most ``side`` cells wide, the four top-depth entries of the
+    blocks at ``(lx + kx, ly + ky)``, ``side`` apart, cover every cell the point reaches from
+    any heading of the group and offset of the root, so the largest of them bounds it. A group
+    bound (the same sum order, divided by N) below ``min_score`` rules out all the group's roots
+    at that offset; the others are scored one by one exactly as :func:`node_sum` does. The
+    kept roots and their bounds are those of scoring every root.
+    """
+    side = 1 << top
+    per_axis = (2 * nl) // side + 1
+    off = levels[top, 0]
+    hp = levels[top, 1]
+    wp = levels[top, 2]
+    pad = levels[top, 3]
+    n_angles = cx.shape[0]
+    n = cx.shape[1]
+    lx = np.empty(n, dtype=np.int64)
+    ly = np.empty(n, dtype=np.int64)
+    count = 0
+    for a0 in range(0, n_angles, side):
+        a1 = min(n_angles, a0 + side)
+        grouped = True
+        for p in range(n):
+            x_lo = cx[a0, p]
+            x_hi = x_lo
+            y_lo = cy[a0, p]
+            y_hi = y_lo
+            for a in range(a0 + 1, a1):
+                v = cx[a, p]
+                x_lo = min(x_lo, v)
+                x_hi = max(x_hi, v)
+                v = cy[a, p]
+                y_lo = min(y_lo, v)
+                y_hi = max(y_hi, v)
+            if x_hi - x_lo > side or y_hi - y_lo > side:
+                grouped = False
+            lx[p] = x_lo + pad
+            ly[p] = y_lo + pad
+        for i in range(per_axis):
+            kx = -nl + i * side
+            for j in range(per_axis):
+                ky = -nl + j * side
+                if grouped:
+                    total = 0.0
+                    for p in range(n):
+                        x0 = lx[p] + kx
+                        y0 = ly[p] + ky
+                        c = 0
+                        for dy in range(2):
+                            y = y0 + dy * side
+                            if 0 <= y < hp:
+                                for dx in range(2):
+                                    x = x0 + dx * side
+                                    if 0 <= x < wp:
+                                        c = max(c, buf[off + y * wp + x])
+                        total += table[c]
+                    count += 1
+                    if total / n < min_score:
+                        for a in range(a0, a1):
+                            out[(a * per_axis + i) * per_axis + j] = -1.0
+                        continue
+                for a in range(a0, a1):
+                    out[(a * per_axis + i) * per_axis + j] = (
+                        node_sum(buf, levels, top, table, cx[a], cy[a], kx, ky) / n
+                    )
+                    count += 1
+    return count
 
 
 @njit(cache=True, inline="always")
@@ -213,7 +296,9 @@ def branch_and_bound(
 
     Nodes are ``(a, kx, ky, h)``: heading ``a``, the ``2**h x 2**h`` translation offsets
     starting at ``(kx, ky)`` (clipped to ``[-nl, nl]``). The roots tile the window at depth
-    ``top`` for every heading, are scored and sorted (best first; equal bounds by index); then
+    ``top`` for every heading, are scored (with a threshold and ``top >= 2``, by
+    :func:`root_bounds`, which rules out whole groups of headings at once), those below
+    ``min_score`` dropped and the rest sorted (best first; equal bounds by index); then
     an explicit stack runs the depth-first search, each node's children scored and pushed
     worst first so that the best is expanded next. A node is pruned when its bound is below
     ``min_score`` or below the best score found, or equals it while its smallest key
@@ -232,31 +317,51 @@ def branch_and_bound(
     best, found, ba, bx, by = _NOTHING_FOUND
     count = 0
 
-    # roots: every heading at the top depth, scored, then sorted best first
+    # roots: every heading at the top depth, scored; those bounded below min_score are
+    # dropped at once (the search would prune them), the rest sorted best first
     ra = np.empty(n_roots, dtype=np.int64)
     rx = np.empty(n_roots, dtype=np.int64)
     ry = np.empty(n_roots, dtype=np.int64)
     rs = np.empty(n_roots)
     r = 0
-    for a in range(n_angles):
-        for i in range(per_axis):
-            for j in range(per_axis):
-                kx = -nl + i * side
-                ky = -nl + j * side
-                if top == 0:
-                    m = leaf_sum(base, cx[a], cy[a], kx, ky) / n
-                else:
-                    m = node_sum(buf, levels, top, table, cx[a], cy[a], kx, ky) / n
-                count += 1
-                ra[r] = a
-                rx[r] = kx
-                ry[r] = ky
-                rs[r] = m
-                r += 1
-    order = np.argsort(-rs, kind="mergesort")  # stable: equal bounds keep index order
+    if top >= 2 and min_score > 0.0:
+        # the bounds in place (in rs, by root index), then kept in index order
+        count += root_bounds(buf, levels, table, cx, cy, nl, top, min_score, rs)
+        pa2 = per_axis * per_axis
+        for q in range(n_roots):
+            m = rs[q]
+            if m < min_score:
+                continue
+            a = q // pa2
+            i = (q - a * pa2) // per_axis
+            ra[r] = a
+            rx[r] = -nl + i * side
+            ry[r] = -nl + (q - a * pa2 - i * per_axis) * side
+            rs[r] = m
+            r += 1
+    else:
+        for a in range(n_angles):
+            for i in range(per_axis):
+                for j in range(per_axis):
+                    kx = -nl + i * side
+                    ky = -nl + j * side
+                    if top == 0:
+                        m = leaf_sum(base, cx[a], cy[a], kx, ky) / n
+                    else:
+                        m = node_sum(buf, levels, top, table, cx[a], cy[a], kx, ky) / n
+                    count += 1
+                    if m < min_score:
+                        continue
+                    ra[r] = a
+                    rx[r] = kx
+                    ry[r] = ky
+                    rs[r] = m
+                    r += 1
+    n_kept = r
+    order = np.argsort(-rs[:n_kept], kind="mergesort")  # stable: equal bounds by index
 
     if top == 0:  # the roots are the candidates
-        for q in range(n_roots):
+        for q in range(n_kept):
             k = order[q]
             best, found, ba, bx, by = _keep_best(
                 rs[k], ra[k], rx[k], ry[k], min_score, best, found, ba, bx, by
@@ -264,17 +369,15 @@ def branch_and_bound(
         _store(out, found, ba, bx, by, best, count)
         return
 
-    cap = n_roots + 4 * (top + 1)
+    cap = n_kept + 4 * (top + 1)
     sa = np.empty(cap, dtype=np.int64)
     sx = np.empty(cap, dtype=np.int64)
     sy = np.empty(cap, dtype=np.int64)
     sh = np.empty(cap, dtype=np.int64)
     ss = np.empty(cap)
     sp = 0
-    for q in range(n_roots - 1, -1, -1):  # worst first: the best is on top of the stack
+    for q in range(n_kept - 1, -1, -1):  # worst first: the best is on top of the stack
         k = order[q]
-        if rs[k] < min_score:
-            continue
         sa[sp] = ra[k]
         sx[sp] = rx[k]
         sy[sp] = ry[k]

@@ -356,9 +356,11 @@ def branch_and_bound_search(
     -----
     Hess et al. (2016), sec. V (depth-first search, bounds of sec. V-C): the roots are the
     nodes of every heading at the coarsest depth whose blocks tile the window at least twice
-    per axis (at most ``grids.depth - 1``), scored and sorted once; the depth-first search
-    then expands the best child first, so a good pose is found early and most of the window
-    is pruned at coarse depths. The points are rotated once per heading; memory is
+    per axis (at most ``grids.depth - 1``), scored and sorted once (with ``min_score > 0``,
+    headings in groups as wide as a root's block first get one bound per group from the
+    neighbouring blocks, so most roots of a wide window are ruled out without being scored
+    one by one); the depth-first search then expands the best child first, so a good pose is
+    found early and most of the window is pruned at coarse depths. The points are rotated once per heading; memory is
     O(headings x points + roots).
     """
     from probmap.slam.laser import _bnb_kernels as K

@@ -438,16 +438,12 @@ def splat_field(lo, threshold, radius, inv_two_sigma2_cells, out):  # pragma: no
                 y_hi = min(iy + radius, h - 1)
                 x_lo = max(ix - radius, 0)
                 x_hi = min(ix + radius, w - 1)
-                k0 = x_lo - ix + radius
-                n = x_hi - x_lo + 1
                 for y in range(y_lo, y_hi + 1):
-                    # row slices indexed from 0: no negative-index wrap, the loop vectorises
-                    krow = kern[y - iy + radius, k0 : k0 + n]
-                    orow = out[y, x_lo : x_lo + n]
-                    for t in range(n):
-                        v = krow[t]
-                        if v > orow[t]:
-                            orow[t] = v
+                    krow = y - iy + radius
+                    for x in range(x_lo, x_hi + 1):
+                        v = kern[krow, x - ix + radius]
+                        if v > out[y, x]:
+                            out[y, x] = v
 
 
 @njit(cache=True)
